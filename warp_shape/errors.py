@@ -29,3 +29,7 @@ class SimulationError(WarpShapeError, RuntimeError):
         self.quantity = quantity
         self.safe_dt = safe_dt
         self.world = world
+
+
+class ShapeError(WarpShapeError, ValueError):
+    """A target or scan cannot be compared: not star-shaped, a ray missed, or bad metric input."""

@@ -1,0 +1,182 @@
+"""Host-side description of a shape display: rest membrane, IPAMs and jamming cells."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import DesignError
+from .material import Material
+from .mesh import TriMesh
+
+__all__ = ["Design", "Ipam", "Cell"]
+
+# IPAM defaults: a soft latex tube (bore ~4.4 mm) in a fabric sheath. A / k = 3e-7 m/Pa gives
+# ~30 mm of extension at 100 kPa, the large strains the paper's actuators reach.
+DEFAULT_IPAM_STIFFNESS = 50.0  # N/m
+DEFAULT_IPAM_AREA = 1.5e-5  # m^2
+DEFAULT_IPAM_DAMPING = 5.0e-3  # N s/m per sub-spring
+DEFAULT_IPAM_PRESSURE_LIMITS = (-50.0e3, 300.0e3)  # Pa gauge
+
+
+@dataclass(frozen=True)
+class Ipam:
+    """An inverse pneumatic artificial muscle joining the centroids of faces ``face_a`` and ``face_b``.
+
+    Axial force F = k (L - L_n), L_n = L0 + (A/k) P (positive = tension). Modelled as three springs
+    of stiffness k/3 joining ``pairs[s] = (vertex of a, vertex of b)``; sub-spring s has natural
+    length L_n + ``offsets[s]`` (its rest length minus the rest centroid distance).
+    """
+
+    face_a: int
+    face_b: int
+    stiffness: float  # k, N/m
+    area: float  # A, m^2
+    free_length: float  # L0, m
+    pressure_limits: tuple[float, float]  # (P_min, P_max), Pa gauge
+    damping: float  # N s/m per sub-spring
+    pairs: np.ndarray = field(repr=False)  # (3, 2) int32
+    offsets: np.ndarray = field(repr=False)  # (3,) float64, m
+    rest_length: float = 0.0  # rest centroid distance, m
+
+    @property
+    def area_over_stiffness(self) -> float:
+        """A / k in m/Pa: natural-length change per pascal."""
+        return self.area / self.stiffness
+
+    def natural_length(self, pressure: float) -> float:
+        return self.free_length + self.area_over_stiffness * pressure
+
+    def pressure_for_length(self, length: float) -> float:
+        """Gauge pressure at which the natural length equals ``length``."""
+        return (length - self.free_length) / self.area_over_stiffness
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A particle-jamming cell: a set of membrane faces jammed together."""
+
+    faces: np.ndarray  # (n,) int32, sorted
+
+
+class Design:
+    """Rest membrane + material + IPAMs + jamming cells (host description, SI units)."""
+
+    def __init__(self, rest: TriMesh, material: Material | None = None):
+        if not isinstance(rest, TriMesh):
+            raise DesignError(f"Design.rest must be a TriMesh (ws.icosphere, ws.TriMesh.load), got {type(rest).__name__}")
+        if material is None:
+            material = Material()
+        if not isinstance(material, Material):
+            raise DesignError(f"Design.material must be a ws.Material, got {type(material).__name__}")
+        self.rest = rest
+        self.material = material
+        self.ipams: list[Ipam] = []
+        self.cells: list[Cell] = []
+        self._face_cell = np.full(rest.n_faces, -1, dtype=np.int64)
+
+    # ------------------------------------------------------------------ actuators
+    def _check_face(self, face, what: str) -> int:
+        if isinstance(face, (bool, np.bool_)) or not isinstance(face, (int, np.integer)):
+            raise DesignError(f"{what} must be a face index (int), got {face!r}")
+        face = int(face)
+        if not 0 <= face < self.rest.n_faces:
+            raise DesignError(f"{what} = {face} is out of range: the rest mesh has {self.rest.n_faces} faces")
+        return face
+
+    def add_ipam(self, face_a, face_b, stiffness: float = DEFAULT_IPAM_STIFFNESS, area: float = DEFAULT_IPAM_AREA,
+                 free_length: float | None = None, pressure_limits=DEFAULT_IPAM_PRESSURE_LIMITS,
+                 damping: float = DEFAULT_IPAM_DAMPING) -> int:
+        """Add an IPAM between two faces; returns its index.
+
+        ``free_length`` None means the rest centroid distance (no force at zero gauge pressure in
+        the rest shape). ``pressure_limits`` = (P_min, P_max) gauge Pa with P_min >= -p_atm.
+        """
+        a = self._check_face(face_a, "IPAM face_a")
+        b = self._check_face(face_b, "IPAM face_b")
+        if a == b:
+            raise DesignError(f"IPAM ends coincide (both on face {a}); join two different faces")
+        fa, fb = self.rest.faces[a], self.rest.faces[b]
+        shared = sorted(set(fa.tolist()) & set(fb.tolist()))
+        if shared:
+            raise DesignError(
+                f"IPAM faces {a} and {b} share vertex {shared[0]}: an actuator between touching faces "
+                f"has a zero-length sub-spring; join faces that share no vertex")
+        for name, value in (("stiffness", stiffness), ("area", area), ("damping", damping)):
+            if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value)):
+                raise DesignError(f"IPAM {name} must be a finite number, got {value!r}")
+        if stiffness <= 0 or area <= 0:
+            raise DesignError(f"IPAM stiffness and area must be > 0 (N/m, m^2), got {stiffness}, {area}")
+        if damping < 0:
+            raise DesignError(f"IPAM damping must be >= 0 N s/m, got {damping}")
+        try:
+            lo, hi = (float(p) for p in pressure_limits)
+        except (TypeError, ValueError):
+            raise DesignError(f"pressure_limits must be a pair (P_min, P_max) in Pa, got {pressure_limits!r}") from None
+        p_atm = self.material.atmospheric_pressure
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+            raise DesignError(f"pressure_limits must satisfy P_min <= P_max, got ({lo}, {hi})")
+        if lo < -p_atm:
+            raise DesignError(f"pressure_limits P_min = {lo} Pa is below full vacuum (-{p_atm} Pa gauge)")
+
+        x = self.rest.vertices
+        ca, cb = x[fa].mean(axis=0), x[fb].mean(axis=0)
+        rest_length = float(np.linalg.norm(cb - ca))
+        best, best_perm = math.inf, None
+        for perm in itertools.permutations(fb.tolist()):
+            total = float(np.linalg.norm(x[list(perm)] - x[fa], axis=1).sum())
+            if total < best:
+                best, best_perm = total, perm
+        pairs = np.stack([fa, np.array(best_perm)], axis=1).astype(np.int32)
+        sub_rest = np.linalg.norm(x[pairs[:, 1]] - x[pairs[:, 0]], axis=1)
+        if free_length is None:
+            free_length = rest_length
+        if not (math.isfinite(free_length) and free_length > 0):
+            raise DesignError(f"IPAM free_length must be a positive length in m, got {free_length!r}")
+        ipam = Ipam(face_a=a, face_b=b, stiffness=float(stiffness), area=float(area),
+                    free_length=float(free_length), pressure_limits=(lo, hi), damping=float(damping),
+                    pairs=pairs, offsets=sub_rest - rest_length, rest_length=rest_length)
+        self.ipams.append(ipam)
+        return len(self.ipams) - 1
+
+    def add_cell(self, faces) -> int:
+        """Add a jamming cell over these face indices; returns its index. Cells may not overlap."""
+        arr = np.unique(np.asarray(faces).reshape(-1))
+        if arr.size == 0:
+            raise DesignError("a jamming cell needs at least one face")
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise DesignError(f"cell faces must be integer face indices, got dtype {arr.dtype}")
+        bad = arr[(arr < 0) | (arr >= self.rest.n_faces)]
+        if bad.size:
+            raise DesignError(f"cell face {int(bad[0])} is out of range: the rest mesh has {self.rest.n_faces} faces")
+        taken = self._face_cell[arr]
+        if np.any(taken >= 0):
+            i = int(np.flatnonzero(taken >= 0)[0])
+            raise DesignError(f"cell face {int(arr[i])} already belongs to cell {int(taken[i])}; cells may not overlap")
+        self.cells.append(Cell(faces=arr.astype(np.int32)))
+        self._face_cell[arr] = len(self.cells) - 1
+        return len(self.cells) - 1
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def n_ipams(self) -> int:
+        return len(self.ipams)
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cells)
+
+    def face_cell(self) -> np.ndarray:
+        """(F,) cell index of every face, -1 where none."""
+        return self._face_cell.copy()
+
+    def cell_edges(self, cell: int) -> np.ndarray:
+        """Sorted edge indices of every face of a cell."""
+        topo = self.rest.topology
+        return np.unique(topo.face_edges[self.cells[cell].faces].reshape(-1)).astype(np.int32)
+
+    def __repr__(self) -> str:
+        return f"Design(rest={self.rest!r}, ipams={self.n_ipams}, cells={self.n_cells})"

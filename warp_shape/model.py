@@ -1,0 +1,191 @@
+"""Design -> Model (static device arrays) / State / Control (per-world device arrays).
+
+Many worlds share one Model: every State and Control array has a leading world dimension W, so the
+controller can drive all targets of a design as one batch (one launch per kernel for all worlds).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .design import Design
+from .errors import DesignError
+from .material import GAS_CONSTANT
+
+__all__ = ["Model", "State", "Control", "build_model", "PRECISIONS"]
+
+PRECISIONS = {
+    "float32": (wp.float32, wp.vec3f, np.float32),
+    "float64": (wp.float64, wp.vec3d, np.float64),
+}
+
+
+def dihedral_angles_np(x: np.ndarray, hinges: np.ndarray) -> np.ndarray:
+    """Signed dihedral angles (float64) of hinges (v0, v1 | v2, v3); x is (..., V, 3)."""
+    x0, x1, x2, x3 = (x[..., hinges[:, k], :] for k in range(4))
+    e = x1 - x0
+    n_a = np.cross(e, x2 - x0)
+    n_b = np.cross(x0 - x1, x3 - x1)
+    len_e = np.linalg.norm(e, axis=-1)
+    sin_t = np.einsum("...i,...i->...", np.cross(n_a, n_b), e) / len_e
+    cos_t = np.einsum("...i,...i->...", n_a, n_b)
+    return np.arctan2(sin_t, cos_t)
+
+
+@dataclass
+class Model:
+    """Static arrays of a design on one device, in one precision. Shapes documented per field."""
+
+    device: str
+    precision: str
+    n_vertices: int
+    n_faces: int
+    n_edges: int
+    n_ipams: int
+    n_cells: int
+    # material scalars (SI)
+    spring_damping: float
+    bending_stiffness: float
+    viscous_damping: float
+    jam_stretch_factor: float
+    jam_bend_factor: float
+    temperature: float
+    atmospheric_pressure: float
+    # device arrays
+    faces: wp.array  # (F,) vec3i
+    hinges: wp.array  # (E,) vec4i: v0, v1 (edge), v2, v3 (wings)
+    edge_stiffness: wp.array  # (E,) k_e, N/m
+    inv_mass: wp.array  # (V,) 1/kg
+    ipam_sub_pairs: wp.array | None  # (3 n_ipam,) vec2i
+    ipam_sub_offsets: wp.array | None  # (3 n_ipam,) m
+    ipam_stiffness: wp.array | None  # (n_ipam,) N/m
+    ipam_area_over_k: wp.array | None  # (n_ipam,) m/Pa
+    ipam_free_length: wp.array | None  # (n_ipam,) m
+    ipam_damping: wp.array | None  # (n_ipam,) N s/m
+    cell_edges: list  # n_cell x wp.array (n_c,) int32
+    # host copies (float64) used for estimates, energies and read-outs
+    host: dict = field(repr=False)
+
+    @property
+    def scalar(self):
+        return PRECISIONS[self.precision][0]
+
+    @property
+    def vec3(self):
+        return PRECISIONS[self.precision][1]
+
+    @property
+    def np_dtype(self):
+        return PRECISIONS[self.precision][2]
+
+    @property
+    def gas_rt(self) -> float:
+        return GAS_CONSTANT * self.temperature
+
+    @property
+    def has_bending(self) -> bool:
+        return self.bending_stiffness > 0.0
+
+    @property
+    def has_ipams(self) -> bool:
+        return self.n_ipams > 0
+
+
+def build_model(design: Design, device: str = "cpu", precision: str = "float32") -> Model:
+    """Build the static device arrays of a design (host -> device, once)."""
+    if precision not in PRECISIONS:
+        raise DesignError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    scalar, _, np_dtype = PRECISIONS[precision]
+    mesh, mat = design.rest, design.material
+    topo = mesh.topology
+    x = mesh.vertices
+    hinges = topo.hinges
+    areas = mesh.face_areas()
+    rest_length = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1)
+    hinge_area = areas[topo.faces[:, 0]] + areas[topo.faces[:, 1]]
+    stiffness = mat.stretch_modulus * hinge_area / rest_length**2
+    mass = mat.areal_density * mesh.vertex_areas()
+    rest_angle = dihedral_angles_np(x, hinges)
+
+    def arr(a, dtype=scalar):
+        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
+
+    n_ipam = design.n_ipams
+    host = dict(
+        rest_vertices=x, faces=mesh.faces.astype(np.int64), hinges=hinges.astype(np.int64),
+        rest_length=rest_length, rest_angle=rest_angle, edge_stiffness=stiffness, mass=mass,
+        hinge_faces=topo.faces.astype(np.int64),
+    )
+    ipam_arrays = dict.fromkeys(["ipam_sub_pairs", "ipam_sub_offsets", "ipam_stiffness", "ipam_area_over_k",
+                                 "ipam_free_length", "ipam_damping"])
+    if n_ipam:
+        ips = design.ipams
+        host.update(
+            ipam_sub_pairs=np.concatenate([ip.pairs for ip in ips]).astype(np.int64),
+            ipam_sub_offsets=np.concatenate([ip.offsets for ip in ips]),
+            ipam_stiffness=np.array([ip.stiffness for ip in ips]),
+            ipam_area_over_k=np.array([ip.area_over_stiffness for ip in ips]),
+            ipam_free_length=np.array([ip.free_length for ip in ips]),
+            ipam_damping=np.array([ip.damping for ip in ips]),
+            ipam_faces=np.array([[ip.face_a, ip.face_b] for ip in ips], dtype=np.int64),
+            ipam_limits=np.array([ip.pressure_limits for ip in ips], dtype=np.float64),
+        )
+        ipam_arrays = dict(
+            ipam_sub_pairs=arr(host["ipam_sub_pairs"].astype(np.int32), wp.vec2i),
+            ipam_sub_offsets=arr(host["ipam_sub_offsets"].astype(np_dtype)),
+            ipam_stiffness=arr(host["ipam_stiffness"].astype(np_dtype)),
+            ipam_area_over_k=arr(host["ipam_area_over_k"].astype(np_dtype)),
+            ipam_free_length=arr(host["ipam_free_length"].astype(np_dtype)),
+            ipam_damping=arr(host["ipam_damping"].astype(np_dtype)),
+        )
+    cell_edges_np = [design.cell_edges(c) for c in range(design.n_cells)]
+    host["cell_edges"] = cell_edges_np
+    host["cell_faces"] = [c.faces.astype(np.int64) for c in design.cells]
+
+    return Model(
+        device=str(device), precision=precision,
+        n_vertices=mesh.n_vertices, n_faces=mesh.n_faces, n_edges=topo.count, n_ipams=n_ipam,
+        n_cells=design.n_cells,
+        spring_damping=mat.spring_damping, bending_stiffness=mat.bending_stiffness,
+        viscous_damping=mat.viscous_damping, jam_stretch_factor=mat.jam_stretch_factor,
+        jam_bend_factor=mat.jam_bend_factor, temperature=mat.temperature,
+        atmospheric_pressure=mat.atmospheric_pressure,
+        faces=arr(mesh.faces.astype(np.int32), wp.vec3i),
+        hinges=arr(hinges.astype(np.int32), wp.vec4i),
+        edge_stiffness=arr(stiffness.astype(np_dtype)),
+        inv_mass=arr((1.0 / mass).astype(np_dtype)),
+        cell_edges=[arr(c.astype(np.int32), wp.int32) for c in cell_edges_np],
+        host=host,
+        **ipam_arrays,
+    )
+
+
+class State:
+    """Per-world dynamic state: positions, velocities and the jammed rest values of the edges."""
+
+    def __init__(self, model: Model, worlds: int):
+        dev, vec3, np_dtype = model.device, model.vec3, model.np_dtype
+        W, V, E = worlds, model.n_vertices, model.n_edges
+        h = model.host
+        x0 = np.broadcast_to(h["rest_vertices"], (W, V, 3)).astype(np_dtype)
+        self.worlds = W
+        self.x = wp.array(x0, dtype=vec3, device=dev)  # (W, V) m
+        self.v = wp.zeros((W, V), dtype=vec3, device=dev)  # (W, V) m/s
+        self.rest_length = wp.array(np.broadcast_to(h["rest_length"], (W, E)).astype(np_dtype), device=dev)  # (W, E)
+        self.rest_angle = wp.array(np.broadcast_to(h["rest_angle"], (W, E)).astype(np_dtype), device=dev)  # (W, E)
+        self.jammed = wp.zeros((W, E), dtype=wp.int32, device=dev)  # (W, E) 1 where jammed
+        self.cell_jammed = np.zeros((W, model.n_cells), dtype=bool)  # host mirror, (W, n_cell)
+        self.cell_jam_time = np.full((W, model.n_cells), np.nan)  # (W, n_cell) s
+
+
+class Control:
+    """Per-world controls: chamber air amount and IPAM gauge pressures (float64)."""
+
+    def __init__(self, model: Model, worlds: int, air_moles: float):
+        dev = model.device
+        self.air = wp.array(np.full(worlds, air_moles, dtype=np.float64), dtype=wp.float64, device=dev)  # (W,) mol
+        n = max(model.n_ipams, 1)  # a (W, 1) placeholder keeps the array valid; never launched when no IPAMs
+        self.ipam_pressure = wp.zeros((worlds, n), dtype=wp.float64, device=dev)  # (W, n_ipam) Pa gauge

@@ -1,0 +1,168 @@
+"""The paper's four target shapes: oval, pear, heart and cube (Figs. 11-13).
+
+Every target is a closed, outward-wound ``TriMesh`` in metres, z up, centred on its volume
+centroid, star-shaped from it, and scaled to ``DEFAULT_VOLUME`` (the volume of a 4 cm radius
+sphere, the size of the paper's 8 cm device) unless ``volume=`` asks for another. Definitions,
+in dimensionless shape units before the final centring and scaling (inside where f < 0):
+
+- **oval**: the ellipsoid x^2/1.0^2 + y^2/0.9^2 + z^2/1.35^2 = 1 (three distinct semi-axes, so
+  its orientation is well defined).
+- **pear**: a smooth two-lobed body: the polynomial smooth union (blend k = 0.5) of the signed
+  distances to a lower lobe (sphere, radius 1, centre (0, 0, 0)) and an upper lobe (sphere, radius
+  0.62, centre (0.12, 0, 1.15), leaning in +x like a real pear's neck), from which a concave dimple
+  at the base is carved by the smooth difference (blend k = 0.12) with a sphere of radius 0.32 at
+  (0, 0, -1.22). The waist between the lobes is saddle-shaped; the base dimple is a concave cup.
+- **heart**: Taubin's heart surface (x^2 + 9/4 y^2 + z^2 - 1)^3 - x^2 z^3 - 9/80 y^2 z^3 = 0: two
+  lobes side by side along x with the cleft between them at the top (+z) and the point at the
+  bottom (-z), flattened along y.
+- **cube**: the cube [-1, 1]^3, faces meshed as regular grids so its edges and corners stay sharp.
+
+Meshing: oval, pear and heart are sampled radially on a geodesic sphere of directions
+(``icosphere(resolution)``: 20 * 4**resolution faces) from the shape's own volume centroid, found
+by three rounds of sample -> centroid -> resample, so the mesh is star-shaped from its centroid by
+construction; each vertex is the first zero of f along its ray, bracketed by marching and refined
+by bisection to double precision. The cube uses an n x n grid per face with
+n = 5 * 2**(resolution - 2) (12 n^2 faces; 4800 at the default resolution 4).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ShapeError
+from .mesh import TriMesh, icosphere
+
+__all__ = ["TARGET_NAMES", "DEFAULT_VOLUME", "DEFAULT_RESOLUTION", "target", "write_targets"]
+
+TARGET_NAMES = ("oval", "pear", "heart", "cube")
+DEFAULT_VOLUME = 4.0 / 3.0 * np.pi * 0.04**3  # m^3, a 4 cm radius sphere (~2.68e-4)
+DEFAULT_RESOLUTION = 4
+
+
+# ---------------------------------------------------------------------------------------- implicit shapes
+def _sphere(p, c, r):
+    return np.linalg.norm(p - np.asarray(c, dtype=np.float64), axis=-1) - r
+
+
+def _smooth_min(a, b, k):
+    """Polynomial smooth minimum (smooth union of signed distances) with blend width k."""
+    h = np.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
+    return b * (1.0 - h) + a * h - k * h * (1.0 - h)
+
+
+def _oval(p):
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    return (x / 1.0) ** 2 + (y / 0.9) ** 2 + (z / 1.35) ** 2 - 1.0
+
+
+def _pear(p):
+    body = _smooth_min(_sphere(p, (0.0, 0.0, 0.0), 1.0), _sphere(p, (0.12, 0.0, 1.15), 0.62), 0.5)
+    dimple = _sphere(p, (0.0, 0.0, -1.22), 0.32)
+    return -_smooth_min(-body, dimple, 0.12)  # smooth difference body \ dimple
+
+
+def _heart(p):
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    return (x * x + 2.25 * y * y + z * z - 1.0) ** 3 - x * x * z**3 - 0.1125 * y * y * z**3
+
+
+_IMPLICIT = {"oval": _oval, "pear": _pear, "heart": _heart}
+
+
+def _first_zero(f, center, dirs, t_max=3.0, marches=48, bisections=52):
+    """Distance along each unit direction from ``center`` to the first sign change of f."""
+    ts = np.linspace(0.0, t_max, marches + 1)
+    vals = f(center + ts[:, None, None] * dirs[None])  # (marches+1, V)
+    if np.any(vals[0] >= 0):
+        raise ShapeError("internal: shape centre is not inside the shape")
+    outside = vals > 0
+    if not np.all(outside.any(axis=0)):
+        raise ShapeError("internal: shape extends beyond the marching range")
+    k = np.argmax(outside, axis=0)  # first sample outside
+    lo, hi = ts[k - 1], ts[k]
+    for _ in range(bisections):
+        mid = 0.5 * (lo + hi)
+        out = f(center + mid[:, None] * dirs) > 0
+        hi = np.where(out, mid, hi)
+        lo = np.where(out, lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def _radial_mesh(name: str, resolution: int) -> TriMesh:
+    f = _IMPLICIT[name]
+    sphere = icosphere(resolution, 1.0)
+    dirs = sphere.vertices
+    center = np.zeros(3)
+    for _ in range(3):  # re-centre the rays on the volume centroid of the previous mesh
+        mesh = TriMesh(center + _first_zero(f, center, dirs)[:, None] * dirs, sphere.faces, validate=False)
+        center = mesh.centroid()
+    return TriMesh(mesh.vertices, mesh.faces)
+
+
+def _cube_mesh(resolution: int) -> TriMesh:
+    n = max(1, int(round(5 * 2.0 ** (resolution - 2))))
+    g = np.linspace(-1.0, 1.0, n + 1)
+    a, b = np.meshgrid(g, g, indexing="ij")
+    a, b = a.ravel(), b.ravel()
+    i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]
+    quads = np.stack([i, i + (n + 1), i + (n + 2), i + 1], axis=-1).reshape(-1, 4).ravel()
+    verts, faces = [], []
+    for axis in range(3):
+        for side in (-1.0, 1.0):
+            u, v = (axis + 1) % 3, (axis + 2) % 3
+            p = np.zeros((a.size, 3))
+            p[:, axis], p[:, u], p[:, v] = side, a, b
+            q = quads.reshape(-1, 4)
+            tri = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+            # (u, v, axis) is right-handed; flip the winding on the negative side to face outward
+            if side < 0:
+                tri = tri[:, ::-1]
+            faces.append(tri + sum(len(x) for x in verts))
+            verts.append(p)
+    v = np.concatenate(verts)
+    f = np.concatenate(faces)
+    # merge the vertices shared along the cube's edges (grid coordinates are exact repeats)
+    uniq, inv = np.unique(np.round(v, 12), axis=0, return_inverse=True)
+    return TriMesh(uniq, inv.reshape(-1)[f].astype(np.int32))
+
+
+@lru_cache(maxsize=64)
+def _build(name: str, volume: float, resolution: int) -> TriMesh:
+    base = _cube_mesh(resolution) if name == "cube" else _radial_mesh(name, resolution)
+    base = base.centered()
+    mesh = base.scaled((volume / base.volume()) ** (1.0 / 3.0))
+    return mesh.copy_with(mesh.vertices - mesh.centroid())  # remove rounding residue
+
+
+def target(name: str, volume: float | None = None, resolution: int = DEFAULT_RESOLUTION) -> TriMesh:
+    """One of the paper's targets (``TARGET_NAMES``), centred on its volume centroid.
+
+    ``volume`` (m^3) rescales it uniformly to exactly that volume (default ``DEFAULT_VOLUME``).
+    ``resolution``: icosphere subdivisions of the direction mesh (20 * 4**resolution faces) or,
+    for the cube, grid refinement (12 * (5 * 2**(resolution - 2))**2 faces); 1..6.
+    """
+    key = str(name).strip().lower()
+    if key not in TARGET_NAMES:
+        raise ShapeError(f"unknown target {name!r}; valid targets are {', '.join(TARGET_NAMES)}")
+    vol = DEFAULT_VOLUME if volume is None else float(volume)
+    if not (np.isfinite(vol) and vol > 0):
+        raise ShapeError(f"target volume must be a positive finite number of m^3, got {volume}")
+    res = int(resolution)
+    if not 1 <= res <= 6:
+        raise ShapeError(f"target resolution must be in 1..6, got {resolution}")
+    return _build(key, vol, res)
+
+
+def write_targets(directory, *, fmt: str = "ply", resolution: int = DEFAULT_RESOLUTION) -> list[Path]:
+    """Write every target at its default volume as ``directory/<name>.<fmt>``; return the paths."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name in TARGET_NAMES:
+        path = out / f"{name}.{fmt}"
+        target(name, resolution=resolution).to_trimesh().export(str(path))
+        paths.append(path)
+    return paths
