@@ -19,7 +19,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 demo: $(STAMP)
-	$(BIN)/warp-shape demo
+	$(BIN)/warp-shape simulate
 
 clean:
 	rm -rf $(VENV) build *.egg-info out

@@ -10,6 +10,7 @@ import pytest
 import warp as wp
 
 wp.config.quiet = True
+wp.config.log_level = wp.LOG_WARNING
 sys.path.insert(0, os.path.dirname(__file__))
 
 import reference as ref  # noqa: E402

@@ -1,0 +1,191 @@
+"""The ``warp-shape`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "write_json_atomic"]
+
+
+def write_json_atomic(path, data) -> Path:
+    """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(data, fh, indent=2)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _quiet_warp(verbose: bool = False):
+    import warp as wp
+
+    wp.config.quiet = not verbose
+    if not verbose:
+        wp.config.log_level = wp.LOG_WARNING
+
+
+def _progress(done: int, total: int, label: str, stream=sys.stderr):
+    """A one-line progress bar on a terminal; a line per 10 % in logs."""
+    if stream.isatty():
+        stream.write(f"\r{label}: {done}/{total} ({100.0 * done / total:5.1f} %)" + ("\n" if done == total else ""))
+    elif done == total or done % max(1, total // 10) == 0:
+        stream.write(f"{label}: {done}/{total} ({100.0 * done / total:5.1f} %)\n")
+    stream.flush()
+
+
+# --------------------------------------------------------------------------- simulate
+
+def cmd_simulate(args) -> int:
+    _quiet_warp(args.verbose)
+    from .scenarios import cube_fig6_design
+    from .simulator import Simulator
+
+    design = cube_fig6_design(subdivisions=args.subdivisions)
+    sim = Simulator(design, device=args.device, integrator=args.integrator, dt=args.dt, precision=args.precision)
+    n_inflate = int(round(args.inflate_time / args.dt))
+    n_actuate = int(round(args.actuate_time / args.dt))
+    air0 = sim.air_moles
+    rows = []
+
+    def record(phase):
+        rows.append(dict(phase=phase, time=sim.time, volume=sim.volume(), pressure=sim.pressure(),
+                         ipam_length=sim.ipam_lengths().tolist(), ipam_force=sim.ipam_forces().tolist(),
+                         jammed=int(sim.jammed.sum())))
+
+    t0 = time.perf_counter()
+    record("rest")
+    chunk = max(1, n_inflate // 20)
+    for i in range(0, n_inflate, chunk):
+        frac = min(1.0, (i + chunk) / n_inflate)
+        sim.air_moles = air0 * (1.0 + (args.air_scale - 1.0) * frac)
+        sim.step(min(chunk, n_inflate - i))
+        _progress(min(i + chunk, n_inflate), n_inflate + n_actuate, "simulate")
+    record("inflated")
+    for c in range(design.n_cells):
+        sim.jam(c)
+    # corner IPAMs push (pressurise), the face IPAM pulls (vents to its lower limit)
+    lo = np.array([ip.pressure_limits[0] for ip in design.ipams])
+    hi = np.array([ip.pressure_limits[1] for ip in design.ipams])
+    target = np.where(np.arange(design.n_ipams) < 4, 0.5 * hi, np.maximum(lo, -20e3))
+    chunk = max(1, n_actuate // 20)
+    for i in range(0, n_actuate, chunk):
+        frac = min(1.0, (i + chunk) / n_actuate)
+        sim.ipam_pressures = target * frac
+        sim.step(min(chunk, n_actuate - i))
+        _progress(n_inflate + min(i + chunk, n_actuate), n_inflate + n_actuate, "simulate")
+    record("actuated")
+    wall = time.perf_counter() - t0
+    result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
+                  device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
+                  substeps=sim.substeps, stable_dt=sim.stable_dt(), wall_seconds=wall, frames=rows)
+    out = write_json_atomic(Path(args.out) / "simulate.json", result)
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(f"Fig. 6 sphere ({design.rest.n_vertices} vertices, {design.n_ipams} IPAMs, {design.n_cells} cells), "
+              f"{sim.integrator} {sim.precision} on {sim.device}, dt {sim.dt:g} s x {sim.substeps} substeps")
+        print(f"{'phase':<10}{'t (s)':>8}{'V (cm^3)':>11}{'p (Pa)':>10}   IPAM axial force (N, + = tension)")
+        for r in rows:
+            forces = " ".join(f"{f:+.3f}" for f in r["ipam_force"])
+            print(f"{r['phase']:<10}{r['time']:8.3f}{r['volume'] * 1e6:11.2f}{r['pressure']:10.1f}   {forces}")
+        print(f"wall time {wall:.2f} s; written {out}")
+    return 0
+
+
+# --------------------------------------------------------------------------- bench
+
+def cmd_bench(args) -> int:
+    import warp as wp
+
+    _quiet_warp()
+    from .bench import bench_sim, format_rows
+
+    results = {}
+    if args.which in ("sim", "all"):
+        rows = bench_sim(device=args.device, subdivisions=args.subdivisions, repeats=args.repeats)
+        results["sim"] = rows
+        print(format_rows(rows, ["vertices", "integrator", "precision", "steps_per_s", "us_per_step",
+                                 "ns_per_vertex_step", "launches_per_step"]))
+    if args.which in ("rays", "all"):
+        try:
+            from .bench_shapes import bench_rays, format_table
+        except ImportError:
+            print("ray benchmark unavailable in this build")
+        else:
+            rows = bench_rays(device=args.device)
+            results["rays"] = rows
+            print(format_table(rows))
+    results["meta"] = dict(date=time.strftime("%Y-%m-%d %H:%M:%S"), device=args.device, machine=os.uname().nodename,
+                           cpu_count=os.cpu_count(), warp=wp.config.version)
+    out = write_json_atomic(Path(args.out) / "bench.json", results)
+    print(f"written {out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="warp-shape", description="Simulate and design soft 3-D haptic shape displays.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="inflate and actuate the Fig. 6 sphere-with-five-IPAMs device")
+    s.add_argument("--device", default="cpu")
+    s.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
+    s.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    s.add_argument("--dt", type=float, default=1e-3, help="output step, s (internal substeps are automatic)")
+    s.add_argument("--subdivisions", type=int, default=3, help="icosphere subdivisions of the membrane")
+    s.add_argument("--air-scale", type=float, default=1.6, help="final air amount relative to the rest amount")
+    s.add_argument("--inflate-time", type=float, default=0.4, help="s")
+    s.add_argument("--actuate-time", type=float, default=0.4, help="s")
+    s.add_argument("--out", default="out", help="output directory")
+    s.add_argument("--json", action="store_true", help="print machine-readable results")
+    s.add_argument("--verbose", action="store_true")
+    s.set_defaults(func=cmd_simulate)
+
+    b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")
+    b.add_argument("which", nargs="?", default="sim", choices=["sim", "rays", "all"])
+    b.add_argument("--device", default="cpu")
+    b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5])
+    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--out", default="out")
+    b.set_defaults(func=cmd_bench)
+
+    try:
+        from .shapes_cli import register
+    except ImportError:
+        pass
+    else:
+        register(sub)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from .errors import WarpShapeError
+
+    try:
+        return int(args.func(args) or 0)
+    except WarpShapeError as exc:
+        print(f"warp-shape: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("\nwarp-shape: interrupted; finished outputs were kept", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
