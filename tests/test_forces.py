@@ -43,6 +43,18 @@ def test_paper_bending_matches_reference():
 
 # --------------------------------------------------------------------------- energies (finite differences)
 
+def _central_gradient(fn, x, eps=1e-7):
+    """Central finite-difference gradient of a scalar function of (V, 3) positions."""
+    grad = np.zeros_like(x)
+    for i in range(x.shape[0]):
+        for k in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[i, k] += eps
+            xm[i, k] -= eps
+            grad[i, k] = (fn(xp) - fn(xm)) / (2 * eps)
+    return grad
+
+
 def _small_sim(**material):
     rng = np.random.default_rng(3)
     rest = ws.icosphere(1, 0.04)
@@ -66,18 +78,12 @@ def _small_sim(**material):
 def test_forces_are_minus_energy_gradient(term, energy):
     sim, x = _small_sim(bending_stiffness=3e-4)
     f = sim.forces(term)
-    eps = 1e-7
-    grad = np.zeros_like(x)
-    for i in range(x.shape[0]):
-        for k in range(3):
-            xp, xm = x.copy(), x.copy()
-            xp[i, k] += eps
-            xm[i, k] -= eps
-            sim.positions = xp
-            ep = sim.energy()[energy]
-            sim.positions = xm
-            em = sim.energy()[energy]
-            grad[i, k] = (ep - em) / (2 * eps)
+
+    def energy_at(xq):
+        sim.positions = xq
+        return sim.energy()[energy]
+
+    grad = _central_gradient(energy_at, x)
     sim.positions = x
     assert rel_err(f, -grad) < 1e-5, f"{term}: {rel_err(f, -grad):.2e}"
 
@@ -86,14 +92,7 @@ def test_pressure_force_is_p_times_volume_gradient():
     sim, x = _small_sim()
     p = sim.pressure()
     faces = sim.design.rest.faces
-    eps = 1e-7
-    dv = np.zeros_like(x)
-    for i in range(x.shape[0]):
-        for k in range(3):
-            xp, xm = x.copy(), x.copy()
-            xp[i, k] += eps
-            xm[i, k] -= eps
-            dv[i, k] = (ref.volume(xp, faces) - ref.volume(xm, faces)) / (2 * eps)
+    dv = _central_gradient(lambda xq: ref.volume(xq, faces), x)
     assert abs(p) > 100.0
     assert rel_err(sim.forces("pressure"), p * dv) < 1e-6
 

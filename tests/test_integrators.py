@@ -139,3 +139,22 @@ def test_stable_estimate_is_conservative():
     sim.step(2000)
     assert np.all(np.isfinite(sim.positions))
     assert sim.energy()["kinetic"] < 1e-3
+
+
+@pytest.mark.skipif(not __import__("warp").is_cuda_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("integrator", ["rk4", "semi_implicit"])
+def test_cuda_matches_cpu(integrator):
+    d = _undamped_design()
+    d.add_cell([0, 1, 2])
+    x0 = _perturbed(d)
+    out = []
+    for device in ("cpu", "cuda:0"):
+        sim = ws.Simulator(d, device=device, integrator=integrator, precision="float64", substeps=2)
+        sim.positions = x0
+        sim.air_moles = sim.air_moles * 1.05
+        sim.ipam_pressures = [30e3]
+        sim.step(10)
+        sim.jam(0)
+        sim.step(10)
+        out.append(sim.positions)
+    np.testing.assert_allclose(out[1], out[0], rtol=0, atol=1e-10)
