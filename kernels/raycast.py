@@ -141,17 +141,21 @@ def closest_points_kernel(
     points_in: wp.array(dtype=wp.vec3),  # (N,) query points
     # Out:
     closest_out: wp.array(dtype=wp.vec3),  # (N,) closest point on the mesh surface
+    normals_out: wp.array(dtype=wp.vec3),  # (N,) unit normal of the face it lies on
     dist_out: wp.array(dtype=float),  # (N,) distance to it; -1 where nothing lies within max_dist
 ):
     i = wp.tid()
     p = points_in[i]
     q = wp.mesh_query_point_no_sign(mesh_id, p, max_dist)
     if q.result:
+        # closest point from the barycentrics of the closest face
         c = wp.mesh_eval_position(mesh_id, q.face, q.u, q.v)
         closest_out[i] = c
+        normals_out[i] = wp.mesh_eval_face_normal(mesh_id, q.face)
         dist_out[i] = wp.length(c - p)
     else:
         closest_out[i] = p
+        normals_out[i] = wp.vec3(0.0, 0.0, 0.0)
         dist_out[i] = -1.0
 
 
@@ -161,8 +165,8 @@ def nearest_point_distance_kernel(
     grid: wp.uint64,  # hash grid built over points_in
     radius: float,  # search radius (m)
     skip_self: int,  # 1 when the queries are points_in itself (nearest *other* point)
-    points_in: wp.array(dtype=wp.vec3),  # (P,) the point set
     # In:
+    points_in: wp.array(dtype=wp.vec3),  # (P,) the point set
     queries_in: wp.array(dtype=wp.vec3),  # (M,) query points
     # Out:
     dist_out: wp.array(dtype=float),  # (M,) distance to the nearest point; -1 if none within radius

@@ -10,10 +10,14 @@ Quick start::
 """
 
 from .design import Cell, Design, Ipam
-from .errors import DesignError, MeshError, SimulationError, StabilityError, WarpShapeError
+from .errors import DesignError, MeshError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .material import GAS_CONSTANT, Material
 from .mesh import TriMesh, icosphere
+from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
+                       radial_sample, shape_metrics)
+from .scan import ScanComparison, compare_scan, load_scan
 from .simulator import Simulator
 from .solver import FORCE_TERMS
+from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
 
 __version__ = "0.1.0"

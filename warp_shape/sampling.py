@@ -126,7 +126,9 @@ def check_star_shaped(mesh: TriMesh, *, origin=(0.0, 0.0, 0.0), directions: int 
     if outside.any():
         parts.append(f"{outside.mean():.1%} of the rays enter the solid first, so the origin lies "
                      f"outside it, e.g. along {_fmt_dirs(dirs[outside])}")
-    where = "its centroid" if np.allclose(origin, 0.0) else f"{_fmt_dirs(origin[None])}"
+    where = "the origin" if np.allclose(origin, 0.0) else f"the point {_fmt_dirs(origin[None])}"
+    if np.linalg.norm(mesh.centroid() - origin) <= 1e-9 * reach:
+        where += ", its volume centroid"
     raise ShapeError(
         f"{name} is not star-shaped from {where} ({m} ray directions checked): " + "; ".join(parts)
         + ". Radial sampling needs exactly one surface hit on every ray from the origin: use a "
@@ -150,32 +152,29 @@ class RadialSampler:
     def __init__(self, targets, *, device=None, check: bool = True, names: Sequence[str] | None = None):
         if isinstance(targets, TriMesh):
             targets = [targets]
-        self.targets = list(targets)
-        if not self.targets:
+        targets = list(targets)  # not kept: the sampler cache must not hold its keys alive
+        if not targets:
             raise ShapeError("RadialSampler needs at least one target")
-        for i, t in enumerate(self.targets):
+        for i, t in enumerate(targets):
             if not isinstance(t, TriMesh):
                 raise ShapeError(f"target {i} must be a TriMesh, got {type(t).__name__}")
-        self.names = list(names) if names is not None else [f"target {i}" for i in range(len(self.targets))]
+        self.n_targets = len(targets)
+        self.names = list(names) if names is not None else [f"target {i}" for i in range(self.n_targets)]
         self.device = wp.get_device(device)
-        self._meshes = [_wp_mesh(t, self.device) for t in self.targets]
+        self._meshes = [_wp_mesh(t, self.device) for t in targets]
         if check:
-            for t, m, nm in zip(self.targets, self._meshes, self.names):
+            for t, m, nm in zip(targets, self._meshes, self.names):
                 check_star_shaped(t, device=self.device, name=nm, _wp_mesh_obj=m)
-        self.max_t = 4.0 * max(_reach(t) for t in self.targets)
+        self.max_t = 4.0 * max(_reach(t) for t in targets)
         self._ids_host = np.array([m.id for m in self._meshes], dtype=np.uint64)
         self._failures = wp.zeros(1, dtype=wp.int32, device=self.device)
         # float64 face planes, to refine float32 hits on the host
         self._planes = []
-        for t in self.targets:
+        for t in targets:
             n = np.cross(t.vertices[t.faces[:, 1]] - t.vertices[t.faces[:, 0]],
                          t.vertices[t.faces[:, 2]] - t.vertices[t.faces[:, 0]])
             n /= np.linalg.norm(n, axis=1, keepdims=True)
             self._planes.append((n, np.einsum("ij,ij->i", n, t.vertices[t.faces[:, 0]])))
-
-    @property
-    def n_targets(self) -> int:
-        return len(self.targets)
 
     def mesh_ids(self, world_targets=None) -> wp.array:
         """(W,) uint64 BVH ids on the device: world w samples target ``world_targets[w]``."""

@@ -8,10 +8,12 @@ in dimensionless shape units before the final centring and scaling (inside where
 - **oval**: the ellipsoid x^2/1.0^2 + y^2/0.9^2 + z^2/1.35^2 = 1 (three distinct semi-axes, so
   its orientation is well defined).
 - **pear**: a smooth two-lobed body: the polynomial smooth union (blend k = 0.5) of the signed
-  distances to a lower lobe (sphere, radius 1, centre (0, 0, 0)) and an upper lobe (sphere, radius
-  0.62, centre (0.12, 0, 1.15), leaning in +x like a real pear's neck), from which a concave dimple
+  distances to a lower lobe (the ellipsoid with semi-axes 1, 0.85, 0.95 centred at the origin, its
+  distance taken as (|(x/1, y/0.85, z/0.95)| - 1) * 0.85) and an upper lobe (sphere, radius 0.62,
+  centre (0.3, 0, 1.1), leaning in +x like a real pear's neck), from which a concave dimple
   at the base is carved by the smooth difference (blend k = 0.12) with a sphere of radius 0.32 at
-  (0, 0, -1.22). The waist between the lobes is saddle-shaped; the base dimple is a concave cup.
+  (0, 0, -1.15). The waist between the lobes is saddle-shaped; the base dimple is a concave cup.
+  Its only symmetry is the mirror y -> -y, so its pose is well defined.
 - **heart**: Taubin's heart surface (x^2 + 9/4 y^2 + z^2 - 1)^3 - x^2 z^3 - 9/80 y^2 z^3 = 0: two
   lobes side by side along x with the cleft between them at the top (+z) and the point at the
   bottom (-z), flattened along y.
@@ -58,9 +60,15 @@ def _oval(p):
     return (x / 1.0) ** 2 + (y / 0.9) ** 2 + (z / 1.35) ** 2 - 1.0
 
 
+def _ellipsoid(p, axes):
+    """First-order signed distance to an origin-centred ellipsoid with these semi-axes."""
+    axes = np.asarray(axes, dtype=np.float64)
+    return (np.linalg.norm(p / axes, axis=-1) - 1.0) * axes.min()
+
+
 def _pear(p):
-    body = _smooth_min(_sphere(p, (0.0, 0.0, 0.0), 1.0), _sphere(p, (0.12, 0.0, 1.15), 0.62), 0.5)
-    dimple = _sphere(p, (0.0, 0.0, -1.22), 0.32)
+    body = _smooth_min(_ellipsoid(p, (1.0, 0.85, 0.95)), _sphere(p, (0.3, 0.0, 1.1), 0.62), 0.5)
+    dimple = _sphere(p, (0.0, 0.0, -1.15), 0.32)
     return -_smooth_min(-body, dimple, 0.12)  # smooth difference body \ dimple
 
 

@@ -1,0 +1,438 @@
+"""Comparison of a 3-D scan with a reference shape (section V-D).
+
+The paper scanned the inflated display (Kinect Fusion), aligned the scan roughly to the model,
+refined the alignment by ICP and compared the two by radial sampling. ``compare_scan`` does the same:
+
+1. **Load.** The scan may be open, partial, noisy or a bare point cloud (PLY/STL/OBJ/GLB, any
+   format trimesh reads); it is not validated as a closed mesh, only its points are used, weighted
+   by their share of the scan's triangle area when it has triangles. The reference (a design's
+   achieved shape or a target) must be a closed star-shaped mesh; it is centred on its volume
+   centroid.
+2. **Rough alignment.** The area-weighted centroids and principal axes of scan and reference
+   surface are matched. The axes are only defined up to order and sign (and a partial scan skews
+   them), so all 24 proper signed axis permutations, plus the scan's own pose, are each refined by
+   a few ICP iterations on a subset and the one with the lowest trimmed RMS distance is kept.
+3. **ICP.** Point-to-surface ICP: the closest point on the reference of every scan point comes from
+   the Warp BVH (``wp.mesh_query_point_no_sign``); the rigid update is a shortened point-to-plane
+   Gauss-Newton step when it lowers the error, else the weighted Kabsch (SVD) fit (see ``icp``).
+   Outliers are trimmed every iteration: pairs farther than ``inlier_sigmas`` robust standard
+   deviations (1.4826 * median distance) are ignored, so scans that miss part of the surface or
+   carry extra geometry (a table, tubing) still align. Scan -> reference is the right direction for
+   a partial scan: every scan point has a true partner on the complete reference.
+4. **Metrics.** Radial sampling of the reference through the aligned inlier scan points (the scan
+   plays the design mesh's role of section IV-A): r = |scan point|, R = |hit of the ray through it
+   on the reference|, both from the reference centroid; PCC, MARE, MPRE as in ``sampling``.
+5. **Coverage.** A reference face counts as covered when the ray from the reference centroid
+   through its centroid hits the aligned scan surface within 5 rms (+0.1 % of the size) of the
+   reference, so the edges of holes are resolved to one ray, not smeared by a search radius. For a
+   point cloud (no triangles), when an inlier scan point, projected onto the reference, lies within
+   1.5 scan spacings (median nearest-neighbour distance) of the face centroid. The covered fraction
+   is the covered share of reference area; ``uncovered_direction`` is the area-weighted mean
+   direction (from the reference centroid, reference frame) of the uncovered faces.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from .errors import MeshError, ShapeError
+from .mesh import TriMesh
+from .sampling import RadialSampler, radial_metrics
+
+__all__ = ["ScanComparison", "compare_scan", "load_scan", "icp", "kabsch"]
+
+# Ignore pairs farther than this many robust standard deviations of the pair distances.
+INLIER_SIGMAS = 3.0
+# Points used by ICP and by the rough-alignment trials (a deterministic subset of the scan).
+ICP_POINTS = 4000
+TRIAL_POINTS = 800
+TRIAL_ITERATIONS = 8
+# Longest point-to-plane step of ICP: rotation (rad), and shift as a fraction of the size.
+_PLANE_STEP_MAX = 0.05
+
+
+@dataclass
+class ScanComparison:
+    """Result of ``compare_scan``. Lengths in metres, MPRE in percent.
+
+    ``transform``: 4x4 rigid transform taking scan coordinates to reference coordinates.
+    ``rms``: RMS distance of the inlier scan points to the reference surface after ICP.
+    ``covered_fraction``: share of the reference's surface area the scan covers.
+    ``uncovered_direction``: unit direction (reference frame, from its centroid) of the area-weighted
+    mean of the uncovered surface, or None when everything is covered.
+    """
+
+    transform: np.ndarray
+    pcc: float
+    mare: float
+    mpre: float
+    covered_fraction: float
+    rms: float
+    iterations: int
+    uncovered_direction: np.ndarray | None
+    n_points: int = 0
+    n_inliers: int = 0
+    reference_centroid: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        for k, v in d.items():
+            if isinstance(v, np.ndarray):
+                d[k] = v.tolist()
+        return d
+
+
+# ---------------------------------------------------------------------------------------- loading
+def load_scan(scan) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points (N, 3) float64 and triangles (F, 3) int (or None) of a scan, without closing checks.
+
+    ``scan``: a TriMesh, a trimesh object, an (N, 3) array, a ``(vertices, faces)`` pair, or a path
+    of any format trimesh reads (scenes are concatenated, point clouds keep no faces).
+    """
+    if isinstance(scan, TriMesh):
+        return scan.vertices.copy(), scan.faces.copy()
+    if isinstance(scan, (str, Path)):
+        path = Path(scan)
+        if not path.exists():
+            raise ShapeError(f"scan file not found: {path}")
+        import trimesh
+
+        try:
+            scan = trimesh.load(str(path))
+        except Exception as exc:  # trimesh raises many types for unreadable files
+            raise ShapeError(f"could not read scan {path}: {exc}") from exc
+    if hasattr(scan, "geometry") and isinstance(getattr(scan, "geometry"), dict):  # trimesh.Scene
+        parts = list(scan.dump()) if hasattr(scan, "dump") else list(scan.geometry.values())
+        verts, faces, off = [], [], 0
+        for g in parts:
+            verts.append(np.asarray(g.vertices, dtype=np.float64))
+            if getattr(g, "faces", None) is not None and len(g.faces):
+                faces.append(np.asarray(g.faces) + off)
+            off += len(g.vertices)
+        if not verts:
+            raise ShapeError("scan scene holds no geometry")
+        return np.concatenate(verts), (np.concatenate(faces) if faces else None)
+    if hasattr(scan, "vertices"):
+        f = getattr(scan, "faces", None)
+        f = None if f is None or len(f) == 0 else np.asarray(f, dtype=np.int64)
+        return np.asarray(scan.vertices, dtype=np.float64), f
+    if isinstance(scan, tuple) and len(scan) == 2:
+        return np.asarray(scan[0], dtype=np.float64), np.asarray(scan[1], dtype=np.int64)
+    arr = np.asarray(scan, dtype=np.float64)
+    if arr.ndim == 2 and arr.shape[1] == 3:
+        return arr, None
+    raise ShapeError(f"cannot read a scan from {type(scan).__name__}")
+
+
+def _load_reference(reference) -> TriMesh:
+    if isinstance(reference, TriMesh):
+        return reference
+    if isinstance(reference, str) and not Path(reference).exists():
+        from .targets import TARGET_NAMES, target
+
+        if reference.strip().lower() in TARGET_NAMES:
+            return target(reference)
+        raise ShapeError(f"reference {reference!r} is neither a mesh file nor a target "
+                         f"({', '.join(TARGET_NAMES)})")
+    try:
+        return TriMesh.load(reference)
+    except MeshError as exc:
+        raise ShapeError(f"reference must be a closed mesh: {exc}") from None
+
+
+def _point_weights(points: np.ndarray, faces: np.ndarray | None) -> np.ndarray:
+    """Area share of each point (uniform for point clouds), normalised to mean 1."""
+    if faces is None or len(faces) == 0:
+        return np.ones(len(points))
+    v = points[faces]
+    area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    w = np.zeros(len(points))
+    np.add.at(w, faces.reshape(-1), np.repeat(area / 3.0, 3))
+    if w.sum() <= 0:
+        return np.ones(len(points))
+    # points in no triangle (stray vertices) get the smallest positive weight, not zero
+    pos = w[w > 0]
+    w[w <= 0] = pos.min()
+    return w / w.mean()
+
+
+# ---------------------------------------------------------------------------------------- rigid fit
+def kabsch(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and translation t minimising sum w |R x + t - y|^2 (weighted Kabsch, SVD)."""
+    w = np.ones(len(x)) if w is None else np.asarray(w, dtype=np.float64)
+    ws = w / w.sum()
+    mx, my = ws @ x, ws @ y
+    h = (x - mx).T @ ((y - my) * ws[:, None])
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return r, my - r @ mx
+
+
+class _Closest:
+    """Closest points on a mesh for batches of query points (device buffers reused)."""
+
+    def __init__(self, mesh: TriMesh, device):
+        from .kernels import raycast
+
+        self._k = raycast.closest_points_kernel
+        self.device = device
+        self._mesh = wp.Mesh(points=wp.array(mesh.vertices.astype(np.float32), dtype=wp.vec3, device=device),
+                             indices=wp.array(mesh.faces.reshape(-1).astype(np.int32), dtype=wp.int32, device=device))
+        self.max_dist = 1e3 * float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
+
+    def __call__(self, points: np.ndarray, normals: bool = False):
+        """Closest points (N, 3) and distances (N,), plus face normals (N, 3) if ``normals``."""
+        n = len(points)
+        dev = self.device
+        p = wp.array(points.astype(np.float32), dtype=wp.vec3, device=dev)
+        c = wp.empty(n, dtype=wp.vec3, device=dev)
+        nrm = wp.empty(n, dtype=wp.vec3, device=dev)
+        d = wp.empty(n, dtype=wp.float32, device=dev)
+        wp.launch(self._k, dim=n, inputs=[self._mesh.id, self.max_dist, p], outputs=[c, nrm, d], device=dev)
+        c, d = c.numpy().astype(np.float64), d.numpy()
+        if np.any(d < 0):
+            raise ShapeError("closest-point query found no surface near some scan points")
+        # float64 distance from the float32 closest point
+        d = np.linalg.norm(c - points, axis=1)
+        return (c, d, nrm.numpy().astype(np.float64)) if normals else (c, d)
+
+
+def _inliers(d: np.ndarray, sigmas: float, floor: float) -> np.ndarray:
+    return d <= max(sigmas * 1.4826 * float(np.median(d)), floor)
+
+
+def _rotation(omega: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the rotation vector ``omega`` (Rodrigues)."""
+    a = float(np.linalg.norm(omega))
+    if a < 1e-15:
+        return np.eye(3)
+    k = np.array([[0, -omega[2], omega[1]], [omega[2], 0, -omega[0]], [-omega[1], omega[0], 0]]) / a
+    return np.eye(3) + np.sin(a) * k + (1.0 - np.cos(a)) * (k @ k)
+
+
+def _point_to_plane(x, q, n, w, max_angle: float, max_shift: float):
+    """Rigid update (dr, dt) minimising sum w ((dr x + dt - q) . n)^2, linearised (one Gauss-Newton
+    step) and shortened to at most ``max_angle`` rad and ``max_shift`` m. Solved about the centroid
+    of x for conditioning; least squares keeps it finite when a symmetry of the surface leaves a
+    direction free."""
+    c = np.average(x, axis=0, weights=w)
+    xc = x - c
+    jac = np.concatenate([np.cross(xc, n), n], axis=1)  # (N, 6): d residual / d (omega, delta)
+    res = np.einsum("ij,ij->i", x - q, n)
+    sw = np.sqrt(w)[:, None]
+    xi = np.linalg.lstsq(jac * sw, -res * sw[:, 0], rcond=None)[0]
+    xi *= min(1.0, max_angle / max(np.linalg.norm(xi[:3]), 1e-300), max_shift / max(np.linalg.norm(xi[3:]), 1e-300))
+    dr = _rotation(xi[:3])
+    return dr, c + xi[3:] - dr @ c
+
+
+def icp(points: np.ndarray, closest: _Closest, r: np.ndarray, t: np.ndarray, *, weights=None,
+        max_iterations: int = 200, tolerance: float = 1e-5, inlier_sigmas: float = INLIER_SIGMAS,
+        scale: float = 1.0, method: str = "point_to_plane"):
+    """Trimmed ICP of ``points`` onto the reference surface from the pose (r, t).
+
+    Every iteration pairs each point with its closest point on the surface and drops the outlier
+    pairs. ``method="point_to_point"``: the update is the weighted Kabsch fit of the inliers to
+    their partners: robust from far away, but slow to slide along smooth surfaces.
+    ``"point_to_plane"`` (default): a Gauss-Newton step on the distances to the partners' tangent
+    planes, shortened to ``_PLANE_STEP_MAX`` (rad, and that fraction of ``scale`` in metres) and
+    taken only if it lowers the truncated RMS, else the Kabsch step; it slides along flat valleys
+    of near-symmetric shapes and finishes in a few iterations once close. Stops when an
+    update moves no point by more than ``tolerance * scale``. Returns (r, t, rms, iterations), rms
+    over the inliers.
+    """
+    if method not in ("point_to_plane", "point_to_point"):
+        raise ShapeError(f"ICP method must be 'point_to_plane' or 'point_to_point', got {method!r}")
+    w = np.ones(len(points)) if weights is None else weights
+    rms = np.inf
+    it = 0
+    cached = None
+    for it in range(1, max_iterations + 1):
+        x = points @ r.T + t
+        q, d, n = cached if cached is not None else closest(x, normals=True)
+        cached = None
+        keep = _inliers(d, inlier_sigmas, 1e-9 * scale)
+        cap = float(d[keep].max())
+        rms = float(np.sqrt(np.average(d[keep] ** 2, weights=w[keep])))
+        step = None
+        if method == "point_to_plane":
+            dr, dt = _point_to_plane(x[keep], q[keep], n[keep], w[keep], _PLANE_STEP_MAX,
+                                     _PLANE_STEP_MAX * scale)
+            trial = closest(x @ dr.T + dt, normals=True)
+            # truncated quadratic with this iteration's cap: fair to both poses
+            before = np.average(np.minimum(d, cap) ** 2, weights=w)
+            after = np.average(np.minimum(trial[1], cap) ** 2, weights=w)
+            if after <= before:
+                step, cached = (dr, dt), trial
+        if step is None:
+            step = kabsch(x[keep], q[keep], w[keep])
+        dr, dt = step
+        r, t = dr @ r, dr @ t + dt
+        # largest displacement of a point of the set by this update
+        move = float(np.max(np.linalg.norm(x @ (dr - np.eye(3)).T + dt, axis=1)))
+        if move < tolerance * scale:
+            break
+    return r, t, rms, it
+
+
+def _trimmed_rms(d: np.ndarray, keep: float = 0.8) -> float:
+    s = np.sort(d)
+    return float(np.sqrt(np.mean(s[: max(1, int(keep * len(s)))] ** 2)))
+
+
+def _surface_moments(points: np.ndarray, w: np.ndarray):
+    ws = w / w.sum()
+    mu = ws @ points
+    cov = ((points - mu) * ws[:, None]).T @ (points - mu)
+    _, axes = np.linalg.eigh(cov)  # columns, ascending variance
+    return mu, axes
+
+
+def _candidate_rotations(ax_scan: np.ndarray, ax_ref: np.ndarray) -> list[np.ndarray]:
+    """Identity plus the 24 rotations mapping the scan's principal axes onto the reference's."""
+    out = [np.eye(3)]
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            m = np.zeros((3, 3))
+            m[np.arange(3), perm] = signs
+            r = ax_ref @ m @ ax_scan.T
+            if np.linalg.det(r) > 0:
+                out.append(r)
+    return out
+
+
+# ---------------------------------------------------------------------------------------- coverage
+def _nearest_distances(points: np.ndarray, queries: np.ndarray, radius: float, device,
+                       skip_self: bool) -> np.ndarray:
+    """Distance from each query to the nearest of ``points`` (-1 beyond ``radius``), on a hash grid."""
+    from .kernels import raycast
+
+    grid = wp.HashGrid(64, 64, 64, device=device)
+    p = wp.array(points.astype(np.float32), dtype=wp.vec3, device=device)
+    grid.build(p, radius)
+    q = p if skip_self else wp.array(queries.astype(np.float32), dtype=wp.vec3, device=device)
+    out = wp.empty(len(queries), dtype=wp.float32, device=device)
+    wp.launch(raycast.nearest_point_distance_kernel, dim=len(queries),
+              inputs=[grid.id, float(radius), int(skip_self), p, q], outputs=[out], device=device)
+    return out.numpy().astype(np.float64)
+
+
+def _radial_hits(points: np.ndarray, faces: np.ndarray, probes: np.ndarray, device) -> np.ndarray:
+    """Distance from the origin along each probe direction to an open mesh (NaN where missed)."""
+    from .kernels import raycast
+
+    mesh = wp.Mesh(points=wp.array(points.astype(np.float32), dtype=wp.vec3, device=device),
+                   indices=wp.array(faces.reshape(-1).astype(np.int32), dtype=wp.int32, device=device))
+    n = len(probes)
+    ids = wp.array(np.array([mesh.id], dtype=np.uint64), dtype=wp.uint64, device=device)
+    q = wp.array(probes[None].astype(np.float32), dtype=wp.vec3, device=device)
+    hits = wp.empty((1, n), dtype=wp.vec3, device=device)
+    radii = wp.empty((1, n), dtype=wp.float32, device=device)
+    face = wp.empty((1, n), dtype=wp.int32, device=device)
+    fails = wp.zeros(1, dtype=wp.int32, device=device)
+    max_t = 4.0 * float(np.max(np.linalg.norm(points, axis=1)))
+    wp.launch(raycast.radial_sample_kernel, dim=(1, n), inputs=[ids, max_t, 1e-4, q],
+              outputs=[hits, radii, face, fails], device=device)
+    return radii.numpy()[0].astype(np.float64)  # misses are NaN: uncovered
+
+
+def _coverage(ref: TriMesh, aligned: np.ndarray, faces: np.ndarray | None, projected: np.ndarray,
+              keep: np.ndarray, rms: float, device) -> tuple[float, np.ndarray | None]:
+    """Covered share of the reference area and the mean direction of the uncovered part.
+
+    Scans with triangles: a reference face is covered when the ray from the reference centroid
+    through its centroid hits the aligned scan surface within 5 rms (+0.1 % of the size) of the
+    reference, so hole edges are resolved to the ray, not to a search radius. Point clouds: when
+    a projected inlier scan point lies within 1.5 scan spacings of the face centroid.
+    """
+    area = ref.face_areas()
+    cent = ref.face_centroids()
+    size = float(np.max(np.linalg.norm(ref.vertices, axis=1)))
+    if faces is not None and len(faces):
+        t = _radial_hits(aligned, faces, cent, device)
+        rc = np.linalg.norm(cent, axis=1)
+        covered = np.isfinite(t) & (np.abs(np.nan_to_num(t, nan=np.inf) - rc) <= 5.0 * rms + 1e-3 * size)
+    else:
+        pts = projected[keep]
+        guess = 4.0 * np.sqrt(area.sum() / max(len(pts), 1))
+        nn = _nearest_distances(pts, pts, guess, device, skip_self=True)
+        spacing = float(np.median(nn[nn >= 0])) if np.any(nn >= 0) else guess
+        covered = _nearest_distances(pts, cent, 1.5 * spacing, device, skip_self=False) >= 0
+    frac = float(area[covered].sum() / area.sum())
+    if covered.all():
+        return frac, None
+    u = cent[~covered] / np.linalg.norm(cent[~covered], axis=1, keepdims=True)
+    m = (area[~covered, None] * u).sum(axis=0)
+    n = np.linalg.norm(m)
+    return frac, (m / n if n > 0 else None)
+
+
+# ---------------------------------------------------------------------------------------- main entry
+def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tolerance: float = 1e-5,
+                 method: str = "point_to_plane",
+                 inlier_sigmas: float = INLIER_SIGMAS, icp_points: int = ICP_POINTS,
+                 initial_transform: np.ndarray | None = None, seed: int = 0) -> ScanComparison:
+    """Align ``scan`` to ``reference`` and measure the fit (section V-D); see the module docstring.
+
+    ``scan``: TriMesh, path (any trimesh format; open or partial meshes and point clouds accepted),
+    trimesh object or (N, 3) points. ``reference``: closed TriMesh, mesh path or target name.
+    ``initial_transform`` (4x4, scan -> reference) skips the rough alignment.
+    """
+    device = wp.get_device(device)
+    pts, faces = load_scan(scan)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:
+        raise ShapeError(f"scan needs at least 10 points of 3 coordinates, got shape {pts.shape}")
+    finite = np.all(np.isfinite(pts), axis=1)
+    if not finite.all():
+        raise ShapeError(f"scan point {int(np.flatnonzero(~finite)[0])} is not finite")
+    ref = _load_reference(reference)
+    c_ref = ref.centroid()
+    refc = ref.centered()
+    scale = float(np.max(np.linalg.norm(refc.vertices, axis=1)))
+    sampler = RadialSampler(refc, device=device, names=["reference"])  # checks star shape
+    closest = _Closest(refc, device)
+    w = _point_weights(pts, faces)
+
+    rng = np.random.default_rng(seed)
+    sub = rng.choice(len(pts), size=min(icp_points, len(pts)), replace=False)
+    trial = sub[: min(TRIAL_POINTS, len(sub))]
+
+    if initial_transform is not None:
+        tf = np.asarray(initial_transform, dtype=np.float64)
+        r0, t0 = tf[:3, :3], tf[:3, 3] - c_ref
+    else:
+        # rough alignment: centroids and principal axes of the two surfaces
+        mu_s, ax_s = _surface_moments(pts, w)
+        mu_r, ax_r = _surface_moments(refc.face_centroids(), refc.face_areas())
+        best = None
+        for r in _candidate_rotations(ax_s, ax_r):
+            r1, t1, _, _ = icp(pts[trial], closest, r, mu_r - r @ mu_s, weights=w[trial],
+                               max_iterations=TRIAL_ITERATIONS, tolerance=tolerance,
+                               inlier_sigmas=inlier_sigmas, scale=scale, method="point_to_point")
+            score = _trimmed_rms(closest(pts[trial] @ r1.T + t1)[1])
+            if best is None or score < best[0]:
+                best = (score, r1, t1)
+        _, r0, t0 = best
+    r, t, rms, iters = icp(pts[sub], closest, r0, t0, weights=w[sub], max_iterations=max_iterations,
+                           tolerance=tolerance, inlier_sigmas=inlier_sigmas, scale=scale, method=method)
+
+    aligned = pts @ r.T + t
+    proj, d = closest(aligned)
+    keep = _inliers(d, inlier_sigmas, 1e-9 * scale)
+    metrics = radial_metrics(np.linalg.norm(aligned[keep], axis=1),
+                             np.linalg.norm(sampler.sample(aligned[keep]), axis=1))
+    covered, uncovered_dir = _coverage(refc, aligned, faces, proj, keep, rms, device)
+
+    tf = np.eye(4)
+    tf[:3, :3] = r
+    tf[:3, 3] = t + c_ref  # back to the reference's own coordinates
+    return ScanComparison(transform=tf, pcc=metrics["pcc"], mare=metrics["mare"], mpre=metrics["mpre"],
+                          covered_fraction=covered, rms=rms, iterations=iters,
+                          uncovered_direction=uncovered_dir, n_points=len(pts), n_inliers=int(keep.sum()),
+                          reference_centroid=c_ref)
