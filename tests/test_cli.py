@@ -40,3 +40,15 @@ def test_readme_example_runs():
     exec(compile(block, "README.md", "exec"), namespace)
     sim = namespace["sim"]
     assert sim.jammed.all() and sim.pressure() > 0 and np.isfinite(sim.positions).all()
+
+
+def test_control_command_writes_sequences(tmp_path, capsys):
+    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "60"])
+    assert rc == 0
+    data = json.loads((tmp_path / "control_cube.json").read_text())
+    rows = (tmp_path / "control_cube.csv").read_text().strip().splitlines()
+    assert len(rows) == len(data["rows"]) + 1 and rows[0].startswith("step,time,phase,air_mol")
+    forces = np.array(data["ipam_forces_n"])
+    assert np.all(forces[:4] < 0) and forces[4] > 0
+    out = capsys.readouterr().out
+    assert "cube" in out and "IPAM 4" in out

@@ -9,6 +9,7 @@ Quick start::
     sim.step(100)
 """
 
+from .controller import ControlResult, ControlSettings, control, control_many
 from .design import Cell, Design, Ipam
 from .errors import DesignError, MeshError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .material import GAS_CONSTANT, Material

@@ -108,6 +108,75 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- control
+
+def _resolve_design_and_targets(scene: str | None, target_names):
+    """A built-in problem name, or (when scenes are available) a scene file or shipped scene name."""
+    from .scenarios import cube_fig6_design
+    from .targets import TARGET_NAMES, target
+
+    design, targets = None, []
+    if scene in (None, "cube_fig6", "fig6"):
+        design, targets = cube_fig6_design(), [("cube", target("cube"))]
+    else:
+        try:
+            from .scene import load_scene
+        except ImportError:
+            raise SystemExit(f"warp-shape: error: unknown problem {scene!r}; built in: cube_fig6") from None
+        sc = load_scene(scene)
+        design = sc.design
+        names = getattr(sc, "target_names", None) or [f"target{i}" for i in range(len(sc.targets))]
+        targets = list(zip(names, sc.targets))
+    if target_names:
+        chosen = []
+        for name in target_names:
+            match = [t for t in targets if t[0] == name]
+            if match:
+                chosen.append(match[0])
+            elif name in TARGET_NAMES:
+                chosen.append((name, target(name)))
+            else:
+                from .mesh import TriMesh
+
+                chosen.append((Path(name).stem, TriMesh.load(name, center=True)))
+        targets = chosen
+    return design, targets
+
+
+def cmd_control(args) -> int:
+    _quiet_warp(args.verbose)
+    from .controller import ControlSettings, control_many
+
+    design, targets = _resolve_design_and_targets(args.scene, args.target)
+    settings = ControlSettings(integrator=args.integrator, precision=args.precision, max_steps=args.max_steps,
+                               jamming=not args.no_jamming)
+
+    def progress(step, total, done, worlds):
+        _progress(total if done == worlds else step, total, f"control ({done}/{worlds} targets done)")
+
+    results = control_many(design, [t for _, t in targets], device=args.device, settings=settings, progress=progress)
+    out = Path(args.out)
+    report = {}
+    for (name, _), res in zip(targets, results):
+        res.to_csv(out / f"control_{name}.csv")
+        res.to_json(out / f"control_{name}.json")
+        report[name] = res.summary()
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"design: {design.rest.n_vertices} vertices, {design.n_ipams} IPAMs, {design.n_cells} cells; "
+          f"{settings.integrator} {settings.precision} on {args.device}")
+    print(f"{'target':<10}{'PCC':>8}{'MARE mm':>9}{'MPRE %':>8}{'vol err %':>10}{'steps':>7}  result")
+    for (name, _), res in zip(targets, results):
+        print(f"{name:<10}{res.pcc:8.4f}{res.mare * 1e3:9.3f}{res.mpre:8.2f}{100 * res.volume_error:10.3f}"
+              f"{res.control_steps:7d}  {res.reason}")
+        for a in res.actuator_summary:
+            print(f"    IPAM {a['ipam']}: push {a['peak_push_n']:.3f} N, pull {a['peak_pull_n']:.3f} N, "
+                  f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f}..{a['pressure_max_pa'] / 1e3:.1f} kPa")
+    print(f"control sequences written to {out}/control_<target>.csv|json")
+    return 0
+
+
 # --------------------------------------------------------------------------- bench
 
 def cmd_bench(args) -> int:
@@ -155,6 +224,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print machine-readable results")
     s.add_argument("--verbose", action="store_true")
     s.set_defaults(func=cmd_simulate)
+
+    c = sub.add_parser("control", help="drive a design to target shapes; writes the control sequences")
+    c.add_argument("scene", nargs="?", default=None, help="problem: cube_fig6 (default) or a scene file/name")
+    c.add_argument("--target", nargs="+", help="target names (oval pear heart cube) or mesh files")
+    c.add_argument("--device", default="cpu")
+    c.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
+    c.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    c.add_argument("--max-steps", type=int, default=300, help="control-step limit")
+    c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
+    c.add_argument("--out", default="out")
+    c.add_argument("--json", action="store_true")
+    c.add_argument("--verbose", action="store_true")
+    c.set_defaults(func=cmd_control)
 
     b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "rays", "all"])

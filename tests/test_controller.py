@@ -1,0 +1,149 @@
+"""The controller (paper section IV-B): inflation, the Fig. 6 cube case, path dependence, records."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from warp_shape.controller import ControlSettings, control, control_many
+from warp_shape.scenarios import cube_fig6_design
+
+
+@pytest.fixture(scope="module")
+def fig6():
+    """Fig. 6: sphere, four corner IPAMs + one face IPAM, a cell at every end; 2562 vertices so the
+    radial sampling does not cut the cube's corners by more than a fraction of a percent."""
+    design = cube_fig6_design(subdivisions=4)
+    cube = ws.target("cube")
+    return design, cube, control(design, cube)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_inflation_only_reaches_target_volume_without_overshoot(precision):
+    design = ws.Design(ws.icosphere(3, 0.035))
+    oval = ws.target("oval")
+    res = control(design, oval, precision=precision)
+    h = res.history
+    assert res.converged, res.reason
+    assert abs(res.volume_error) < 0.01
+    assert abs(res.achieved.volume() / oval.volume() - 1) < 0.01
+    # never more than one rate-limited air increment past the target
+    overshoot = (h["volume_m3"] / h["target_volume_m3"]).max() - 1
+    assert overshoot < res.settings.volume_deadband + 0.002, overshoot
+    dn = np.diff(h["air_mol"])
+    assert np.abs(dn).max() <= res.settings.air_rate * h["air_mol"][0] * (1 + 1e-9)
+
+
+def test_fig6_cube(fig6):
+    design, cube, res = fig6
+    h = res.history
+    assert res.converged, res.reason
+    assert abs(res.achieved.volume() / cube.volume() - 1) < 0.01
+    assert abs(res.volume_error) < 0.01
+    # PCC after the whole sequence clearly above the PCC after inflation alone
+    after_inflation = h["pcc"][np.flatnonzero(h["phase"] == 2)[0]]
+    assert res.pcc > after_inflation + 0.3 and res.pcc > 0.85, (res.pcc, after_inflation)
+    # paper, section IV-C: corner IPAMs in compression, the face IPAM in tension, pushes larger
+    assert np.all(res.ipam_forces[:4] < 0) and res.ipam_forces[4] > 0
+    assert np.abs(res.ipam_forces[:4]).min() > res.ipam_forces[4]
+    # every cell jams at most once and never unjams
+    for j in range(design.n_cells):
+        col = h[f"cell{j}_jammed"]
+        assert np.all(np.diff(col) >= 0)
+        if res.jammed[j]:
+            assert res.jam_steps[j] >= 0 and h["phase"][res.jam_steps[j]] == 2
+    assert res.jammed.any()
+
+
+def test_fig6_actuator_summary(fig6):
+    _, _, res = fig6
+    summary = res.actuator_summary
+    assert len(summary) == 5
+    for i, s in enumerate(summary):
+        assert s["pressure_min_pa"] <= s["pressure_max_pa"]
+        assert s["peak_push_n"] >= 0 and s["peak_pull_n"] >= 0 and s["peak_strain"] > 0
+    assert all(summary[i]["peak_push_n"] > summary[4]["peak_pull_n"] for i in range(4))
+
+
+def test_history_exports(fig6, tmp_path):
+    design, _, res = fig6
+    n_rows = res.control_steps + 1
+    assert all(len(v) == n_rows for v in res.history.values())
+    expected = {"step", "time", "phase", "air_mol", "pressure_pa", "volume_m3", "target_volume_m3", "pcc", "mare_m",
+                "mpre_pct", "ipam0_pressure_pa", "ipam0_length_m", "ipam0_target_length_m", "ipam0_force_n",
+                "ipam0_strain", "cell0_kappa_m", "cell0_kappa_target_m", "cell0_jammed"}
+    assert expected <= set(res.history)
+    res.to_csv(tmp_path / "seq.csv")
+    res.to_json(tmp_path / "seq.json")
+    with open(tmp_path / "seq.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == n_rows
+    assert float(rows[-1]["pcc"]) == pytest.approx(res.history["pcc"][-1], rel=1e-6)
+    data = json.loads((tmp_path / "seq.json").read_text())
+    assert data["columns"] == list(res.history) and len(data["rows"]) == n_rows
+    assert data["converged"] is True
+    assert not list(tmp_path.glob(".*"))
+
+
+def test_path_dependence_jamming_matters():
+    design = cube_fig6_design(subdivisions=3)
+    cube = ws.target("cube")
+    with_rule = control(design, cube)
+    without = control(design, cube, jamming=False)
+    assert not without.jammed.any() and with_rule.jammed.any()
+    diff = np.linalg.norm(with_rule.achieved.vertices - without.achieved.vertices, axis=1).max()
+    assert diff > 1e-3, "jamming must change the achieved shape"
+    assert with_rule.pcc > without.pcc + 0.005, (with_rule.pcc, without.pcc)
+
+
+def test_determinism():
+    design = cube_fig6_design(subdivisions=2)
+    cube = ws.target("cube")
+    a = control(design, cube, max_steps=15)
+    b = control(design, cube, max_steps=15)
+    assert a.history.keys() == b.history.keys()
+    for k in a.history:
+        np.testing.assert_array_equal(a.history[k], b.history[k], err_msg=k)
+
+
+def test_batch_of_targets():
+    design = cube_fig6_design(subdivisions=2)
+    results = control_many(design, [ws.target("cube"), ws.target("oval")], max_steps=60)
+    assert len(results) == 2
+    for r in results:
+        assert abs(r.volume_error) < 0.01 and np.all(np.isfinite(r.achieved.vertices))
+
+
+def test_bad_targets_and_designs():
+    design = ws.Design(ws.icosphere(2, 0.03))
+    ring = ws.TriMesh(*_torus())
+    with pytest.raises(ws.ShapeError, match="not star-shaped"):
+        control(design, ring)
+    with pytest.raises(ws.DesignError, match="ends coincide"):
+        design.add_ipam(4, 4)
+    with pytest.raises(ws.DesignError, match="unknown controller setting"):
+        control(design, ws.target("oval"), bogus=1)
+
+
+def test_unreachable_target_is_reported_not_hung():
+    design = ws.Design(ws.icosphere(2, 0.02))
+    huge = ws.target("oval", volume=200 * design.rest.volume())
+    res = control(design, huge, max_steps=80)
+    assert not res.converged
+    assert "unreachable" in res.reason or "step limit" in res.reason
+    assert np.all(np.isfinite(res.achieved.vertices)) and np.isfinite(res.pcc)
+
+
+def _torus(R=0.03, r=0.01, n=24, m=12):
+    u, v = np.meshgrid(np.arange(n) * 2 * np.pi / n, np.arange(m) * 2 * np.pi / m, indexing="ij")
+    pts = np.stack([(R + r * np.cos(v)) * np.cos(u), (R + r * np.cos(v)) * np.sin(u), r * np.sin(v)], -1).reshape(-1, 3)
+    idx = lambda i, j: (i % n) * m + (j % m)  # noqa: E731
+    faces = []
+    for i in range(n):
+        for j in range(m):
+            faces += [[idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)], [idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)]]
+    return pts, np.array(faces)

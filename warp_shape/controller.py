@@ -1,0 +1,367 @@
+"""Drive a design to target shapes (paper section IV-B, SPEC section 6).
+
+Every control period (several simulation steps) the controller samples each target radially at the
+membrane's vertices, then updates
+- the chamber air by eq. (11): dn = (V_t - V) p_abs / (R T), V_t the volume of the sampled target;
+- each IPAM by eq. (12): dP = (k / A) (L_t - L), L_t the distance between the centroids of the IPAM's
+  end faces on the sampled target;
+- each jamming cell by eqs. (13)-(15): curvature kappa = r_end - mean r over the cell's faces (radius
+  of a face = |centroid|); a cell jams the first control step its curvature moves away from its
+  target (it is not between the previous value and the target), once, never released.
+Phase 1 (initial inflation) actuates only the air until the volume is in its deadband. Increments
+are rate limited; the run stops when volume and every IPAM length are in their deadbands, or at the
+step limit (``converged`` False, with the reason). An IPAM pinned at a pressure limit while its
+target asks for more counts as settled: it cannot do better.
+
+Several targets of one design run as one batch of simulated worlds (one launch per kernel for all).
+
+History columns (one row per control step: the state measured at that step, before its update;
+``phase`` is the control law applied at that step; ``{i}`` IPAM index,
+``{j}`` cell index):
+  step, time (s), phase (1 inflation / 2 shape control), air_mol, pressure_pa (gauge), volume_m3,
+  target_volume_m3, ipam{i}_pressure_pa, ipam{i}_length_m, ipam{i}_target_length_m, ipam{i}_force_n
+  (axial, + = tension), ipam{i}_strain ((L - L0) / L0), cell{j}_kappa_m, cell{j}_kappa_target_m,
+  cell{j}_jammed (0/1), pcc, mare_m, mpre_pct.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from .design import Design
+from .errors import DesignError
+from .material import GAS_CONSTANT
+from .mesh import TriMesh
+
+__all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces"]
+
+
+@dataclass(frozen=True)
+class ControlSettings:
+    """Controller parameters (SI). Defaults were chosen by measurement on the Fig. 6 problem and the
+    oval/heart design problem (see docs/controller.md)."""
+
+    dt: float = 1e-3  # simulation output step, s (the solver substeps for stability)
+    control_period: int = 10  # simulation steps per control step
+    max_steps: int = 300  # control-step limit
+    volume_deadband: float = 0.005  # |V - V_t| / V_t
+    length_deadband: float = 1e-3  # |L_t - L|, m
+    air_rate: float = 0.04  # max |dn| per control step, as a fraction of the rest air amount
+    pressure_rate: float = 40e3  # max |dP| per control step, Pa
+    air_gain: float = 1.0  # multiplies eq. (11)
+    pressure_gain: float = 1.0  # multiplies eq. (12)
+    jamming: bool = True  # False: never jam (for path-dependence studies)
+    curvature_tolerance: float = 1e-6  # m; a move away from the target smaller than this is noise
+    max_stretch: float = 4.0  # mean edge stretch beyond which the target is deemed unreachable
+    integrator: str = "rk4"
+    precision: str = "float32"
+    substeps: int | None = None  # None: automatic from the stable-step estimate
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise DesignError(f"ControlSettings.{f.name} must be finite, got {v}")
+        if self.dt <= 0 or self.control_period < 1 or self.max_steps < 1:
+            raise DesignError("ControlSettings needs dt > 0, control_period >= 1 and max_steps >= 1")
+        for name in ("volume_deadband", "length_deadband", "air_rate", "pressure_rate", "air_gain", "pressure_gain"):
+            if getattr(self, name) <= 0:
+                raise DesignError(f"ControlSettings.{name} must be > 0, got {getattr(self, name)}")
+
+    def replace(self, **changes) -> "ControlSettings":
+        d = asdict(self)
+        unknown = sorted(set(changes) - set(d))
+        if unknown:
+            raise DesignError(f"unknown controller setting(s) {unknown}; known: {sorted(d)}")
+        d.update(changes)
+        return ControlSettings(**d)
+
+
+def _write_atomic(path: Path, text: str) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+@dataclass
+class ControlResult:
+    """Outcome of driving one design to one target."""
+
+    achieved: TriMesh  # membrane at the end of the control sequence
+    sampled_target: TriMesh  # the target sampled radially through the achieved vertices
+    pcc: float
+    mare: float  # m
+    mpre: float  # %
+    volume_error: float  # (V - V_t) / V_t
+    ipam_forces: np.ndarray  # (n_ipam,) final axial forces, N (+ = tension)
+    ipam_pressures: np.ndarray  # (n_ipam,) final gauge pressures, Pa
+    air_moles: float
+    jammed: np.ndarray  # (n_cell,) bool
+    jam_steps: np.ndarray  # (n_cell,) control step at which each cell jammed, -1 if never
+    converged: bool
+    reason: str
+    control_steps: int
+    history: dict = field(repr=False)  # column name -> (n_steps,) array, see module docstring
+    settings: ControlSettings = field(repr=False, default_factory=ControlSettings)
+
+    @property
+    def actuator_summary(self) -> list[dict]:
+        """Per IPAM what a builder needs to size it (section IV-C): peak push and pull force (N),
+        peak |strain|, and the pressure range used (Pa)."""
+        out = []
+        for i in range(len(self.ipam_forces)):
+            f = self.history[f"ipam{i}_force_n"]
+            s = self.history[f"ipam{i}_strain"]
+            p = self.history[f"ipam{i}_pressure_pa"]
+            out.append(dict(ipam=i, peak_push_n=float(max(0.0, -f.min())), peak_pull_n=float(max(0.0, f.max())),
+                            peak_strain=float(np.abs(s).max()), pressure_min_pa=float(p.min()),
+                            pressure_max_pa=float(p.max())))
+        return out
+
+    def history_csv(self) -> str:
+        buf = io.StringIO()
+        w = csv.writer(buf)
+        cols = list(self.history)
+        w.writerow(cols)
+        for row in zip(*(self.history[c] for c in cols)):
+            w.writerow([f"{v:.9g}" if isinstance(v, (float, np.floating)) else int(v) for v in row])
+        return buf.getvalue()
+
+    def to_csv(self, path) -> Path:
+        """Control sequence, one row per control step (atomic write)."""
+        return _write_atomic(path, self.history_csv())
+
+    def summary(self) -> dict:
+        return dict(pcc=self.pcc, mare_m=self.mare, mpre_pct=self.mpre, volume_error=self.volume_error,
+                    converged=self.converged, reason=self.reason, control_steps=self.control_steps,
+                    air_moles=self.air_moles, ipam_forces_n=self.ipam_forces.tolist(),
+                    ipam_pressures_pa=self.ipam_pressures.tolist(), jammed=self.jammed.tolist(),
+                    jam_steps=self.jam_steps.tolist(), actuators=self.actuator_summary,
+                    settings=asdict(self.settings))
+
+    def to_json(self, path) -> Path:
+        """Summary plus the full control sequence (columns) as JSON (atomic write)."""
+        data = self.summary()
+        data["columns"] = list(self.history)
+        data["rows"] = [list(map(float, r)) for r in zip(*(self.history[c] for c in self.history))]
+        return _write_atomic(path, json.dumps(data, indent=1) + "\n")
+
+
+def cell_anchor_faces(design: Design) -> np.ndarray:
+    """(n_cell,) the face of each cell whose radius is the curvature reference r_IPAM: the IPAM end
+    inside the cell, else the face whose centroid direction is closest to the cell's mean direction."""
+    ends = {}
+    for ip in design.ipams:
+        for f in (ip.face_a, ip.face_b):
+            ends.setdefault(int(f), True)
+    c = design.rest.face_centroids()
+    anchors = np.empty(design.n_cells, dtype=np.int64)
+    for j, cell in enumerate(design.cells):
+        inside = [f for f in cell.faces.tolist() if f in ends]
+        if inside:
+            anchors[j] = inside[0]
+        else:
+            u = c[cell.faces] / np.linalg.norm(c[cell.faces], axis=1, keepdims=True)
+            anchors[j] = cell.faces[int(np.argmax(u @ u.mean(axis=0)))]
+    return anchors
+
+
+def _safe_pcc(r: np.ndarray, R: np.ndarray) -> float:
+    """PCC (eq. 10); a membrane of constant radius (a perfect sphere) has no shape to correlate and
+    is reported as 0."""
+    dr, dR = r - r.mean(), R - R.mean()
+    den = math.sqrt(float(dr @ dr) * float(dR @ dR))
+    if den <= 1e-24 * max(1.0, float(r @ r)) * max(1.0, float(R @ R)) or np.std(r) <= 1e-12 * np.mean(r):
+        return 0.0
+    return float(dr @ dR) / den
+
+
+def _volumes(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    xf = x[:, faces]
+    return np.einsum("wfi,wfi->w", xf[:, :, 0], np.cross(xf[:, :, 1], xf[:, :, 2])) / 6.0
+
+
+def control_many(design: Design, targets, *, device: str = "cpu", settings: ControlSettings | None = None,
+                 recorder=None, progress=None, **overrides) -> list[ControlResult]:
+    """Drive ``design`` to every target at once (one simulated world per target)."""
+    from .sampling import RadialSampler
+    from .simulator import Simulator
+
+    if not isinstance(design, Design):
+        raise DesignError(f"control needs a ws.Design, got {type(design).__name__}")
+    if isinstance(targets, TriMesh):
+        targets = [targets]
+    targets = list(targets)
+    if not targets:
+        raise DesignError("control needs at least one target")
+    for t in targets:
+        if not isinstance(t, TriMesh):
+            raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('cube')), got {type(t).__name__}")
+    settings = (settings or ControlSettings()).replace(**overrides) if overrides else (settings or ControlSettings())
+    targets = [t.centered() for t in targets]
+    W = len(targets)
+    sampler = RadialSampler(targets, device=device)  # checks star-shape; raises ShapeError naming directions
+    sim = Simulator(design, device=device, integrator=settings.integrator, dt=settings.dt,
+                    precision=settings.precision, substeps=settings.substeps, worlds=W)
+    m = sim.model
+    h = m.host
+    faces = h["faces"]
+    n_ipam, n_cell = design.n_ipams, design.n_cells
+    rt = GAS_CONSTANT * m.temperature
+    n_rest = float(np.atleast_1d(sim.air_moles)[0])
+    k_ipam = h.get("ipam_stiffness", np.zeros(0))
+    a_over_k = h.get("ipam_area_over_k", np.zeros(0))
+    free_len = h.get("ipam_free_length", np.zeros(0))
+    limits = h.get("ipam_limits", np.zeros((0, 2)))
+    ipam_faces = h.get("ipam_faces", np.zeros((0, 2), dtype=np.int64))
+    anchors = cell_anchor_faces(design)
+    cell_faces = [c.faces for c in design.cells]
+    rest_edge = h["rest_length"]
+    hinges = h["hinges"]
+
+    air = np.full(W, n_rest)
+    pressures = np.zeros((W, n_ipam))
+    phase = np.ones(W, dtype=np.int64)
+    done = np.zeros(W, dtype=bool)
+    reason = ["step limit reached"] * W
+    snapshot = [None] * W
+    kappa_prev = None
+    jam_steps = np.full((W, n_cell), -1, dtype=np.int64)
+    rows: list[list[dict]] = [[] for _ in range(W)]
+    w_idx = np.arange(W)
+
+    for step in range(settings.max_steps + 1):
+        x = np.asarray(sim.positions, dtype=np.float64).reshape(W, -1, 3)
+        sampled = sampler.sample_worlds(x, w_idx)
+        vol = _volumes(x, faces)
+        vol_t = _volumes(sampled, faces)
+        p_abs = air * rt / vol
+        cen = x[:, faces].mean(axis=2)  # (W, F, 3)
+        cen_t = sampled[:, faces].mean(axis=2)
+        r_f, r_ft = np.linalg.norm(cen, axis=2), np.linalg.norm(cen_t, axis=2)
+        if n_ipam:
+            L = np.linalg.norm(cen[:, ipam_faces[:, 1]] - cen[:, ipam_faces[:, 0]], axis=2)
+            L_t = np.linalg.norm(cen_t[:, ipam_faces[:, 1]] - cen_t[:, ipam_faces[:, 0]], axis=2)
+            force = k_ipam * (L - (free_len + a_over_k * pressures))
+        else:
+            L = L_t = force = np.zeros((W, 0))
+        kappa = np.stack([r_f[:, anchors[j]] - r_f[:, cell_faces[j]].mean(axis=1) for j in range(n_cell)], 1) \
+            if n_cell else np.zeros((W, 0))
+        kappa_t = np.stack([r_ft[:, anchors[j]] - r_ft[:, cell_faces[j]].mean(axis=1) for j in range(n_cell)], 1) \
+            if n_cell else np.zeros((W, 0))
+        r_v, r_vt = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
+        jammed_now = np.asarray(sim.jammed).reshape(W, n_cell)
+        vol_ok = np.abs(vol - vol_t) / vol_t < settings.volume_deadband
+        phase = np.where((phase == 1) & vol_ok & ~done, 2, phase)  # inflation done: shape control starts
+        for w in range(W):
+            if done[w]:
+                continue
+            row = dict(step=step, time=sim.time, phase=int(phase[w]), air_mol=air[w],
+                       pressure_pa=p_abs[w] - m.atmospheric_pressure, volume_m3=vol[w], target_volume_m3=vol_t[w])
+            for i in range(n_ipam):
+                row[f"ipam{i}_pressure_pa"] = pressures[w, i]
+                row[f"ipam{i}_length_m"] = L[w, i]
+                row[f"ipam{i}_target_length_m"] = L_t[w, i]
+                row[f"ipam{i}_force_n"] = force[w, i]
+                row[f"ipam{i}_strain"] = (L[w, i] - free_len[i]) / free_len[i]
+            for j in range(n_cell):
+                row[f"cell{j}_kappa_m"] = kappa[w, j]
+                row[f"cell{j}_kappa_target_m"] = kappa_t[w, j]
+                row[f"cell{j}_jammed"] = int(jammed_now[w, j])
+            row["pcc"] = _safe_pcc(r_v[w], r_vt[w])
+            row["mare_m"] = float(np.mean(np.abs(r_v[w] - r_vt[w])))
+            row["mpre_pct"] = float(100.0 * np.mean(np.abs(r_v[w] - r_vt[w]) / r_vt[w]))
+            rows[w].append(row)
+
+        if recorder is not None:
+            recorder.log_control_step(step=step, time=sim.time, positions=x, sampled=sampled, rows=rows, done=done)
+
+        # ---- convergence and guards
+        if n_ipam:
+            # an IPAM pinned at a pressure limit and still asked to go further cannot do better
+            want = L_t - L
+            pinned = ((pressures >= limits[:, 1]) & (want > 0)) | ((pressures <= limits[:, 0]) & (want < 0))
+            len_ok = np.all((np.abs(want) < settings.length_deadband) | pinned, axis=1)
+        else:
+            len_ok = np.ones(W, bool)
+        stretch = np.linalg.norm(x[:, hinges[:, 1]] - x[:, hinges[:, 0]], axis=2) / rest_edge
+        for w in range(W):
+            if done[w]:
+                continue
+            if phase[w] == 2 and vol_ok[w] and len_ok[w]:
+                done[w], reason[w] = True, "converged: volume and IPAM lengths within their deadbands (or IPAMs at a pressure limit)"
+            elif stretch[w].mean() > settings.max_stretch:
+                done[w], reason[w] = True, (f"target unreachable: mean membrane stretch {stretch[w].mean():.2f} "
+                                            f"exceeds max_stretch {settings.max_stretch}")
+            elif step == settings.max_steps:
+                done[w] = True
+            if done[w]:
+                snapshot[w] = (x[w].copy(), sampled[w].copy(), force[w].copy(), pressures[w].copy(), air[w],
+                               jammed_now[w].copy(), step, vol[w], vol_t[w])
+        if progress is not None:
+            progress(step, settings.max_steps, int(done.sum()), W)
+        if done.all():
+            break
+
+        # ---- control updates (worlds already done keep their controls)
+        active = ~done
+        dn = settings.air_gain * (vol_t - vol) * p_abs / rt
+        lim = settings.air_rate * n_rest
+        air = np.where(active, np.maximum(air + np.clip(dn, -lim, lim), 0.0), air)
+        shaping = active & (phase == 2)
+        if n_ipam:
+            dP = settings.pressure_gain * (L_t - L) / a_over_k
+            dP = np.clip(dP, -settings.pressure_rate, settings.pressure_rate)
+            newP = np.clip(pressures + dP, limits[:, 0], limits[:, 1])
+            pressures = np.where(shaping[:, None], newP, pressures)
+        if n_cell and settings.jamming and kappa_prev is not None:
+            tol = settings.curvature_tolerance
+            lo = np.minimum(kappa_t, kappa_prev) - tol
+            hi = np.maximum(kappa_t, kappa_prev) + tol
+            away = (kappa < lo) | (kappa > hi)
+            for w, j in zip(*np.nonzero(away & shaping[:, None] & ~jammed_now)):
+                sim.jam(int(j), world=int(w))
+                jam_steps[w, j] = step
+        kappa_prev = kappa
+        sim.air_moles = air
+        if n_ipam:
+            sim.ipam_pressures = pressures
+        sim.step(settings.control_period)
+
+    results = []
+    for w in range(W):
+        xw, sw, fw, pw, aw, jw, steps, vw, vtw = snapshot[w]
+        hist = {k: np.array([r[k] for r in rows[w]]) for k in rows[w][0]}
+        r, R = np.linalg.norm(xw, axis=1), np.linalg.norm(sw, axis=1)
+        results.append(ControlResult(
+            achieved=design.rest.copy_with(xw), sampled_target=design.rest.copy_with(sw),
+            pcc=_safe_pcc(r, R), mare=float(np.mean(np.abs(r - R))), mpre=float(100 * np.mean(np.abs(r - R) / R)),
+            volume_error=float((vw - vtw) / vtw), ipam_forces=fw, ipam_pressures=pw, air_moles=float(aw),
+            jammed=jw.astype(bool), jam_steps=jam_steps[w].copy(), converged=reason[w].startswith("converged"),
+            reason=reason[w], control_steps=int(steps), history=hist, settings=settings))
+    return results
+
+
+def control(design: Design, target: TriMesh, *, device: str = "cpu", settings: ControlSettings | None = None,
+            recorder=None, progress=None, **overrides) -> ControlResult:
+    """Drive ``design`` to one ``target`` (centred on its volume centroid first)."""
+    return control_many(design, [target], device=device, settings=settings, recorder=recorder, progress=progress,
+                        **overrides)[0]
