@@ -33,3 +33,15 @@ class SimulationError(WarpShapeError, RuntimeError):
 
 class ShapeError(WarpShapeError, ValueError):
     """A target or scan cannot be compared: not star-shaped, a ray missed, or bad metric input."""
+
+
+class SceneError(WarpShapeError, ValueError):
+    """A scene file (USD) cannot be read or written: unreadable, missing or mistyped attributes, bad indices.
+
+    ``prim`` and ``attribute`` name the offending prim path and attribute where there is one.
+    """
+
+    def __init__(self, message: str, *, prim: str | None = None, attribute: str | None = None):
+        super().__init__(message)
+        self.prim = prim
+        self.attribute = attribute
