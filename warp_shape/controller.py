@@ -121,6 +121,25 @@ class ControlResult:
     control_steps: int
     history: dict = field(repr=False)  # column name -> (n_steps,) array, see module docstring
     settings: ControlSettings = field(repr=False, default_factory=ControlSettings)
+    frames: np.ndarray | None = field(repr=False, default=None)  # (n_steps, V, 3) float32 membrane per control step
+    design: Design | None = field(repr=False, default=None)
+    target: TriMesh | None = field(repr=False, default=None)
+
+    def export_usd(self, path, target_name: str = "target") -> Path:
+        """The controlled run as an animated USD stage: membrane points, IPAM curves, pressures,
+        forces and jam state time-sampled once per control step (``.usda`` or ``.usdc``)."""
+        from .usd_export import export_animation
+
+        h = self.history
+        n_ipam, n_cell = len(self.ipam_forces), len(self.jammed)
+        per = lambda key, n: np.stack([h[key.format(i)] for i in range(n)], axis=1) if n else None  # noqa: E731
+        return export_animation(
+            path, self.design, self.frames, h["time"],
+            ipam_pressures=per("ipam{}_pressure_pa", n_ipam), ipam_forces=per("ipam{}_force_n", n_ipam),
+            jammed=per("cell{}_jammed", n_cell).astype(bool) if n_cell else None,
+            targets=[self.target] if self.target is not None else None,
+            target_names=[target_name] if self.target is not None else None,
+            settings={"controller": {k: v for k, v in asdict(self.settings).items() if v is not None}})
 
     @property
     def actuator_summary(self) -> list[dict]:
@@ -246,6 +265,7 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     kappa_prev = None
     jam_steps = np.full((W, n_cell), -1, dtype=np.int64)
     rows: list[list[dict]] = [[] for _ in range(W)]
+    frames: list[list[np.ndarray]] = [[] for _ in range(W)]
     w_idx = np.arange(W)
 
     for step in range(settings.max_steps + 1):
@@ -290,6 +310,7 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
             row["mare_m"] = float(np.mean(np.abs(r_v[w] - r_vt[w])))
             row["mpre_pct"] = float(100.0 * np.mean(np.abs(r_v[w] - r_vt[w]) / r_vt[w]))
             rows[w].append(row)
+            frames[w].append(x[w].astype(np.float32))
 
         if recorder is not None:
             recorder.log_control_step(step=step, time=sim.time, positions=x, sampled=sampled, rows=rows, done=done)
@@ -356,7 +377,8 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
             pcc=_safe_pcc(r, R), mare=float(np.mean(np.abs(r - R))), mpre=float(100 * np.mean(np.abs(r - R) / R)),
             volume_error=float((vw - vtw) / vtw), ipam_forces=fw, ipam_pressures=pw, air_moles=float(aw),
             jammed=jw.astype(bool), jam_steps=jam_steps[w].copy(), converged=reason[w].startswith("converged"),
-            reason=reason[w], control_steps=int(steps), history=hist, settings=settings))
+            reason=reason[w], control_steps=int(steps), history=hist, settings=settings,
+            frames=np.stack(frames[w]), design=design, target=targets[w]))
     return results
 
 
