@@ -19,7 +19,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 demo: $(STAMP)
-	$(BIN)/warp-shape simulate
+	$(BIN)/warp-shape design
 
 clean:
 	rm -rf $(VENV) build *.egg-info out

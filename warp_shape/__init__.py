@@ -11,6 +11,7 @@ Quick start::
 
 from .controller import ControlResult, ControlSettings, control, control_many
 from .design import Cell, Design, Ipam
+from .designer import DesignResult, DesignSettings, design
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .material import GAS_CONSTANT, Material
 from .mesh import TriMesh, icosphere

@@ -6,30 +6,19 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .atomic import atomic_write
 
 __all__ = ["main", "write_json_atomic"]
 
 
 def write_json_atomic(path, data) -> Path:
     """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(data, fh, indent=2)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write(path, json.dumps(data, indent=2) + "\n")
 
 
 def _quiet_warp(verbose: bool = False):
@@ -177,6 +166,98 @@ def cmd_control(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- design (the main job)
+
+def _load_targets(specs):
+    """Target names (oval pear heart cube) or mesh files -> [(name, TriMesh)]."""
+    from .mesh import TriMesh
+    from .targets import TARGET_NAMES, target
+
+    out = []
+    for spec in specs:
+        if spec in TARGET_NAMES:
+            out.append((spec, target(spec)))
+        else:
+            out.append((Path(spec).stem, TriMesh.load(spec, center=True)))
+    return out
+
+
+def cmd_design(args) -> int:
+    _quiet_warp(args.verbose)
+    from .designer import DesignSettings, design
+    from .errors import DesignError
+    from .mesh import icosphere
+    from .scene import Scene, load_scene, save_scene
+
+    # ---- everything is validated before anything is written
+    scene = load_scene(args.scene or "oval_heart")
+    base = scene.design.rest if scene.design is not None else icosphere(3, 0.035)
+    named = list(zip(scene.target_names, scene.targets))
+    if args.targets:
+        named = _load_targets(args.targets)
+    if not named:
+        raise DesignError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
+    opts = dict((scene.settings or {}).get("designer", {}))
+    actuators = int(args.actuators if args.actuators is not None else opts.pop("actuators", 4))
+    opts.pop("actuators", None)
+    if args.cell_radius is not None:
+        opts["cell_radius"] = args.cell_radius
+    settings = DesignSettings(**{k: v for k, v in opts.items() if k in DesignSettings.__dataclass_fields__},
+                              initialize=not args.keep_rest)
+    names = [n for n, _ in named]
+    out = Path(args.out)
+    written: list[Path] = []
+
+    def keep(path):
+        written.append(Path(path))
+        return path
+
+    def progress(i, p, step, total, done, worlds):
+        _progress(total if done == worlds else step, total, f"round {i}/{p}: control ({done}/{worlds} targets done)")
+
+    def on_round(i, d_i, results):
+        # finished rounds are written as they complete, so an interrupted run keeps them
+        report = dict(complete=False, rounds_done=i + 1, targets=names,
+                      pcc_by_round=[[r.pcc for r in rs] for rs in rounds_seen + [results]])
+        rounds_seen.append(results)
+        keep(write_json_atomic(out / "report.json", report))
+        for name, r in zip(names, results):
+            keep(r.to_csv(out / f"control_{name}.csv"))
+            keep(r.to_json(out / f"control_{name}.json"))
+
+    rounds_seen: list = []
+    t0 = time.perf_counter()
+    try:
+        res = design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
+                     settings=settings, progress=progress, on_round=on_round)
+    except Exception:
+        if not isinstance(sys.exc_info()[1], KeyboardInterrupt):
+            for path in written:  # a failed run leaves no partial outputs
+                path.unlink(missing_ok=True)
+        raise
+    wall = time.perf_counter() - t0
+    report = res.report()
+    report.update(complete=True, wall_seconds=wall, device=args.device)
+    keep(save_scene(Scene(design=res.design, targets=res.targets, target_names=names,
+                          settings={"designer": {"actuators": actuators, "cell_radius": settings.cell_radius}}),
+                    out / "design.usda"))
+    for name, r in zip(names, res.results):
+        keep(r.export_usd(out / f"actuation_{name}.usdc", target_name=name))
+    from .molds import inner_mold, outer_mold, write_stl
+
+    keep(write_stl(inner_mold(res.design, args.marker_height), out / "mold_inner.stl"))
+    keep(write_stl(outer_mold(res.design, args.layer_thickness), out / "mold_outer.stl"))
+    report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"})
+    atomic_write(out / "report.md", res.markdown())
+    write_json_atomic(out / "report.json", report)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(res.markdown())
+        print(f"wall time {wall:.1f} s; outputs in {out}/: {', '.join(report['outputs'])}")
+    return 0
+
+
 # --------------------------------------------------------------------------- bench
 
 def cmd_bench(args) -> int:
@@ -224,6 +305,21 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print machine-readable results")
     s.add_argument("--verbose", action="store_true")
     s.set_defaults(func=cmd_simulate)
+
+    d = sub.add_parser("design", help="design a display for target shapes (default: oval + heart, 4 IPAMs)")
+    d.add_argument("scene", nargs="?", default=None, help="design problem: a shipped scene name or .usda file "
+                   "(default oval_heart)")
+    d.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files")
+    d.add_argument("--actuators", type=int, default=None, help="number of IPAMs to place")
+    d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m")
+    d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
+    d.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
+    d.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
+    d.add_argument("--device", default="cpu")
+    d.add_argument("--out", default="out")
+    d.add_argument("--json", action="store_true")
+    d.add_argument("--verbose", action="store_true")
+    d.set_defaults(func=cmd_design)
 
     c = sub.add_parser("control", help="drive a design to target shapes; writes the control sequences")
     c.add_argument("scene", nargs="?", default=None, help="problem: cube_fig6 (default) or a scene file/name")

@@ -30,13 +30,12 @@ import csv
 import io
 import json
 import math
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_write
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
@@ -86,21 +85,6 @@ class ControlSettings:
         return ControlSettings(**d)
 
 
-def _write_atomic(path: Path, text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
 @dataclass
 class ControlResult:
     """Outcome of driving one design to one target."""
@@ -124,6 +108,8 @@ class ControlResult:
     frames: np.ndarray | None = field(repr=False, default=None)  # (n_steps, V, 3) float32 membrane per control step
     design: Design | None = field(repr=False, default=None)
     target: TriMesh | None = field(repr=False, default=None)
+    passive_ipams: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # left out of this run
+    passive_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def export_usd(self, path, target_name: str = "target") -> Path:
         """The controlled run as an animated USD stage: membrane points, IPAM curves, pressures,
@@ -166,7 +152,7 @@ class ControlResult:
 
     def to_csv(self, path) -> Path:
         """Control sequence, one row per control step (atomic write)."""
-        return _write_atomic(path, self.history_csv())
+        return atomic_write(path, self.history_csv())
 
     def summary(self) -> dict:
         return dict(pcc=self.pcc, mare_m=self.mare, mpre_pct=self.mpre, volume_error=self.volume_error,
@@ -174,6 +160,7 @@ class ControlResult:
                     air_moles=self.air_moles, ipam_forces_n=self.ipam_forces.tolist(),
                     ipam_pressures_pa=self.ipam_pressures.tolist(), jammed=self.jammed.tolist(),
                     jam_steps=self.jam_steps.tolist(), actuators=self.actuator_summary,
+                    passive_ipams=self.passive_ipams.tolist(), passive_cells=self.passive_cells.tolist(),
                     settings=asdict(self.settings))
 
     def to_json(self, path) -> Path:
@@ -181,7 +168,7 @@ class ControlResult:
         data = self.summary()
         data["columns"] = list(self.history)
         data["rows"] = [list(map(float, r)) for r in zip(*(self.history[c] for c in self.history))]
-        return _write_atomic(path, json.dumps(data, indent=1) + "\n")
+        return atomic_write(path, json.dumps(data, indent=1) + "\n")
 
 
 def cell_anchor_faces(design: Design) -> np.ndarray:
@@ -213,14 +200,34 @@ def _safe_pcc(r: np.ndarray, R: np.ndarray) -> float:
     return float(dr @ dR) / den
 
 
+def _passive_mask(spec, W: int, n: int, what: str) -> np.ndarray:
+    """(W, n) bool from indices shared by all worlds, or one index list per world."""
+    mask = np.zeros((W, n), dtype=bool)
+    spec = list(spec)
+    per_world = len(spec) == W and all(isinstance(s, (list, tuple, np.ndarray, set)) for s in spec)
+    try:
+        for w in range(W):
+            idx = list(spec[w]) if per_world else spec
+            mask[w, np.asarray(idx, dtype=np.int64)] = True
+    except (IndexError, ValueError, TypeError):
+        raise DesignError(f"{what} must be indices in 0..{n - 1} (or one list per target), got {spec!r}") from None
+    return mask
+
+
 def _volumes(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
     xf = x[:, faces]
     return np.einsum("wfi,wfi->w", xf[:, :, 0], np.cross(xf[:, :, 1], xf[:, :, 2])) / 6.0
 
 
 def control_many(design: Design, targets, *, device: str = "cpu", settings: ControlSettings | None = None,
-                 recorder=None, progress=None, **overrides) -> list[ControlResult]:
-    """Drive ``design`` to every target at once (one simulated world per target)."""
+                 recorder=None, progress=None, passive_ipams=(), passive_cells=(), **overrides) -> list[ControlResult]:
+    """Drive ``design`` to every target at once (one simulated world per target).
+
+    ``passive_ipams`` / ``passive_cells``: actuators left out of this control sequence (indices for
+    every target, or one list per target). A passive
+    IPAM's pressure tracks its current length (natural length = length, so it exerts ~no force);
+    a passive cell never jams. The paper (section V-C) notes an actuator can be neutralised this way.
+    """
     from .sampling import RadialSampler
     from .simulator import Simulator
 
@@ -252,6 +259,8 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     limits = h.get("ipam_limits", np.zeros((0, 2)))
     ipam_faces = h.get("ipam_faces", np.zeros((0, 2), dtype=np.int64))
     anchors = cell_anchor_faces(design)
+    passive_i = _passive_mask(passive_ipams, W, n_ipam, "passive_ipams")  # (W, n_ipam)
+    passive_c = _passive_mask(passive_cells, W, n_cell, "passive_cells")  # (W, n_cell)
     cell_faces = [c.faces for c in design.cells]
     rest_edge = h["rest_length"]
     hinges = h["hinges"]
@@ -320,7 +329,7 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
             # an IPAM pinned at a pressure limit and still asked to go further cannot do better
             want = L_t - L
             pinned = ((pressures >= limits[:, 1]) & (want > 0)) | ((pressures <= limits[:, 0]) & (want < 0))
-            len_ok = np.all((np.abs(want) < settings.length_deadband) | pinned, axis=1)
+            len_ok = np.all((np.abs(want) < settings.length_deadband) | pinned | passive_i, axis=1)
         else:
             len_ok = np.ones(W, bool)
         stretch = np.linalg.norm(x[:, hinges[:, 1]] - x[:, hinges[:, 0]], axis=2) / rest_edge
@@ -353,12 +362,15 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
             dP = np.clip(dP, -settings.pressure_rate, settings.pressure_rate)
             newP = np.clip(pressures + dP, limits[:, 0], limits[:, 1])
             pressures = np.where(shaping[:, None], newP, pressures)
+            if passive_i.any():  # natural length follows the length: no force, in every phase
+                neutral = np.clip((L - free_len) / a_over_k, limits[:, 0], limits[:, 1])
+                pressures = np.where(active[:, None] & passive_i, neutral, pressures)
         if n_cell and settings.jamming and kappa_prev is not None:
             tol = settings.curvature_tolerance
             lo = np.minimum(kappa_t, kappa_prev) - tol
             hi = np.maximum(kappa_t, kappa_prev) + tol
             away = (kappa < lo) | (kappa > hi)
-            for w, j in zip(*np.nonzero(away & shaping[:, None] & ~jammed_now)):
+            for w, j in zip(*np.nonzero(away & shaping[:, None] & ~jammed_now & ~passive_c)):
                 sim.jam(int(j), world=int(w))
                 jam_steps[w, j] = step
         kappa_prev = kappa
@@ -378,12 +390,13 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
             volume_error=float((vw - vtw) / vtw), ipam_forces=fw, ipam_pressures=pw, air_moles=float(aw),
             jammed=jw.astype(bool), jam_steps=jam_steps[w].copy(), converged=reason[w].startswith("converged"),
             reason=reason[w], control_steps=int(steps), history=hist, settings=settings,
-            frames=np.stack(frames[w]), design=design, target=targets[w]))
+            frames=np.stack(frames[w]), design=design, target=targets[w],
+            passive_ipams=np.flatnonzero(passive_i[w]), passive_cells=np.flatnonzero(passive_c[w])))
     return results
 
 
 def control(design: Design, target: TriMesh, *, device: str = "cpu", settings: ControlSettings | None = None,
-            recorder=None, progress=None, **overrides) -> ControlResult:
+            recorder=None, progress=None, passive_ipams=(), passive_cells=(), **overrides) -> ControlResult:
     """Drive ``design`` to one ``target`` (centred on its volume centroid first)."""
     return control_many(design, [target], device=device, settings=settings, recorder=recorder, progress=progress,
-                        **overrides)[0]
+                        passive_ipams=passive_ipams, passive_cells=passive_cells, **overrides)[0]

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import finalize_permissions
 from .design import Design
 from .errors import DesignError, MeshError, SceneError
 from .material import Material
@@ -387,6 +388,7 @@ def write_stage_atomic(stage, path) -> Path:
     os.close(fd)
     try:
         _export_layer(stage.GetRootLayer(), tmp)
+        finalize_permissions(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
