@@ -220,7 +220,8 @@ def _volumes(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def control_many(design: Design, targets, *, device: str = "cpu", settings: ControlSettings | None = None,
-                 recorder=None, progress=None, passive_ipams=(), passive_cells=(), **overrides) -> list[ControlResult]:
+                 recorder=None, progress=None, passive_ipams=(), passive_cells=(), target_names=None,
+                 recorder_prefix: str = "control", **overrides) -> list[ControlResult]:
     """Drive ``design`` to every target at once (one simulated world per target).
 
     ``passive_ipams`` / ``passive_cells``: actuators left out of this control sequence (indices for
@@ -276,6 +277,10 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     rows: list[list[dict]] = [[] for _ in range(W)]
     frames: list[list[np.ndarray]] = [[] for _ in range(W)]
     w_idx = np.arange(W)
+    names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
+    if recorder is not None:
+        recorder.begin_run(design=design, targets=targets, target_names=names, prefix=recorder_prefix,
+                           settings=settings)
 
     for step in range(settings.max_steps + 1):
         x = np.asarray(sim.positions, dtype=np.float64).reshape(W, -1, 3)
@@ -392,11 +397,15 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
             reason=reason[w], control_steps=int(steps), history=hist, settings=settings,
             frames=np.stack(frames[w]), design=design, target=targets[w],
             passive_ipams=np.flatnonzero(passive_i[w]), passive_cells=np.flatnonzero(passive_c[w])))
+    if recorder is not None:
+        recorder.end_run(results)
     return results
 
 
 def control(design: Design, target: TriMesh, *, device: str = "cpu", settings: ControlSettings | None = None,
-            recorder=None, progress=None, passive_ipams=(), passive_cells=(), **overrides) -> ControlResult:
+            recorder=None, progress=None, passive_ipams=(), passive_cells=(), target_name: str = "target",
+            **overrides) -> ControlResult:
     """Drive ``design`` to one ``target`` (centred on its volume centroid first)."""
     return control_many(design, [target], device=device, settings=settings, recorder=recorder, progress=progress,
-                        passive_ipams=passive_ipams, passive_cells=passive_cells, **overrides)[0]
+                        passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=[target_name],
+                        **overrides)[0]

@@ -186,11 +186,14 @@ def _cell_faces_estimate(rest: TriMesh, radius: float) -> float:
 
 def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", target_names=None,
            settings: DesignSettings | None = None, control_settings: ControlSettings | None = None,
-           material: Material | None = None, progress=None, on_round=None, **overrides) -> DesignResult:
+           material: Material | None = None, progress=None, on_round=None, recorder=None,
+           **overrides) -> DesignResult:
     """Design a shape display for ``targets`` with ``actuators`` IPAMs (Algorithm 1).
 
     ``progress(round, n_rounds, step, max_steps, done, worlds)`` is called during control runs;
     ``on_round(i, design_i, results_i)`` after each round (e.g. to write outputs as they finish).
+    ``recorder`` logs every round's control runs under ``design/round_<i>`` and the PCC by round
+    (``recorder.log_design_round(round, pcc_row, target_names, design)``).
     Keyword overrides go to ``DesignSettings`` (e.g. ``cell_radius=0.016``, ``initialize=False``).
     """
     if not isinstance(base, TriMesh):
@@ -233,7 +236,8 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
                 progress(_i, actuators, step, total, done, worlds)
 
         results = control_many(current, targets, device=device, settings=control_settings, progress=ctl_progress,
-                               passive_ipams=[sorted(p) for p in passive_i], passive_cells=[sorted(p) for p in passive_c])
+                               passive_ipams=[sorted(p) for p in passive_i], passive_cells=[sorted(p) for p in passive_c],
+                               recorder=recorder, recorder_prefix=f"design/round_{i}", target_names=names)
         if i > 0 and settings.select_actuators:
             worse = [j for j, r in enumerate(results) if r.pcc < pcc[i - 1, j] - settings.max_drop]
             if worse:
@@ -250,6 +254,8 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
                         added[-1].setdefault("left_out_for", []).append(names[j])
         rounds.append(results)
         pcc[i] = [r.pcc for r in results]
+        if recorder is not None:
+            recorder.log_design_round(i, pcc[i].copy(), names, copy_design(current))
         if on_round is not None:
             on_round(i, designs[-1], results)
         if i == actuators:
