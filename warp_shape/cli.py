@@ -272,6 +272,29 @@ def cmd_bench(args) -> int:
         results["sim"] = rows
         print(format_rows(rows, ["vertices", "integrator", "precision", "steps_per_s", "us_per_step",
                                  "ns_per_vertex_step", "launches_per_step"]))
+    if args.which in ("tradeoff", "all"):
+        from .bench_tradeoff import bench_tradeoff
+
+        out = bench_tradeoff(device=args.device)
+        results["tradeoff"] = out
+        cols = ["vertices", "integrator", "step", "substeps", "precision", "bending", "wall_s", "error_mm", "default",
+                "note"]
+        fmt = [dict(r, error_mm=f"{r['error_mm']:.2e}", default="*" if r["default"] else "") for r in out["rows"]]
+        print(f"trade-off: Fig. 6 control sequence ({out['control_steps']} control steps) replayed open loop; "
+              f"error = RMS vertex distance to float64 RK4 at 1/8 of the automatic step, same mesh")
+        print(format_rows(fmt, cols))
+        print("\nPareto front per mesh (least error for the wall time):")
+        print(format_rows([dict(r, error_mm=f"{r['error_mm']:.2e}", default="*" if r["default"] else "")
+                           for r in out["pareto"]], cols))
+        print("\nresolution (each mesh's reference vs the finest, mean radial distance):")
+        print(format_rows([dict(r, error_vs_finest_mm=f"{r['error_vs_finest_mm']:.3f}") for r in out["resolution"]],
+                          ["vertices", "error_vs_finest_mm"]))
+    if args.which in ("design", "all"):
+        from .bench_tradeoff import bench_design
+
+        rows = bench_design(device=args.device)
+        results["design"] = rows
+        print(format_rows(rows, ["problem", "targets", "actuators", "wall_s", "final_pcc", "control_steps"]))
     if args.which in ("rays", "all"):
         try:
             from .bench_shapes import bench_rays, format_table
@@ -335,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_control)
 
     b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")
-    b.add_argument("which", nargs="?", default="sim", choices=["sim", "rays", "all"])
+    b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "rays", "all"])
     b.add_argument("--device", default="cpu")
     b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5])
     b.add_argument("--repeats", type=int, default=3)

@@ -1,0 +1,170 @@
+"""Speed/accuracy trade-off and design-time benchmarks.
+
+``bench_tradeoff``: record the Fig. 6 control sequence once (air, IPAM pressures and jam steps per
+control step), replay it open loop under every integrator x internal step x precision x bending
+variant x mesh resolution, and measure the achieved shape's error against a reference (float64,
+RK4, an eighth of the automatic step, same mesh; for the resolution axis, the finest mesh sampled
+radially) beside the wall time. The Pareto front (least error for the time) is taken per mesh;
+the default is marked.
+
+``bench_design``: wall time of the default design problem (oval + heart, 4 IPAMs) and of the
+four-target 5-actuator problem.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ControlSequence", "record_sequence", "replay", "bench_tradeoff", "pareto_front", "bench_design"]
+
+
+@dataclass
+class ControlSequence:
+    """An open-loop control sequence: per control step the air (relative to the rest amount),
+    the IPAM pressures (Pa) and the cells to jam at that step."""
+
+    dt: float
+    period: int
+    air_relative: np.ndarray  # (n,) n / n_rest applied from step k on
+    pressures: np.ndarray  # (n, n_ipam) Pa applied from step k on
+    jam_step: np.ndarray  # (n_cell,) control step at which each cell jams, -1 never
+
+    @property
+    def steps(self) -> int:
+        return len(self.air_relative)
+
+
+def record_sequence(design, target, **control_overrides) -> ControlSequence:
+    """Run the controller once and keep what it commanded."""
+    from .controller import control
+
+    res = control(design, target, **control_overrides)
+    h = res.history
+    n0 = h["air_mol"][0]
+    P = np.stack([h[f"ipam{i}_pressure_pa"] for i in range(design.n_ipams)], axis=1) if design.n_ipams \
+        else np.zeros((len(h["step"]), 0))
+    # the row of step k holds the state before step k's update: the update is the next row's controls
+    return ControlSequence(dt=res.settings.dt, period=res.settings.control_period,
+                           air_relative=np.append(h["air_mol"][1:], h["air_mol"][-1]) / n0,
+                           pressures=np.vstack([P[1:], P[-1:]]), jam_step=res.jam_steps.copy())
+
+
+def replay(design, seq: ControlSequence, *, integrator="rk4", precision="float32", substeps=None, bending="exact",
+           device="cpu", internal_dt=None):
+    """Apply a sequence open loop; returns (final positions (V, 3), wall seconds, substeps used)."""
+    from .simulator import Simulator
+
+    if internal_dt is not None:
+        substeps = max(1, int(round(seq.dt / internal_dt)))
+    sim = Simulator(design, device=device, integrator=integrator, dt=seq.dt, precision=precision, substeps=substeps,
+                    bending=bending)
+    n_rest = sim.air_moles
+    sim.step(0)
+    t0 = time.perf_counter()
+    for k in range(seq.steps - 1):
+        for c in np.flatnonzero(seq.jam_step == k):
+            sim.jam(int(c))
+        sim.air_moles = n_rest * seq.air_relative[k]
+        if design.n_ipams:
+            sim.ipam_pressures = seq.pressures[k]
+        sim.step(seq.period)
+    return sim.positions, time.perf_counter() - t0, sim.substeps
+
+
+def pareto_front(rows: list[dict], x: str = "wall_s", y: str = "error_mm") -> list[dict]:
+    """Rows not beaten on both time and error by another row."""
+    front = []
+    for r in sorted(rows, key=lambda r: (r[x], r[y])):
+        if not front or r[y] < front[-1][y]:
+            front.append(r)
+    return front
+
+
+def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdivisions: int = 4,
+                   step_fractions=(1.0, 0.5, 0.25)) -> dict:
+    """Error of the achieved Fig. 6 shape versus wall time over the numerical settings."""
+    from .scenarios import cube_fig6_design
+    from .simulator import Simulator
+    from .targets import target
+
+    cube = target("cube")
+    base_design = cube_fig6_design(subdivisions=3)
+    seq = record_sequence(base_design, cube)
+    designs = {s: cube_fig6_design(subdivisions=s) for s in subdivisions}
+
+    def worst_case_step(d, integrator):
+        # the smallest stable step of the run: every cell jammed at the highest air amount
+        probe = Simulator(d, integrator=integrator, precision="float64", dt=seq.dt)
+        probe.air_moles = probe.air_moles * seq.air_relative.max()
+        for c in range(d.n_cells):
+            probe.jam(c)
+        return seq.dt / probe.substeps
+
+    references = {}
+    for s, d in designs.items():
+        h_ref = worst_case_step(d, "rk4") / 8
+        x_ref, _, _ = replay(d, seq, integrator="rk4", precision="float64", internal_dt=h_ref, device=device)
+        references[s] = x_ref
+    rows = []
+    for s, d in designs.items():
+        x_ref = references[s]
+        for integrator in ("rk4", "semi_implicit"):
+            h_auto = worst_case_step(d, integrator)
+            for frac in step_fractions:
+                for precision in ("float32", "float64"):
+                    for bending in (("exact", "paper") if (s == 3 and frac == 1.0) else ("exact",)):
+                        # frac 1.0 = automatic substeps (the default); smaller = finer fixed steps
+                        kw = dict(substeps=None) if frac == 1.0 else dict(internal_dt=h_auto * frac)
+                        try:
+                            x, wall, sub = replay(d, seq, integrator=integrator, precision=precision, bending=bending,
+                                                  device=device, **kw)
+                            err = float(np.sqrt(np.mean(np.sum((x - x_ref) ** 2, axis=1))))
+                        except Exception as exc:  # an unstable setting is a result too
+                            x, wall, sub, err = None, float("nan"), 0, float("inf")
+                            note = type(exc).__name__
+                        else:
+                            note = ""
+                        rows.append(dict(vertices=d.rest.n_vertices, integrator=integrator,
+                                         step="auto" if frac == 1.0 else f"{frac:g} x auto", substeps=sub,
+                                         precision=precision, bending=bending, wall_s=round(wall, 3),
+                                         error_mm=err * 1e3, note=note,
+                                         default=(s == 3 and integrator == "rk4" and frac == 1.0
+                                                  and precision == "float32" and bending == "exact")))
+    # resolution axis: each mesh's reference against the finest, radially sampled
+    from .sampling import radial_sample
+
+    fine = designs[max(designs)].rest.copy_with(references[max(designs)])
+    resolution = []
+    for s, d in designs.items():
+        x_ref = references[s]
+        R = np.linalg.norm(radial_sample(fine, x_ref), axis=1)
+        r = np.linalg.norm(x_ref, axis=1)
+        resolution.append(dict(vertices=d.rest.n_vertices, error_vs_finest_mm=float(np.mean(np.abs(r - R)) * 1e3)))
+    finite = [r for r in rows if np.isfinite(r["error_mm"])]
+    pareto = []  # per mesh: the resolution axis is reported separately
+    for v in sorted({r["vertices"] for r in finite}):
+        pareto += pareto_front([r for r in finite if r["vertices"] == v])
+    return dict(rows=rows, pareto=pareto, resolution=resolution, control_steps=seq.steps)
+
+
+def bench_design(device: str = "cpu", four_targets: bool = True) -> list[dict]:
+    """Wall time of the default design problem and of the four-target 5-actuator problem."""
+    from .designer import design
+    from .scene import load_scene
+
+    rows = []
+    names = ["oval_heart"] + (["four_targets_5"] if four_targets else [])
+    for name in names:
+        sc = load_scene(name)
+        opts = sc.settings["designer"]
+        t0 = time.perf_counter()
+        res = design(sc.design.rest, sc.targets, actuators=opts["actuators"], target_names=sc.target_names,
+                     cell_radius=opts["cell_radius"], device=device)
+        wall = time.perf_counter() - t0
+        rows.append(dict(problem=name, targets=" ".join(sc.target_names), actuators=opts["actuators"],
+                         wall_s=round(wall, 2), final_pcc=" ".join(f"{v:.3f}" for v in res.pcc_by_round[-1]),
+                         control_steps=sum(r.control_steps for rs in res.rounds for r in rs)))
+    return rows
