@@ -4,71 +4,7 @@ from typing import Any
 
 import warp as wp
 
-from .membrane import dihedral_angle
-
-
-@wp.kernel(enable_backward=False)
-def integrate_semi_implicit(
-    # Model:
-    inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
-    h: Any,  # internal step, s
-    # In:
-    f_in: wp.array2d(dtype=Any),  # (W, V) forces at (x, v)
-    # State in/out:
-    x: wp.array2d(dtype=Any),  # (W, V)
-    v: wp.array2d(dtype=Any),  # (W, V)
-):
-    """Semi-implicit (symplectic) Euler: v += h f/m, then x += h v."""
-    w, i = wp.tid()
-    v_new = v[w, i] + f_in[w, i] * (h * inv_mass[i])
-    v[w, i] = v_new
-    x[w, i] = x[w, i] + v_new * h
-
-
-@wp.kernel(enable_backward=False)
-def rk4_stage(
-    # Model:
-    inv_mass: wp.array(dtype=Any),  # (V,)
-    h: Any,  # internal step, s
-    stage: int,  # 0..3
-    # In:
-    f_in: wp.array2d(dtype=Any),  # (W, V) forces at the stage point
-    v_eval: wp.array2d(dtype=Any),  # (W, V) velocity at the stage point
-    # State in/out:
-    x: wp.array2d(dtype=Any),  # (W, V) start of step; end of step after stage 3
-    v: wp.array2d(dtype=Any),  # (W, V)
-    # Scratch:
-    xs: wp.array2d(dtype=Any),  # (W, V) next stage point
-    vs: wp.array2d(dtype=Any),  # (W, V)
-    acc_x: wp.array2d(dtype=Any),  # (W, V) weighted sum of slopes
-    acc_v: wp.array2d(dtype=Any),  # (W, V)
-):
-    """Classical RK4 on y = (x, v), y' = (v, f/m); controls are held over the step."""
-    w, i = wp.tid()
-    kx = v_eval[w, i]
-    kv = f_in[w, i] * inv_mass[i]
-    one = type(h)(1.0)
-    two = type(h)(2.0)
-    half = type(h)(0.5)
-    if stage == 0:
-        acc_x[w, i] = kx
-        acc_v[w, i] = kv
-    else:
-        weight = two
-        if stage == 3:
-            weight = one
-        acc_x[w, i] = acc_x[w, i] + kx * weight
-        acc_v[w, i] = acc_v[w, i] + kv * weight
-    if stage < 3:
-        c = half * h
-        if stage == 2:
-            c = h
-        xs[w, i] = x[w, i] + kx * c
-        vs[w, i] = v[w, i] + kv * c
-    else:
-        sixth = h / type(h)(6.0)
-        x[w, i] = x[w, i] + acc_x[w, i] * sixth
-        v[w, i] = v[w, i] + acc_v[w, i] * sixth
+from .membrane import dihedral_angle, gauge_pressure, world_and_index
 
 
 @wp.kernel(enable_backward=False)
@@ -124,3 +60,93 @@ def check_state_kernel(
         code = 1
     if code > 0:
         wp.atomic_max(status_out, w, code)
+
+
+# --------------------------------------------------------------------------- fused-step integrators
+#
+# The fused force pass (membrane.eval_hinge*_kernel) leaves f (every force but pressure), dV/dx and
+# the volume; these kernels add the pressure force p dV/dx, advance the state and start the next
+# force evaluation (f = -c_v v at the next stage point, dV/dx = 0), so an RK4 step is
+# init + 4 x (hinge pass [+ IPAM pass] + stage) launches.
+
+
+@wp.kernel(enable_backward=False)
+def rk4_stage_fused(
+    # Model:
+    inv_mass: wp.array(dtype=Any),  # (V,)
+    viscous_damping: Any,  # c_v, N s/m
+    gas_rt: wp.float64,
+    p_atm: wp.float64,
+    h: Any,  # internal step, s
+    stage: int,  # 0..3
+    n_worlds: int,
+    n_vertices: int,
+    # Control:
+    air_in: wp.array(dtype=wp.float64),  # (W,) mol
+    # In (the stage's force evaluation):
+    f: wp.array2d(dtype=Any),  # (W, V) forces without pressure; reset for the next stage
+    gradv: wp.array2d(dtype=Any),  # (W, V) dV/dx; zeroed for the next stage
+    volume_in: wp.array2d(dtype=wp.float64),  # (W, 4) volume at each stage point
+    v_eval: wp.array2d(dtype=Any),  # (W, V) velocity at the stage point
+    # State in/out:
+    x: wp.array2d(dtype=Any),  # (W, V)
+    v: wp.array2d(dtype=Any),  # (W, V)
+    # Scratch:
+    xs: wp.array2d(dtype=Any),
+    vs: wp.array2d(dtype=Any),
+    acc_x: wp.array2d(dtype=Any),
+    acc_v: wp.array2d(dtype=Any),
+):
+    """Classical RK4 on y = (x, v), y' = (v, f/m) with pressure applied here; controls held."""
+    w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
+    p = gauge_pressure(air_in[w], volume_in[w, stage], gas_rt, p_atm)
+    kx = v_eval[w, i]
+    kv = (f[w, i] + gradv[w, i] * type(h)(p)) * inv_mass[i]
+    one = type(h)(1.0)
+    two = type(h)(2.0)
+    half = type(h)(0.5)
+    if stage == 0:
+        acc_x[w, i] = kx
+        acc_v[w, i] = kv
+    else:
+        weight = two
+        if stage == 3:
+            weight = one
+        acc_x[w, i] = acc_x[w, i] + kx * weight
+        acc_v[w, i] = acc_v[w, i] + kv * weight
+    if stage < 3:
+        c = half * h
+        if stage == 2:
+            c = h
+        xs[w, i] = x[w, i] + kx * c
+        v_next = v[w, i] + kv * c
+        vs[w, i] = v_next
+        f[w, i] = v_next * (-viscous_damping)
+        gradv[w, i] = v_next * type(h)(0.0)
+    else:
+        sixth = h / type(h)(6.0)
+        x[w, i] = x[w, i] + acc_x[w, i] * sixth
+        v[w, i] = v[w, i] + acc_v[w, i] * sixth
+
+
+@wp.kernel(enable_backward=False)
+def integrate_semi_implicit_fused(
+    inv_mass: wp.array(dtype=Any),  # (V,)
+    gas_rt: wp.float64,
+    p_atm: wp.float64,
+    h: Any,
+    n_worlds: int,
+    n_vertices: int,
+    air_in: wp.array(dtype=wp.float64),  # (W,)
+    f_in: wp.array2d(dtype=Any),  # (W, V) forces without pressure
+    gradv_in: wp.array2d(dtype=Any),  # (W, V)
+    volume_in: wp.array2d(dtype=wp.float64),  # (W, slots), slot 0
+    x: wp.array2d(dtype=Any),
+    v: wp.array2d(dtype=Any),
+):
+    """Semi-implicit (symplectic) Euler with the pressure force applied here."""
+    w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
+    p = gauge_pressure(air_in[w], volume_in[w, 0], gas_rt, p_atm)
+    v_new = v[w, i] + (f_in[w, i] + gradv_in[w, i] * type(h)(p)) * (h * inv_mass[i])
+    v[w, i] = v_new
+    x[w, i] = x[w, i] + v_new * h

@@ -16,7 +16,6 @@ import warp as wp
 
 # --------------------------------------------------------------------------- math helpers
 
-
 @wp.func
 def spring_damper_force(xi: Any, xj: Any, vi: Any, vj: Any, k: Any, rest: Any, c: Any):
     """Force on i of a spring (stiffness k, natural length rest) with a damper c along it."""
@@ -244,3 +243,170 @@ def edge_state_kernel(
     x1 = x_in[w, h[1]]
     length_out[w, e] = wp.length(x1 - x0)
     angle_out[w, e] = dihedral_angle(x0, x1, x_in[w, h[2]], x_in[w, h[3]])
+
+
+# --------------------------------------------------------------------------- fused step kernels
+#
+# The step evaluates every force family in one pass over the hinges (spring + damper, bending when
+# k_t > 0, and the pressure's volume gradient), launched 1-D over W * n so that no thread pays for
+# a 2-D index decomposition when there is one world. Pressure needs the enclosed volume before it
+# can be applied, so the hinge pass accumulates the volume and dV/dx (gradv); the integrator stage
+# kernel then adds p gradv with p = n R T / V - p_atm. Each face appears in exactly three hinges
+# (once per edge), so every hinge adds a third of each of its two faces' contributions.
+
+
+@wp.func
+def world_and_index(t: int, n: int, n_worlds: int):
+    """(world, element) of a 1-D thread index over n_worlds * n elements."""
+    if n_worlds == 1:
+        return 0, t
+    w = t // n
+    return w, t - w * n
+
+
+def _make_hinge_kernel(name: str, with_bending: bool):
+    """The fused per-hinge kernel, specialised at compile time with or without bending (k_t = 0
+    designs launch the kernel whose name carries no 'bending' and that holds no bending code)."""
+
+    def kernel(
+        # Model:
+        hinges: wp.array(dtype=wp.vec4i),  # (E,)
+        stiffness: wp.array(dtype=Any),  # (E,) k_e, N/m
+        damping: Any,  # c_s, N s/m
+        jam_stretch: Any,  # stretch multiplier of jammed edges
+        bending_stiffness: Any,  # k_t, N m/rad
+        jam_bend: Any,  # bending multiplier of jammed edges
+        paper_variant: int,  # 0: exact gradient; 1: paper eq. (9) edge forces
+        n_worlds: int,
+        n_edges: int,
+        # State in:
+        x_in: wp.array2d(dtype=Any),  # (W, V)
+        v_in: wp.array2d(dtype=Any),  # (W, V)
+        rest_length_in: wp.array2d(dtype=Any),  # (W, E)
+        rest_angle_in: wp.array2d(dtype=Any),  # (W, E)
+        jammed_in: wp.array2d(dtype=wp.int32),  # (W, E)
+        vslot: int,  # column of volume_out to accumulate into
+        # Out (accumulated):
+        f_out: wp.array2d(dtype=Any),  # (W, V) every force but pressure
+        gradv_out: wp.array2d(dtype=Any),  # (W, V) dV/dx
+        volume_out: wp.array2d(dtype=wp.float64),  # (W, slots) m^3
+    ):
+        w, e = world_and_index(wp.tid(), n_edges, n_worlds)
+        h = hinges[e]
+        x0 = x_in[w, h[0]]
+        x1 = x_in[w, h[1]]
+        x2 = x_in[w, h[2]]
+        x3 = x_in[w, h[3]]
+        edge = x1 - x0
+        n_a = wp.cross(edge, x2 - x0)  # face A (v0, v1, v2): 2 area n_hat
+        n_b = wp.cross(x0 - x1, x3 - x1)  # face B (v1, v0, v3)
+        # pressure: volume (divergence theorem) and its gradient, a third of each face per hinge
+        third = type(damping)(1.0) / type(damping)(18.0)
+        vol = wp.float64(wp.dot(x0, n_a) + wp.dot(x1, n_b)) * (wp.float64(1.0) / wp.float64(18.0))
+        wp.atomic_add(volume_out, w, vslot, vol)
+        g_a = n_a * third
+        g_b = n_b * third
+        g_ab = g_a + g_b
+        ee = wp.dot(edge, edge)
+        zero = type(damping)(0.0)
+        one = type(damping)(1.0)
+        f0 = edge * zero
+        f1 = edge * zero
+        f2 = edge * zero
+        f3 = edge * zero
+        if ee > zero:
+            len_e = wp.sqrt(ee)
+            inv_len = one / len_e
+            dhat = edge * inv_len
+            jam = jammed_in[w, e] != 0
+            k = stiffness[e]
+            if jam:
+                k = k * jam_stretch
+            fs = dhat * (k * (len_e - rest_length_in[w, e]) + damping * wp.dot(v_in[w, h[1]] - v_in[w, h[0]], dhat))
+            f0 = fs
+            f1 = -fs
+            if wp.static(with_bending):
+                kt = bending_stiffness
+                if jam:
+                    kt = kt * jam_bend
+                # atan2 is scale invariant: sin and cos both carry |n_a| |n_b| |e|
+                theta = wp.atan2(wp.dot(wp.cross(n_a, n_b), edge), wp.dot(n_a, n_b) * len_e)
+                torque_l = kt * (theta - rest_angle_in[w, e]) * len_e  # -torque |e|
+                na2 = wp.dot(n_a, n_a)
+                nb2 = wp.dot(n_b, n_b)
+                if na2 > zero:
+                    f2 = n_a * (torque_l / na2)
+                if nb2 > zero:
+                    f3 = n_b * (torque_l / nb2)
+                if paper_variant != 0:
+                    fe = (f2 + f3) * type(damping)(-0.5)
+                    f0 = f0 + fe
+                    f1 = f1 + fe
+                else:
+                    t2 = wp.dot(x2 - x0, edge) * (inv_len * inv_len)
+                    t3 = wp.dot(x3 - x0, edge) * (inv_len * inv_len)
+                    f1 = f1 - (f2 * t2 + f3 * t3)
+                    f0 = f0 - (f2 * (one - t2) + f3 * (one - t3))
+        wp.atomic_add(f_out, w, h[0], f0)
+        wp.atomic_add(f_out, w, h[1], f1)
+        wp.atomic_add(gradv_out, w, h[0], g_ab)
+        wp.atomic_add(gradv_out, w, h[1], g_ab)
+        wp.atomic_add(gradv_out, w, h[2], g_a)
+        wp.atomic_add(gradv_out, w, h[3], g_b)
+        if wp.static(with_bending):
+            wp.atomic_add(f_out, w, h[2], f2)
+            wp.atomic_add(f_out, w, h[3], f3)
+
+    kernel.__name__ = kernel.__qualname__ = name
+    return wp.kernel(kernel, enable_backward=False)
+
+
+#: fused pass without bending (k_t = 0): spring + damper, volume and dV/dx
+eval_hinge_kernel = _make_hinge_kernel("eval_hinge_kernel", False)
+#: fused pass: spring + damper, hinge bending, volume and dV/dx
+eval_hinge_bending_kernel = _make_hinge_kernel("eval_hinge_bending_kernel", True)
+
+
+@wp.kernel(enable_backward=False)
+def init_step_forces(
+    viscous_damping: Any,
+    n_worlds: int,
+    n_vertices: int,
+    # State in:
+    v_in: wp.array2d(dtype=Any),  # (W, V)
+    # Out:
+    f_out: wp.array2d(dtype=Any),  # (W, V) overwritten with -c_v v
+    gradv_out: wp.array2d(dtype=Any),  # (W, V) zeroed
+    volume_out: wp.array2d(dtype=wp.float64),  # (W, slots) zeroed
+):
+    """Start the first force evaluation of a step (later RK4 stages are started by rk4 stage kernels)."""
+    w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
+    f_out[w, i] = v_in[w, i] * (-viscous_damping)
+    gradv_out[w, i] = f_out[w, i] * type(viscous_damping)(0.0)
+    if i == 0:
+        for s in range(volume_out.shape[1]):
+            volume_out[w, s] = wp.float64(0.0)
+
+
+@wp.func
+def gauge_pressure(air: wp.float64, volume: wp.float64, gas_rt: wp.float64, p_atm: wp.float64):
+    return air * gas_rt / volume - p_atm
+
+
+@wp.kernel(enable_backward=False)
+def finish_forces_kernel(
+    gas_rt: wp.float64,
+    p_atm: wp.float64,
+    n_worlds: int,
+    n_vertices: int,
+    air_in: wp.array(dtype=wp.float64),  # (W,) mol
+    volume_in: wp.array2d(dtype=wp.float64),  # (W, slots)
+    vslot: int,
+    gradv_in: wp.array2d(dtype=Any),  # (W, V)
+    f: wp.array2d(dtype=Any),  # (W, V) += p gradv
+):
+    """Add the pressure force p dV/dx of a fused evaluation (read-outs; steps do this in the stage kernel)."""
+    w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
+    g = gradv_in[w, i]
+    p = gauge_pressure(air_in[w], volume_in[w, vslot], gas_rt, p_atm)
+    f[w, i] = f[w, i] + g * type(g[0])(p)

@@ -7,7 +7,10 @@ import time
 
 import numpy as np
 
-__all__ = ["bench_sim", "format_rows"]
+__all__ = ["bench_sim", "format_rows", "BENCH_COLUMNS"]
+
+BENCH_COLUMNS = ["vertices", "integrator", "precision", "steps_per_s", "us_per_step", "ns_per_vertex_step",
+                 "launches_per_step", "numpy_steps_per_s", "speedup_vs_numpy"]
 
 
 def _time_steps(sim, seconds: float, repeats: int) -> float:
@@ -25,37 +28,75 @@ def _time_steps(sim, seconds: float, repeats: int) -> float:
     return best / sim.substeps
 
 
-def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5), integrators=("rk4", "semi_implicit"),
-              precisions=("float32", "float64"), repeats: int = 3, seconds: float = 0.3,
-              launch_modes=("graph",)) -> list[dict]:
-    """Internal steps per second of the Fig. 6 device (all force families, cells jammed)."""
-    from .scenarios import cube_fig6_design
+def _time_numpy(nm, seconds: float, repeats: int) -> float:
+    """Minimum wall time per internal step of the NumPy implementation (few steps on large meshes)."""
+    t0 = time.perf_counter()
+    nm.step(1)
+    per = max(time.perf_counter() - t0, 1e-6)
+    n = max(1, int(seconds / per))
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        nm.step(n)
+        best = min(best, (time.perf_counter() - t0) / n)
+    return best
+
+
+def _jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph"):
+    """The Fig. 6 device inflated (air x 1.3), every cell jammed, IPAMs at 20 kPa."""
     from .simulator import Simulator
+
+    sim = Simulator(design, device=device, integrator=integrator, precision=precision, dt=dt, substeps=substeps,
+                    launch_mode=launch_mode)
+    sim.air_moles = sim.air_moles * 1.3
+    for c in range(design.n_cells):
+        sim.jam(c)
+    if design.n_ipams:
+        sim.ipam_pressures = np.full(design.n_ipams, 20e3)
+    return sim
+
+
+def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4", "semi_implicit"),
+              precisions=("float32", "float64"), repeats: int = 3, seconds: float = 0.3,
+              launch_modes=("graph",), numpy: bool = True, numpy_seconds: float = 0.3) -> list[dict]:
+    """Internal steps per second of the Fig. 6 device (all force families, cells jammed), Warp beside
+    the vectorized NumPy float64 implementation (warp_shape.numpy_model) at the same internal step.
+
+    Each row: vertices, integrator, precision, launch_mode, device, steps_per_s, us_per_step,
+    ns_per_vertex_step, launches_per_step, internal_dt (0.9 x the stable estimate), estimate_ms (one
+    stable-step estimate on the host), numpy_steps_per_s and speedup_vs_numpy (Warp / NumPy steps per
+    second; None when numpy=False). Timing windows shrink with the mesh size (the 40962-vertex NumPy
+    rows are timed over a few steps)."""
+    from .numpy_model import NumpyMembrane
+    from .scenarios import cube_fig6_design
 
     rows = []
     for sub in subdivisions:
         design = cube_fig6_design(subdivisions=sub)
+        V = design.rest.n_vertices
+        scale = min(1.0, 2562.0 / V) ** 0.5  # shorter windows on large meshes
+        win, np_win = seconds * max(scale, 0.25), numpy_seconds * max(scale, 0.25)
         for integrator in integrators:
+            probe = _jammed_fig6(design, device, integrator, "float64")
+            t0 = time.perf_counter()
+            h = 0.9 * probe.stable_dt()
+            estimate_ms = (time.perf_counter() - t0) * 1e3
+            np_per = None
+            if numpy:
+                nm = NumpyMembrane.from_simulator(probe)
+                nm.h = h
+                np_per = _time_numpy(nm, np_win, max(1, min(repeats, 2) if V > 20000 else repeats))
             for precision in precisions:
                 for mode in launch_modes:
-                    probe = Simulator(design, device=device, integrator=integrator, precision=precision)
-                    probe.air_moles = probe.air_moles * 1.3
-                    for c in range(design.n_cells):
-                        probe.jam(c)
-                    h = 0.9 * probe.stable_dt()
-                    sim = Simulator(design, device=device, integrator=integrator, precision=precision, dt=h,
-                                    substeps=1, launch_mode=mode)
-                    sim.air_moles = probe.air_moles
-                    for c in range(design.n_cells):
-                        sim.jam(c)
-                    sim.ipam_pressures = np.full(design.n_ipams, 20e3)
-                    per_step = _time_steps(sim, seconds, repeats)
-                    V = design.rest.n_vertices
-                    rows.append(dict(vertices=V, integrator=sim.integrator, precision=precision, launch_mode=mode,
-                                     device=sim.device, steps_per_s=round(1.0 / per_step, 1),
-                                     us_per_step=round(per_step * 1e6, 2),
-                                     ns_per_vertex_step=round(per_step * 1e9 / V, 2),
-                                     launches_per_step=len(sim.step_kernels), internal_dt=h))
+                    sim = _jammed_fig6(design, device, integrator, precision, dt=h, substeps=1, launch_mode=mode)
+                    per_step = _time_steps(sim, win, repeats)
+                    rows.append(dict(
+                        vertices=V, integrator=sim.integrator, precision=precision, launch_mode=mode,
+                        device=sim.device, steps_per_s=round(1.0 / per_step, 1),
+                        us_per_step=round(per_step * 1e6, 2), ns_per_vertex_step=round(per_step * 1e9 / V, 2),
+                        launches_per_step=len(sim.step_kernels), internal_dt=h, estimate_ms=round(estimate_ms, 2),
+                        numpy_steps_per_s=None if np_per is None else round(1.0 / np_per, 2),
+                        speedup_vs_numpy=None if np_per is None else round(np_per / per_step, 1)))
     return rows
 
 

@@ -15,7 +15,7 @@ from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
 
-__all__ = ["Model", "State", "Control", "build_model", "PRECISIONS"]
+__all__ = ["Model", "State", "Control", "build_model", "host_arrays", "PRECISIONS"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -94,11 +94,9 @@ class Model:
         return self.n_ipams > 0
 
 
-def build_model(design: Design, device: str = "cpu", precision: str = "float32") -> Model:
-    """Build the static device arrays of a design (host -> device, once)."""
-    if precision not in PRECISIONS:
-        raise DesignError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
-    scalar, _, np_dtype = PRECISIONS[precision]
+def host_arrays(design: Design) -> dict:
+    """Float64/int64 host arrays of a design (rest geometry, stiffness, mass, IPAMs, cells); shared by the
+    device model and the NumPy implementation (warp_shape.numpy_model)."""
     mesh, mat = design.rest, design.material
     topo = mesh.topology
     x = mesh.vertices
@@ -108,20 +106,12 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
     hinge_area = areas[topo.faces[:, 0]] + areas[topo.faces[:, 1]]
     stiffness = mat.stretch_modulus * hinge_area / rest_length**2
     mass = mat.areal_density * mesh.vertex_areas()
-    rest_angle = dihedral_angles_np(x, hinges)
-
-    def arr(a, dtype=scalar):
-        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
-
-    n_ipam = design.n_ipams
     host = dict(
         rest_vertices=x, faces=mesh.faces.astype(np.int64), hinges=hinges.astype(np.int64),
-        rest_length=rest_length, rest_angle=rest_angle, edge_stiffness=stiffness, mass=mass,
+        rest_length=rest_length, rest_angle=dihedral_angles_np(x, hinges), edge_stiffness=stiffness, mass=mass,
         hinge_faces=topo.faces.astype(np.int64),
     )
-    ipam_arrays = dict.fromkeys(["ipam_sub_pairs", "ipam_sub_offsets", "ipam_stiffness", "ipam_area_over_k",
-                                 "ipam_free_length", "ipam_damping"])
-    if n_ipam:
+    if design.n_ipams:
         ips = design.ipams
         host.update(
             ipam_sub_pairs=np.concatenate([ip.pairs for ip in ips]).astype(np.int64),
@@ -133,6 +123,28 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
             ipam_faces=np.array([[ip.face_a, ip.face_b] for ip in ips], dtype=np.int64),
             ipam_limits=np.array([ip.pressure_limits for ip in ips], dtype=np.float64),
         )
+    host["cell_edges"] = [design.cell_edges(c) for c in range(design.n_cells)]
+    host["cell_faces"] = [c.faces.astype(np.int64) for c in design.cells]
+    return host
+
+
+def build_model(design: Design, device: str = "cpu", precision: str = "float32") -> Model:
+    """Build the static device arrays of a design (host -> device, once)."""
+    if precision not in PRECISIONS:
+        raise DesignError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    scalar, _, np_dtype = PRECISIONS[precision]
+    mesh, mat = design.rest, design.material
+    topo = mesh.topology
+    host = host_arrays(design)
+    hinges, stiffness, mass = host["hinges"], host["edge_stiffness"], host["mass"]
+
+    def arr(a, dtype=scalar):
+        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
+
+    n_ipam = design.n_ipams
+    ipam_arrays = dict.fromkeys(["ipam_sub_pairs", "ipam_sub_offsets", "ipam_stiffness", "ipam_area_over_k",
+                                 "ipam_free_length", "ipam_damping"])
+    if n_ipam:
         ipam_arrays = dict(
             ipam_sub_pairs=arr(host["ipam_sub_pairs"].astype(np.int32), wp.vec2i),
             ipam_sub_offsets=arr(host["ipam_sub_offsets"].astype(np_dtype)),
@@ -141,9 +153,7 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
             ipam_free_length=arr(host["ipam_free_length"].astype(np_dtype)),
             ipam_damping=arr(host["ipam_damping"].astype(np_dtype)),
         )
-    cell_edges_np = [design.cell_edges(c) for c in range(design.n_cells)]
-    host["cell_edges"] = cell_edges_np
-    host["cell_faces"] = [c.faces.astype(np.int64) for c in design.cells]
+    cell_edges_np = host["cell_edges"]
 
     return Model(
         device=str(device), precision=precision,

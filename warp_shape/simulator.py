@@ -22,7 +22,8 @@ from .design import Design
 from .errors import DesignError, SimulationError, StabilityError
 from .material import GAS_CONSTANT
 from .model import Control, State, build_model, dihedral_angles_np
-from .solver import FORCE_TERMS, eval_forces, make_solver, stable_dt_estimate, substeps_for
+from .solver import (FORCE_TERMS, elastic_omega2_bound, eval_forces, eval_forces_fused, make_solver,
+                     stable_dt_estimate, substeps_for)
 
 __all__ = ["Simulator"]
 
@@ -83,6 +84,8 @@ class Simulator:
         # probe buffers for read-outs outside the step loop
         self._f_probe = wp.zeros_like(self.solver.f)
         self._vol_probe = wp.zeros(self.worlds, dtype=wp.float64, device=self.device)
+        self._gradv_probe = wp.zeros_like(self.solver.f)
+        self._vol2_probe = wp.zeros((self.worlds, 1), dtype=wp.float64, device=self.device)
         self._status = wp.zeros(self.worlds, dtype=wp.int32, device=self.device)
         self._edge_len = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)
         self._edge_ang = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)
@@ -97,6 +100,8 @@ class Simulator:
         self._plan = None  # recorded launches or a captured graph of one internal step
         self.step_kernels: list[str] = []  # kernel names launched by one internal step
         self._dirty = True
+        self._geometry_version = 0  # bumped when positions are set (invalidates the cached elastic bound)
+        self._elastic_cache = None
         self.step_count = 0
         self.time = 0.0
         self._update_plan()
@@ -126,6 +131,7 @@ class Simulator:
     def positions(self, value):
         a = self._per_world(value, (self.model.n_vertices, 3), "positions")
         self.state.x.assign(a.astype(self.model.np_dtype))
+        self._geometry_version += 1
         self._dirty = True
 
     @property
@@ -219,8 +225,12 @@ class Simulator:
                 raise DesignError(f"unknown force term {term!r}; choose one of {FORCE_TERMS}")
             terms = (term,)
         st = self.state
-        eval_forces(self.model, st, self.control, st.x, st.v, self._f_probe, self._vol_probe, self._direct,
-                    paper_bending=(self.bending == "paper"), terms=terms)
+        if term is None:  # the total goes through the same fused kernels as a step
+            eval_forces_fused(self.model, st, self.control, st.x, st.v, self._f_probe, self._gradv_probe,
+                              self._vol2_probe, self._direct, paper_bending=(self.bending == "paper"))
+        else:
+            eval_forces(self.model, st, self.control, st.x, st.v, self._f_probe, self._vol_probe, self._direct,
+                        paper_bending=(self.bending == "paper"), terms=terms)
         return self._out(self._f_probe.numpy().astype(np.float64))
 
     def _volumes(self) -> np.ndarray:
@@ -306,11 +316,21 @@ class Simulator:
 
     # ------------------------------------------------------------------ stepping
     def stable_dt(self) -> float:
-        """Current conservative stable internal step (s), the minimum over worlds."""
+        """Current conservative stable internal step (s), the minimum over worlds.
+
+        The elastic part of the bound (a short Lanczos run, see solver.elastic_omega2_bound) is
+        cached until a cell jams, positions are set or ``reestimate_every`` output steps pass; air
+        changes only re-evaluate the cheap pressure and gas terms."""
         m, st = self.model, self.state
         edge_jam = st.jammed.numpy().astype(bool)
-        est = stable_dt_estimate(m, type(self.solver), edge_jam, self.control.air.numpy(),
-                                 st.x.numpy().astype(np.float64))
+        x = st.x.numpy().astype(np.float64)
+        rest = st.rest_length.numpy().astype(np.float64)
+        key = (self._geometry_version, int(edge_jam.sum()),
+               self.step_count // self.reestimate_every if self.reestimate_every else 0)
+        if self._elastic_cache is None or self._elastic_cache[0] != key:
+            self._elastic_cache = (key, elastic_omega2_bound(m, edge_jam, x, rest))
+        est = stable_dt_estimate(m, type(self.solver), edge_jam, self.control.air.numpy(), x, rest,
+                                 elastic_bound=self._elastic_cache[1])
         return float(est.min())
 
     @property
@@ -355,6 +375,12 @@ class Simulator:
 
         self.solver.step(h, record)
         self.step_kernels = names
+        # the blow-up check after every output step, recorded once per plan (its bounds depend on h)
+        m = self.model
+        self._check_cmd = wp.launch(
+            ki.check_state_kernel, self.state.x.shape,
+            [m.scalar(self._x_bound), m.scalar(self._size / h), self.state.x, self.state.v, self._status],
+            device=self.device, record_cmd=True)
         self._plan = ("record", cmds)
         if self.launch_mode == "direct":
             self._plan = ("direct", None)
@@ -381,14 +407,11 @@ class Simulator:
                 self.solver.step(self._h, self._direct)
 
     def _check(self):
-        self._status.zero_()
-        m = self.model
-        v_bound = self._size / self._h
-        wp.launch(ki.check_state_kernel, self.state.x.shape,
-                  [m.scalar(self._x_bound), m.scalar(v_bound), self.state.x, self.state.v, self._status],
-                  device=self.device)
+        self._check_cmd.launch()  # status stays zero until a blow-up (zeroed again when one is reported)
         status = self._status.numpy()
         if status.any():
+            status = status.copy()
+            self._status.zero_()
             w = int(np.argmax(status))
             safe = 0.5 * min(self._dt_stable, self._h)
             raise SimulationError(
