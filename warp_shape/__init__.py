@@ -15,6 +15,7 @@ from .designer import DesignResult, DesignSettings, design
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .material import GAS_CONSTANT, Material
 from .mesh import TriMesh, icosphere
+from .numpy_model import NumpyMembrane
 from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
                        radial_sample, shape_metrics)
 from .scan import ScanComparison, compare_scan, load_scan

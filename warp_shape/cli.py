@@ -264,14 +264,13 @@ def cmd_bench(args) -> int:
     import warp as wp
 
     _quiet_warp()
-    from .bench import bench_sim, format_rows
+    from .bench import BENCH_COLUMNS, bench_sim, format_rows
 
     results = {}
     if args.which in ("sim", "all"):
         rows = bench_sim(device=args.device, subdivisions=args.subdivisions, repeats=args.repeats)
         results["sim"] = rows
-        print(format_rows(rows, ["vertices", "integrator", "precision", "steps_per_s", "us_per_step",
-                                 "ns_per_vertex_step", "launches_per_step"]))
+        print(format_rows(rows, BENCH_COLUMNS + ["estimate_ms"]))
     if args.which in ("tradeoff", "all"):
         from .bench_tradeoff import bench_tradeoff
 
@@ -360,7 +359,8 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "rays", "all"])
     b.add_argument("--device", default="cpu")
-    b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5])
+    b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5, 6],
+                   help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
     b.add_argument("--repeats", type=int, default=3)
     b.add_argument("--out", default="out")
     b.set_defaults(func=cmd_bench)
