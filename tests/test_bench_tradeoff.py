@@ -30,3 +30,14 @@ def test_pareto_front():
             dict(wall_s=0.5, error_mm=2.0), dict(wall_s=4.0, error_mm=0.1)]
     front = pareto_front(rows)
     assert [(r["wall_s"], r["error_mm"]) for r in front] == [(0.5, 2.0), (1.0, 1.0), (2.0, 0.5), (4.0, 0.1)]
+
+
+def test_peer_bench_says_why_it_cannot_run_without_newton():
+    import importlib.util
+
+    from warp_shape.bench_peer import bench_peer
+
+    if importlib.util.find_spec("newton") is not None:
+        return  # Newton present: the bench runs (measured, not asserted)
+    rows = bench_peer(subdivisions=(2,))
+    assert len(rows) == 1 and "not installed" in rows[0]["note"]

@@ -294,6 +294,14 @@ def cmd_bench(args) -> int:
         rows = bench_design(device=args.device)
         results["design"] = rows
         print(format_rows(rows, ["problem", "targets", "actuators", "wall_s", "final_pcc", "control_steps"]))
+    if args.which in ("peer", "all"):
+        from .bench_peer import bench_peer
+
+        rows = bench_peer(subdivisions=args.subdivisions, device=args.device)
+        results["peer"] = rows
+        print("peer: the same spring + bending membrane in Newton's SolverSemiImplicit (warp_shape also "
+              "evaluates pressure and viscous damping); force evaluations per second")
+        print(format_rows(rows, list(rows[0].keys())))
     if args.which in ("rays", "all"):
         try:
             from .bench_shapes import bench_rays, format_table
@@ -357,7 +365,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=cmd_control)
 
     b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")
-    b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "rays", "all"])
+    b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "peer", "rays", "all"])
     b.add_argument("--device", default="cpu")
     b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5, 6],
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
