@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_write", "finalize_permissions"]
+__all__ = ["atomic_write", "atomic_target", "finalize_permissions"]
 
 
 def finalize_permissions(path) -> None:
@@ -17,17 +18,25 @@ def finalize_permissions(path) -> None:
     os.chmod(path, 0o666 & ~mask)
 
 
-def atomic_write(path, data: bytes | str) -> Path:
+@contextmanager
+def atomic_target(path):
+    """Yield a temporary path next to ``path`` (same suffix) for a writer to fill; on success it
+    replaces ``path``, on any error it is removed and ``path`` is left as it was."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data.encode() if isinstance(data, str) else data)
+        yield Path(tmp)
         finalize_permissions(tmp)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    return path
+
+
+def atomic_write(path, data: bytes | str) -> Path:
+    with atomic_target(path) as tmp:
+        tmp.write_bytes(data.encode() if isinstance(data, str) else data)
+    return Path(path)

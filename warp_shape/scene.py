@@ -20,15 +20,13 @@ it. Files are written atomically (temporary file in the same directory, then a r
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 
-from .atomic import finalize_permissions
+from .atomic import atomic_target
 from .design import Design
 from .errors import DesignError, MeshError, SceneError
 from .material import Material
@@ -383,17 +381,8 @@ def write_stage_atomic(stage, path) -> Path:
     """
     path = Path(path)
     _check_extension(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        _export_layer(stage.GetRootLayer(), tmp)
-        finalize_permissions(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_target(path) as tmp:
+        _export_layer(stage.GetRootLayer(), str(tmp))
     return path
 
 
