@@ -52,3 +52,16 @@ def test_control_command_writes_sequences(tmp_path, capsys):
     assert np.all(forces[:4] < 0) and forces[4] > 0
     out = capsys.readouterr().out
     assert "cube" in out and "IPAM 4" in out
+
+
+def test_control_command_records_rerun(tmp_path):
+    from warp_shape.recorder import read_recording
+
+    rrd = tmp_path / "run.rrd"
+    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "15", "--rerun", str(rrd)])
+    assert rc == 0 and rrd.stat().st_size > 1000
+    rec = read_recording(rrd)
+    data = json.loads((tmp_path / "control_cube.json").read_text())
+    membrane = rec["entities"]["/control/cube/membrane"]
+    assert len(membrane["times"]["control_step"]) == len(data["rows"])
+    assert (tmp_path / "control_cube.png").exists()

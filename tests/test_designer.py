@@ -80,7 +80,7 @@ def test_default_outputs_exist_and_validate(default_run):
     rc, out = default_run
     expected = {"design.usda", "actuation_oval.usdc", "actuation_heart.usdc", "control_oval.csv", "control_oval.json",
                 "control_heart.csv", "control_heart.json", "report.json", "report.md", "mold_inner.stl",
-                "mold_outer.stl"}
+                "mold_outer.stl", "pcc_by_round.png", "control_oval.png", "control_heart.png"}
     assert expected <= {p.name for p in out.iterdir()}
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary files
     for name in ("design.usda", "actuation_oval.usdc", "actuation_heart.usdc"):
@@ -98,6 +98,19 @@ def test_default_outputs_exist_and_validate(default_run):
     assert r_outer.mean() - r_rest.mean() == pytest.approx(5e-3, rel=0.02)
     assert outer.volume > rest.volume() and inner.volume > rest.volume()  # markers stand proud
     assert len(inner.vertices) == rest.n_vertices + 8  # one marker apex per IPAM end
+
+
+def test_default_run_writes_report_figures(default_run):
+    from matplotlib.image import imread
+
+    rc, out = default_run
+    for name in ("pcc_by_round.png", "control_oval.png", "control_heart.png"):
+        path = out / name
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+        img = imread(path)
+        assert img.shape[0] > 200 and img.shape[1] > 200, name
+        colours = np.unique((img[..., :3] * 255).astype(np.uint8).reshape(-1, 3), axis=0)
+        assert len(colours) > 20 and img[..., :3].std() > 0.05, name  # drawn content, not a blank canvas
 
 
 @pytest.mark.parametrize("argv,match", [

@@ -12,10 +12,12 @@ Quick start::
 from .controller import ControlResult, ControlSettings, control, control_many
 from .design import Cell, Design, Ipam
 from .designer import DesignResult, DesignSettings, design
+from .figures import control_figure, pcc_by_round_figure, write_figures
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .material import GAS_CONSTANT, Material
 from .mesh import TriMesh, icosphere
 from .numpy_model import NumpyMembrane
+from .recorder import Recorder, bench_recorder, read_recording
 from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
                        radial_sample, shape_metrics)
 from .scan import ScanComparison, compare_scan, load_scan

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -38,6 +39,32 @@ def _progress(done: int, total: int, label: str, stream=sys.stderr):
     stream.flush()
 
 
+# --------------------------------------------------------------------------- rerun and figures
+
+def _add_rerun_args(sp):
+    sp.add_argument("--rerun", metavar="FILE.rrd", default=None, help="write a rerun recording (open: rerun FILE.rrd)")
+    sp.add_argument("--rerun-spawn", action="store_true", help="stream to a live rerun viewer (needs a display)")
+    sp.add_argument("--rerun-every", type=int, default=1, help="log every k-th control step (the last is always logged)")
+
+
+def _recorder(args):
+    if not (getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)):
+        return contextlib.nullcontext(None)
+    from .recorder import Recorder
+
+    return Recorder(args.rerun, spawn=args.rerun_spawn, every=args.rerun_every)
+
+
+def _figures(result, out, target_names=None) -> list:
+    try:
+        from .figures import write_figures
+
+        return write_figures(result, out, target_names=target_names)
+    except ImportError as exc:
+        print(f"figures skipped: {exc}", file=sys.stderr)
+        return []
+
+
 # --------------------------------------------------------------------------- simulate
 
 def cmd_simulate(args) -> int:
@@ -45,6 +72,7 @@ def cmd_simulate(args) -> int:
     from .scenarios import cube_fig6_design
     from .simulator import Simulator
 
+    stack = contextlib.ExitStack()
     design = cube_fig6_design(subdivisions=args.subdivisions)
     sim = Simulator(design, device=args.device, integrator=args.integrator, dt=args.dt, precision=args.precision)
     n_inflate = int(round(args.inflate_time / args.dt))
@@ -52,33 +80,48 @@ def cmd_simulate(args) -> int:
     air0 = sim.air_moles
     rows = []
 
+    rec = stack.enter_context(_recorder(args))
+    if rec is not None:
+        rec.begin_simulation(design)
+
+    def frame(force=False):
+        if rec is not None:
+            rec.log_sim_frame(sim.step_count, sim.time, sim.positions, sim.volume(), sim.pressure(), sim.ipam_lengths(),
+                              sim.ipam_forces(), sim.jammed, force=force)
+
     def record(phase):
         rows.append(dict(phase=phase, time=sim.time, volume=sim.volume(), pressure=sim.pressure(),
                          ipam_length=sim.ipam_lengths().tolist(), ipam_force=sim.ipam_forces().tolist(),
                          jammed=int(sim.jammed.sum())))
+        frame(force=True)
 
-    t0 = time.perf_counter()
-    record("rest")
-    chunk = max(1, n_inflate // 20)
-    for i in range(0, n_inflate, chunk):
-        frac = min(1.0, (i + chunk) / n_inflate)
-        sim.air_moles = air0 * (1.0 + (args.air_scale - 1.0) * frac)
-        sim.step(min(chunk, n_inflate - i))
-        _progress(min(i + chunk, n_inflate), n_inflate + n_actuate, "simulate")
-    record("inflated")
-    for c in range(design.n_cells):
-        sim.jam(c)
-    # corner IPAMs push (pressurise), the face IPAM pulls (vents to its lower limit)
-    lo = np.array([ip.pressure_limits[0] for ip in design.ipams])
-    hi = np.array([ip.pressure_limits[1] for ip in design.ipams])
-    target = np.where(np.arange(design.n_ipams) < 4, 0.5 * hi, np.maximum(lo, -20e3))
-    chunk = max(1, n_actuate // 20)
-    for i in range(0, n_actuate, chunk):
-        frac = min(1.0, (i + chunk) / n_actuate)
-        sim.ipam_pressures = target * frac
-        sim.step(min(chunk, n_actuate - i))
-        _progress(n_inflate + min(i + chunk, n_actuate), n_inflate + n_actuate, "simulate")
-    record("actuated")
+    try:
+        t0 = time.perf_counter()
+        record("rest")
+        chunk = max(1, n_inflate // 20)
+        for i in range(0, n_inflate, chunk):
+            frac = min(1.0, (i + chunk) / n_inflate)
+            sim.air_moles = air0 * (1.0 + (args.air_scale - 1.0) * frac)
+            sim.step(min(chunk, n_inflate - i))
+            frame()
+            _progress(min(i + chunk, n_inflate), n_inflate + n_actuate, "simulate")
+        record("inflated")
+        for c in range(design.n_cells):
+            sim.jam(c)
+        # corner IPAMs push (pressurise), the face IPAM pulls (vents to its lower limit)
+        lo = np.array([ip.pressure_limits[0] for ip in design.ipams])
+        hi = np.array([ip.pressure_limits[1] for ip in design.ipams])
+        target = np.where(np.arange(design.n_ipams) < 4, 0.5 * hi, np.maximum(lo, -20e3))
+        chunk = max(1, n_actuate // 20)
+        for i in range(0, n_actuate, chunk):
+            frac = min(1.0, (i + chunk) / n_actuate)
+            sim.ipam_pressures = target * frac
+            sim.step(min(chunk, n_actuate - i))
+            frame()
+            _progress(n_inflate + min(i + chunk, n_actuate), n_inflate + n_actuate, "simulate")
+        record("actuated")
+    finally:
+        stack.close()  # the recording is saved even when the run fails
     wall = time.perf_counter() - t0
     result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
                   device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
@@ -143,8 +186,11 @@ def cmd_control(args) -> int:
     def progress(step, total, done, worlds):
         _progress(total if done == worlds else step, total, f"control ({done}/{worlds} targets done)")
 
-    results = control_many(design, [t for _, t in targets], device=args.device, settings=settings, progress=progress)
+    with _recorder(args) as rec:
+        results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
+                               progress=progress, recorder=rec, target_names=[n for n, _ in targets])
     out = Path(args.out)
+    _figures(results, out, [n for n, _ in targets])
     report = {}
     for (name, _), res in zip(targets, results):
         res.to_csv(out / f"control_{name}.csv")
@@ -228,8 +274,9 @@ def cmd_design(args) -> int:
     rounds_seen: list = []
     t0 = time.perf_counter()
     try:
-        res = design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
-                     settings=settings, progress=progress, on_round=on_round)
+        with _recorder(args) as rec:
+            res = design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
+                         settings=settings, progress=progress, on_round=on_round, recorder=rec)
     except Exception:
         if not isinstance(sys.exc_info()[1], KeyboardInterrupt):
             for path in written:  # a failed run leaves no partial outputs
@@ -247,6 +294,8 @@ def cmd_design(args) -> int:
 
     keep(write_stl(inner_mold(res.design, args.marker_height), out / "mold_inner.stl"))
     keep(write_stl(outer_mold(res.design, args.layer_thickness), out / "mold_outer.stl"))
+    for path in _figures(res, out):
+        keep(path)
     report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"})
     atomic_write(out / "report.md", res.markdown())
     write_json_atomic(out / "report.json", report)
@@ -334,6 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="out", help="output directory")
     s.add_argument("--json", action="store_true", help="print machine-readable results")
     s.add_argument("--verbose", action="store_true")
+    _add_rerun_args(s)
     s.set_defaults(func=cmd_simulate)
 
     d = sub.add_parser("design", help="design a display for target shapes (default: oval + heart, 4 IPAMs)")
@@ -349,6 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="out")
     d.add_argument("--json", action="store_true")
     d.add_argument("--verbose", action="store_true")
+    _add_rerun_args(d)
     d.set_defaults(func=cmd_design)
 
     c = sub.add_parser("control", help="drive a design to target shapes; writes the control sequences")
@@ -362,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--out", default="out")
     c.add_argument("--json", action="store_true")
     c.add_argument("--verbose", action="store_true")
+    _add_rerun_args(c)
     c.set_defaults(func=cmd_control)
 
     b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")

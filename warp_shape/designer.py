@@ -245,7 +245,9 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
                 new_i, new_c = {current.n_ipams - 1}, set(new_cells)
                 retry = control_many(current, [targets[j] for j in worse], device=device, settings=control_settings,
                                      passive_ipams=[sorted(passive_i[j] | new_i) for j in worse],
-                                     passive_cells=[sorted(passive_c[j] | new_c) for j in worse])
+                                     passive_cells=[sorted(passive_c[j] | new_c) for j in worse],
+                                     recorder=recorder, recorder_prefix=f"design/round_{i}_selected",
+                                     target_names=[names[j] for j in worse])
                 for j, r in zip(worse, retry):
                     if r.pcc > results[j].pcc:
                         results[j] = r

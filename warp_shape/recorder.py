@@ -1,0 +1,583 @@
+"""Rerun recordings of simulations, control runs and design runs, for visual debugging.
+
+``Recorder`` implements the hooks that ``ws.control`` / ``ws.control_many`` / ``ws.design`` call
+when given ``recorder=`` (``begin_run``, ``log_control_step``, ``end_run``, ``log_design_round``),
+plus ``begin_simulation`` / ``log_sim_frame`` for plain simulations. Everything it does is host-side
+numpy and rerun logging: no Warp launches. Without a recorder the controller does nothing extra.
+
+Entity paths (``{run}`` is the run prefix: ``control``, ``design/round_<i>`` or ``simulate``;
+``{name}`` the target name, or ``world<w>`` in a plain simulation):
+
+  {run}/{name}                   Transform3D: targets of one run side by side along x (static)
+  {run}/{name}/membrane          Mesh3D: triangle indices once (static), positions and per-vertex
+                                 colours per frame (radial error |r| - |R| to the sampled target,
+                                 blue inside - white - red outside, saturating at +-ERROR_RANGE_M;
+                                 in a plain simulation the radial displacement from rest)
+  {run}/{name}/target            Mesh3D: the centred target, translucent grey ghost (static)
+  {run}/{name}/ipams             LineStrips3D: one segment per IPAM between its end-face centroids,
+                                 blue when pushing (F < 0), red when pulling (F > 0), saturating at
+                                 +-FORCE_RANGE_N
+  {run}/{name}/cells             Mesh3D: the faces of every jamming cell, lifted 0.4 % outward,
+                                 grey while free, green once jammed
+  {run}/{name}/volume            Scalars [V, V_t] (m^3)
+  {run}/{name}/pressure          Scalars [p] gauge (Pa)
+  {run}/{name}/ipam/length       Scalars [L_0..L_n-1, L_t0..L_tn-1] (m)
+  {run}/{name}/ipam/force        Scalars [F_0..] (N, + = tension)
+  {run}/{name}/ipam/pressure     Scalars [P_0..] (Pa)
+  {run}/{name}/cell/kappa        Scalars [kappa_0.., kappa_t0..] (m)
+  {run}/{name}/cell/jammed       Scalars [0/1 per cell]
+  {run}/{name}/fit/pcc           Scalars [PCC]
+  {run}/{name}/fit/mare          Scalars [MARE] (m)
+  {run}/{name}/fit/mpre          Scalars [MPRE] (%)
+  {run}/{name}/summary           TextDocument: the run's outcome (static, at the end)
+  design/pcc/{name}              Scalars [PCC] on the ``round`` timeline (one row per design round)
+
+Timelines: ``control_step`` (sequence) and ``sim_time`` (duration, s) for control runs;
+``sim_step`` (sequence) and ``sim_time`` for plain simulations; ``round`` (sequence) for the PCC by
+design round. The series styling (names, colours) is static per entity.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import finalize_permissions
+from .errors import DesignError
+
+__all__ = ["Recorder", "bench_recorder", "read_recording", "count_control_launches", "diverging_colors", "ERROR_RANGE_M", "FORCE_RANGE_N"]
+
+ERROR_RANGE_M = 5e-3  # radial error (m) at which the membrane colour saturates
+FORCE_RANGE_N = 2.0  # IPAM axial force (N) at which the segment colour saturates
+CELL_LIFT = 1.004  # cell overlay drawn this factor outward (radially) so it does not z-fight
+_BLUE = np.array([59, 76, 192], dtype=np.float64)  # inside / push
+_WHITE = np.array([242, 242, 242], dtype=np.float64)
+_RED = np.array([180, 4, 38], dtype=np.float64)  # outside / pull
+_FREE = np.array([150, 150, 150, 150], dtype=np.uint8)  # cell, not jammed
+_JAMMED = np.array([30, 170, 80, 230], dtype=np.uint8)  # cell, jammed
+_GHOST = (200, 200, 200, 50)  # target ghost albedo (RGBA)
+_PALETTE = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
+                     [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207]], dtype=np.uint8)
+
+
+def diverging_colors(values, value_range: float) -> np.ndarray:
+    """(N, 4) uint8 RGBA: blue for -value_range and below, white at 0, red for +value_range and above."""
+    t = np.clip(np.asarray(values, dtype=np.float64) / float(value_range), -1.0, 1.0)[:, None]
+    rgb = np.where(t < 0, _WHITE + (_BLUE - _WHITE) * (-t), _WHITE + (_RED - _WHITE) * t)
+    out = np.empty((rgb.shape[0], 4), dtype=np.uint8)
+    out[:, :3] = np.rint(rgb)
+    out[:, 3] = 255
+    return out
+
+
+def _palette(n: int) -> np.ndarray:
+    return _PALETTE[np.arange(n) % len(_PALETTE)]
+
+
+class _Run:
+    """Static description of one logged run (one design driven to one or more targets)."""
+
+    def __init__(self, design, prefix: str, names: list, targets, kind: str):
+        self.design = design
+        self.prefix = prefix.strip("/")
+        self.names = list(names)
+        self.targets = targets
+        self.kind = kind  # "control" or "simulate"
+        rest = design.rest
+        self.faces = np.asarray(rest.faces, dtype=np.int64)
+        self.rest_radius = np.linalg.norm(rest.vertices, axis=1)
+        self.ipam_faces = np.array([[ip.face_a, ip.face_b] for ip in design.ipams], dtype=np.int64).reshape(-1, 2)
+        self.n_ipam, self.n_cell = design.n_ipams, design.n_cells
+        # cell overlay: every cell's vertices duplicated so each cell has its own colour
+        verts, tris, owner = [], [], []
+        base = 0
+        for j, cell in enumerate(design.cells):
+            cf = self.faces[np.asarray(cell.faces, dtype=np.int64)]
+            uniq, inv = np.unique(cf, return_inverse=True)
+            verts.append(uniq)
+            tris.append(inv.reshape(-1, 3) + base)
+            owner.append(np.full(len(uniq), j))
+            base += len(uniq)
+        self.cell_vertices = np.concatenate(verts) if verts else np.zeros(0, dtype=np.int64)
+        self.cell_tris = np.concatenate(tris).astype(np.uint32) if tris else np.zeros((0, 3), dtype=np.uint32)
+        self.cell_owner = np.concatenate(owner) if owner else np.zeros(0, dtype=np.int64)
+        extent = float(self.rest_radius.max())
+        if targets:
+            extent = max(extent, max(float(np.linalg.norm(t.vertices, axis=1).max()) for t in targets))
+        self.spacing = 2.5 * extent
+        self.logged_step = [-1] * len(self.names)
+        self.logged_frames = [0] * len(self.names)
+
+    def base(self, w: int) -> str:
+        return f"{self.prefix}/{self.names[w]}"
+
+
+class Recorder:
+    """Log simulations, control runs and design runs to a rerun recording.
+
+    ``path``: the ``.rrd`` file, written on ``close()`` (to a temporary file in the same directory
+    while recording, renamed into place at the end, so the path never holds a partial recording).
+    ``spawn``: also stream live to a rerun viewer started for it. With neither, the recording is
+    kept in memory. ``every``: log every k-th control step (the last state of every run is always
+    logged). Use as a context manager, or call ``close()``; the default blueprint (the 3-D view
+    beside the time series, one tab per run) is written into the recording on close.
+    """
+
+    def __init__(self, path=None, spawn: bool = False, every: int = 1, application_id: str = "warp_shape",
+                 recording_id: str | None = None):
+        if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+            raise DesignError(f"every must be an integer >= 1 (log every k-th control step), got {every!r}")
+        try:
+            import rerun as rr
+        except ImportError as exc:
+            raise ImportError("rerun recordings need rerun-sdk: pip install 'warp-shape[rerun]'") from exc
+
+        self._rr = rr
+        self.every = int(every)
+        self.path = Path(path) if path is not None else None
+        self.recording_id = recording_id or str(uuid.uuid4())
+        self.stream = rr.RecordingStream(application_id, recording_id=self.recording_id)
+        self.runs: list[_Run] = []
+        self.design_targets: list[str] | None = None
+        self._run: _Run | None = None
+        self._sim_calls = 0
+        self._closed = False
+        self._tmp = None
+        self._memory = None
+        sinks = []
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+            os.close(fd)
+            self._tmp = tmp
+            sinks.append(rr.FileSink(tmp))
+        if spawn:
+            rr.spawn(connect=False)
+            sinks.append(rr.GrpcSink())
+        self.spawn = bool(spawn)
+        if sinks:
+            self.stream.set_sinks(*sinks)
+        else:
+            self._memory = self.stream.memory_recording()
+        if spawn:
+            self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+
+    # ------------------------------------------------------------------ context manager / close
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()  # a failed run is still saved: that is when it is most useful
+
+    def close(self) -> Path | None:
+        """Write the default blueprint, flush, and move the ``.rrd`` into place. Idempotent."""
+        if self._closed:
+            return self.path
+        self._closed = True
+        self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+        self.stream.flush()
+        if self._memory is not None:
+            return None  # in-memory recording: keep it readable through ``memory_bytes()``
+        self.stream.disconnect()
+        if self._tmp is not None:
+            finalize_permissions(self._tmp)
+            os.replace(self._tmp, self.path)
+            self._tmp = None
+        return self.path
+
+    def memory_bytes(self) -> bytes:
+        """The recording as ``.rrd`` bytes (in-memory recorders: no ``path`` and no ``spawn``)."""
+        if self._memory is None:
+            raise DesignError("memory_bytes() is for a Recorder without path or spawn; read the .rrd file instead")
+        self.stream.flush()
+        return self._memory.drain_as_bytes()
+
+    def __del__(self):
+        tmp = getattr(self, "_tmp", None)
+        if tmp is not None and not getattr(self, "_closed", True):
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+
+    # ------------------------------------------------------------------ blueprint
+    def blueprint(self):
+        """The default layout: per run a tab with the 3-D view beside its time series; the PCC by
+        design round in its own tab."""
+        import rerun.blueprint as rrb
+
+        tabs = []
+        for run in self.runs:
+            series = [("volume", "volume (m^3)"), ("pressure", "gauge pressure (Pa)")]
+            if run.n_ipam:
+                series += [("ipam/length", "IPAM length (m)"), ("ipam/force", "IPAM force (N)")]
+            if run.n_cell:
+                series += [("cell/kappa", "cell curvature (m)")]
+            if run.kind == "control":
+                series += [("fit/pcc", "PCC")]
+            views = [rrb.TimeSeriesView(origin=f"/{run.prefix}", name=title,
+                                        contents=[f"+ /{run.prefix}/{n}/{key}" for n in run.names])
+                     for key, title in series]
+            tabs.append(rrb.Horizontal(rrb.Spatial3DView(origin=f"/{run.prefix}", name=f"{run.prefix} 3-D"),
+                                       rrb.Vertical(*views), column_shares=[3, 2], name=run.prefix))
+        if self.design_targets:
+            tabs.append(rrb.TimeSeriesView(origin="/design/pcc", name="PCC by design round"))
+        if not tabs:
+            return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="/", name="3-D"),
+                                                rrb.TimeSeriesView(origin="/", name="time series")))
+        root = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs, active_tab=len(tabs) - 1 - bool(self.design_targets))
+        return rrb.Blueprint(root, collapse_panels=False)
+
+    # ------------------------------------------------------------------ static parts of a run
+    def _begin(self, run: _Run) -> None:
+        rr, s = self._rr, self.stream
+        self.runs.append(run)
+        self._run = run
+        for w, name in enumerate(run.names):
+            b = run.base(w)
+            s.log(b, rr.Transform3D(translation=[w * run.spacing, 0.0, 0.0]), static=True)
+            s.log(f"{b}/membrane", rr.Mesh3D.from_fields(triangle_indices=run.faces.astype(np.uint32)), static=True)
+            if run.targets:
+                t = run.targets[w]
+                s.log(f"{b}/target", rr.Mesh3D(vertex_positions=np.asarray(t.vertices, np.float32),
+                                                triangle_indices=np.asarray(t.faces, np.uint32),
+                                                albedo_factor=_GHOST), static=True)
+            if run.n_cell:
+                s.log(f"{b}/cells", rr.Mesh3D.from_fields(triangle_indices=run.cell_tris), static=True)
+            s.log(f"{b}/volume", rr.SeriesLines(colors=[[31, 119, 180], [150, 190, 220]], names=[
+                f"{name} V", f"{name} V target"]), static=True)
+            s.log(f"{b}/pressure", rr.SeriesLines(colors=[[31, 119, 180]], names=[f"{name} p"]), static=True)
+            if run.n_ipam:
+                pal = _palette(run.n_ipam)
+                s.log(f"{b}/ipam/length", rr.SeriesLines(
+                    colors=np.concatenate([pal, (pal.astype(np.int32) + 255) // 2]).astype(np.uint8),
+                    widths=[2.0] * run.n_ipam + [1.0] * run.n_ipam,
+                    names=[f"{name} ipam{i} L" for i in range(run.n_ipam)]
+                    + [f"{name} ipam{i} L target" for i in range(run.n_ipam)]), static=True)
+                s.log(f"{b}/ipam/force", rr.SeriesLines(colors=pal, names=[f"{name} ipam{i} F" for i in
+                                                                            range(run.n_ipam)]), static=True)
+                s.log(f"{b}/ipam/pressure", rr.SeriesLines(colors=pal, names=[f"{name} ipam{i} P" for i in
+                                                                               range(run.n_ipam)]), static=True)
+            if run.n_cell:
+                pal = _palette(run.n_cell)
+                s.log(f"{b}/cell/kappa", rr.SeriesLines(
+                    colors=np.concatenate([pal, (pal.astype(np.int32) + 255) // 2]).astype(np.uint8),
+                    widths=[2.0] * run.n_cell + [1.0] * run.n_cell,
+                    names=[f"{name} cell{j} kappa" for j in range(run.n_cell)]
+                    + [f"{name} cell{j} kappa target" for j in range(run.n_cell)]), static=True)
+                s.log(f"{b}/cell/jammed", rr.SeriesLines(colors=pal, names=[f"{name} cell{j} jammed" for j in
+                                                                             range(run.n_cell)]), static=True)
+            if run.kind == "control":
+                s.log(f"{b}/fit/pcc", rr.SeriesLines(colors=[[214, 39, 40]], names=[f"{name} PCC"]), static=True)
+                s.log(f"{b}/fit/mare", rr.SeriesLines(names=[f"{name} MARE"]), static=True)
+                s.log(f"{b}/fit/mpre", rr.SeriesLines(names=[f"{name} MPRE"]), static=True)
+        if self.spawn:
+            self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+
+    def _log_geometry(self, run: _Run, w: int, x: np.ndarray, radial: np.ndarray, forces, jammed) -> None:
+        """Membrane, IPAM segments and cell overlay of world ``w`` at the current time."""
+        rr, s, b = self._rr, self.stream, run.base(w)
+        s.log(f"{b}/membrane", rr.Mesh3D.from_fields(vertex_positions=x.astype(np.float32),
+                                                     vertex_colors=diverging_colors(radial, ERROR_RANGE_M)))
+        if run.n_ipam:
+            cen = x[run.faces[run.ipam_faces]].mean(axis=2)  # (n_ipam, 2, 3)
+            s.log(f"{b}/ipams", rr.LineStrips3D(cen.astype(np.float32), radii=0.0008,
+                                                colors=diverging_colors(forces, FORCE_RANGE_N)))
+        if run.n_cell:
+            cols = np.where(np.asarray(jammed, bool)[run.cell_owner][:, None], _JAMMED, _FREE)
+            s.log(f"{b}/cells", rr.Mesh3D.from_fields(
+                vertex_positions=(x[run.cell_vertices] * CELL_LIFT).astype(np.float32), vertex_colors=cols))
+
+    # ------------------------------------------------------------------ controller hooks
+    def begin_run(self, *, design, targets, target_names, prefix: str = "control", settings=None) -> None:
+        """Start a control run: static topology, target ghosts, series styling."""
+        self.stream.reset_time()
+        self._begin(_Run(design, prefix, list(target_names), list(targets), "control"))
+
+    def log_control_step(self, *, step: int, time: float, positions, sampled, rows, done) -> None:
+        """One control step of every world still running (every ``every``-th step is logged)."""
+        run = self._run
+        if run is None or step % self.every:
+            return
+        x_all = np.asarray(positions, dtype=np.float64)
+        s_all = np.asarray(sampled, dtype=np.float64)
+        self.stream.set_time("control_step", sequence=int(step))
+        self.stream.set_time("sim_time", duration=float(time))
+        for w in range(len(run.names)):
+            if done[w] or not rows[w]:
+                continue
+            self._log_control_row(run, w, x_all[w], s_all[w], rows[w][-1])
+
+    def _log_control_row(self, run: _Run, w: int, x: np.ndarray, sampled: np.ndarray, row: dict) -> None:
+        rr, s, b = self._rr, self.stream, run.base(w)
+        n_i, n_c = run.n_ipam, run.n_cell
+        radial = np.linalg.norm(x, axis=1) - np.linalg.norm(sampled, axis=1)
+        forces = [row[f"ipam{i}_force_n"] for i in range(n_i)]
+        jammed = [row[f"cell{j}_jammed"] for j in range(n_c)]
+        self._log_geometry(run, w, x, radial, forces, jammed)
+        s.log(f"{b}/volume", rr.Scalars([row["volume_m3"], row["target_volume_m3"]]))
+        s.log(f"{b}/pressure", rr.Scalars([row["pressure_pa"]]))
+        if n_i:
+            s.log(f"{b}/ipam/length", rr.Scalars([row[f"ipam{i}_length_m"] for i in range(n_i)]
+                                                 + [row[f"ipam{i}_target_length_m"] for i in range(n_i)]))
+            s.log(f"{b}/ipam/force", rr.Scalars(forces))
+            s.log(f"{b}/ipam/pressure", rr.Scalars([row[f"ipam{i}_pressure_pa"] for i in range(n_i)]))
+        if n_c:
+            s.log(f"{b}/cell/kappa", rr.Scalars([row[f"cell{j}_kappa_m"] for j in range(n_c)]
+                                                + [row[f"cell{j}_kappa_target_m"] for j in range(n_c)]))
+            s.log(f"{b}/cell/jammed", rr.Scalars([float(v) for v in jammed]))
+        s.log(f"{b}/fit/pcc", rr.Scalars([row["pcc"]]))
+        s.log(f"{b}/fit/mare", rr.Scalars([row["mare_m"]]))
+        s.log(f"{b}/fit/mpre", rr.Scalars([row["mpre_pct"]]))
+        run.logged_step[w] = int(row["step"])
+        run.logged_frames[w] += 1
+
+    def end_run(self, results) -> None:
+        """Log the final state of any world whose last control step was skipped by ``every``, and a
+        summary of each run's outcome."""
+        run = self._run
+        if run is None:
+            return
+        for w, res in enumerate(results):
+            h = res.history
+            last = int(h["step"][-1])
+            if run.logged_step[w] != last:
+                row = {k: v[-1] for k, v in h.items()}
+                self.stream.set_time("control_step", sequence=last)
+                self.stream.set_time("sim_time", duration=float(h["time"][-1]))
+                self._log_control_row(run, w, np.asarray(res.achieved.vertices, np.float64),
+                                      np.asarray(res.sampled_target.vertices, np.float64), row)
+            text = (f"**{run.names[w]}** ({run.prefix}): PCC {res.pcc:.4f}, MARE {res.mare * 1e3:.3f} mm, "
+                    f"MPRE {res.mpre:.2f} %, volume error {100 * res.volume_error:+.3f} %, "
+                    f"{res.control_steps} control steps; {res.reason}. Jammed cells: "
+                    f"{np.flatnonzero(res.jammed).tolist()}.")
+            self.stream.log(f"{run.base(w)}/summary", self._rr.TextDocument(text, media_type="text/markdown"),
+                            static=True)
+        self._run = None
+
+    def log_design_round(self, i: int, pcc_row, target_names, design=None) -> None:
+        """The PCC of every target after design round ``i`` (``design/pcc/<target>``, ``round`` timeline)."""
+        rr, s = self._rr, self.stream
+        names = list(target_names)
+        if self.design_targets is None:
+            self.design_targets = names
+            for j, n in enumerate(names):
+                s.log(f"design/pcc/{n}", rr.SeriesLines(colors=[_palette(len(names))[j]], names=[f"{n} PCC"]),
+                      static=True)
+        s.reset_time()
+        s.set_time("round", sequence=int(i))
+        for n, v in zip(names, np.asarray(pcc_row, dtype=np.float64)):
+            s.log(f"design/pcc/{n}", rr.Scalars([float(v)]))
+        if design is not None:
+            s.log("design/actuators", rr.Scalars([float(design.n_ipams)]))
+        s.reset_time()
+
+    # ------------------------------------------------------------------ plain simulations
+    def begin_simulation(self, design, prefix: str = "simulate", names=None, worlds: int = 1) -> None:
+        """Start logging a plain simulation of ``design`` (``worlds`` copies)."""
+        names = list(names) if names is not None else [f"world{w}" for w in range(worlds)]
+        self.stream.reset_time()
+        self._sim_calls = 0
+        self._begin(_Run(design, prefix, names, [], "simulate"))
+
+    def log_sim_frame(self, step: int, time: float, positions, volume=None, pressure=None, ipam_lengths=None,
+                      ipam_forces=None, jammed=None, *, design=None, force: bool = False) -> None:
+        """One frame of a plain simulation: ``positions`` (V, 3) or (W, V, 3); the other quantities a
+        scalar / (n,) per world (or with a leading world axis). The membrane colour is the radial
+        displacement from rest. Every ``every``-th call is logged (``force=True`` always logs)."""
+        x_all = np.asarray(positions, dtype=np.float64)
+        if x_all.ndim == 2:
+            x_all = x_all[None]
+        run = self._run
+        if run is None or run.kind != "simulate":
+            if design is None:
+                raise DesignError("log_sim_frame needs the design: call begin_simulation(design) first "
+                                  "or pass design=")
+            self.begin_simulation(design, worlds=x_all.shape[0])
+            run = self._run
+        call = self._sim_calls
+        self._sim_calls += 1
+        if call % self.every and not force:
+            return
+        W = x_all.shape[0]
+
+        def per_world(v, w, n):
+            if v is None:
+                return None
+            a = np.asarray(v, dtype=np.float64)
+            if n is None:  # scalar per world
+                return float(a.reshape(-1)[w] if a.size == W and a.size > 1 else a.reshape(-1)[0])
+            return a.reshape(W, n)[w] if a.size == W * n else a.reshape(-1)[:n]
+
+        rr, s = self._rr, self.stream
+        s.set_time("sim_step", sequence=int(step))
+        s.set_time("sim_time", duration=float(time))
+        for w in range(W):
+            b = run.base(w)
+            x = x_all[w]
+            forces = per_world(ipam_forces, w, run.n_ipam) if run.n_ipam else None
+            jam = per_world(jammed, w, run.n_cell) if run.n_cell else None
+            self._log_geometry(run, w, x, np.linalg.norm(x, axis=1) - run.rest_radius,
+                               np.zeros(run.n_ipam) if forces is None else forces,
+                               np.zeros(run.n_cell) if jam is None else jam)
+            vol = per_world(volume, w, None)
+            if vol is not None:
+                s.log(f"{b}/volume", rr.Scalars([vol]))
+            p = per_world(pressure, w, None)
+            if p is not None:
+                s.log(f"{b}/pressure", rr.Scalars([p]))
+            if run.n_ipam and ipam_lengths is not None:
+                s.log(f"{b}/ipam/length", rr.Scalars(per_world(ipam_lengths, w, run.n_ipam)))
+            if forces is not None:
+                s.log(f"{b}/ipam/force", rr.Scalars(forces))
+            if jam is not None:
+                s.log(f"{b}/cell/jammed", rr.Scalars(jam))
+            run.logged_frames[w] += 1
+
+
+# ---------------------------------------------------------------------- benchmark
+class _LaunchCounter:
+    """Counts Warp kernel launches (``wp.launch``, replayed recorded launches, graph launches)."""
+
+    def __init__(self):
+        import warp as wp
+
+        self.wp = wp
+        self.count = 0
+
+    def __enter__(self):
+        wp = self.wp
+        self._launch, self._replay, self._graph = wp.launch, wp.Launch.launch, wp.capture_launch
+        real_launch, real_replay, real_graph = self._launch, self._replay, self._graph
+
+        def launch(*a, **k):
+            self.count += 1
+            return real_launch(*a, **k)
+
+        def replay(cmd, *a, **k):
+            self.count += 1
+            return real_replay(cmd, *a, **k)
+
+        def graph(*a, **k):
+            self.count += 1
+            return real_graph(*a, **k)
+
+        wp.launch, wp.Launch.launch, wp.capture_launch = launch, replay, graph
+        return self
+
+    def __exit__(self, *exc):
+        self.wp.launch, self.wp.Launch.launch, self.wp.capture_launch = self._launch, self._replay, self._graph
+
+
+def count_control_launches(design, target, recorder=None, **control_kwargs) -> int:
+    """Warp launches of one ``ws.control`` run (with or without a recorder)."""
+    from .controller import control
+
+    with _LaunchCounter() as c:
+        control(design, target, recorder=recorder, **control_kwargs)
+    return c.count
+
+
+def bench_recorder(subdivisions: int = 2, max_steps: int = 30, repeats: int = 3, device: str = "cpu",
+                   out_dir=None) -> dict:
+    """Wall time of a short control run (the Fig. 6 device driven to the cube) without a recorder,
+    with one logging every control step, and with ``every=5``: minimum of ``repeats``, measured
+    side by side; plus the Warp launch counts with and without a recorder (equal: logging is
+    host-side only) and the recording sizes."""
+    from .controller import control
+    from .scenarios import cube_fig6_design
+    from .targets import target
+
+    d = cube_fig6_design(subdivisions=subdivisions)
+    cube = target("cube")
+    kw = dict(device=device, max_steps=max_steps, target_name="cube")
+    control(d, cube, **kw)  # warm up: kernels loaded, caches filled
+    tmp = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="bench_recorder_"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    times = {"none": [], "every1": [], "every5": []}
+    sizes = {}
+    steps = 0
+    for _ in range(repeats):
+        for key in times:
+            rec = None if key == "none" else Recorder(tmp / f"{key}.rrd", every=1 if key == "every1" else 5)
+            t0 = time.perf_counter()
+            res = control(d, cube, recorder=rec, **kw)
+            if rec is not None:
+                rec.close()
+            times[key].append(time.perf_counter() - t0)
+            steps = res.control_steps + 1
+            if rec is not None:
+                sizes[key] = os.path.getsize(rec.path)
+    n_without = count_control_launches(d, cube, **kw)
+    with Recorder(tmp / "launches.rrd") as rec:
+        n_with = count_control_launches(d, cube, recorder=rec, **kw)
+    best = {k: min(v) for k, v in times.items()}
+    return dict(vertices=d.rest.n_vertices, ipams=d.n_ipams, cells=d.n_cells, control_steps=steps, repeats=repeats,
+                wall_s_no_recorder=best["none"], wall_s_every1=best["every1"], wall_s_every5=best["every5"],
+                ratio_every1=best["every1"] / best["none"], ratio_every5=best["every5"] / best["none"],
+                ms_per_logged_step_every1=1e3 * (best["every1"] - best["none"]) / steps,
+                rrd_bytes_every1=sizes.get("every1"), rrd_bytes_every5=sizes.get("every5"),
+                launches_without_recorder=n_without, launches_with_recorder=n_with)
+
+
+# ---------------------------------------------------------------------- reading back
+def read_recording(path) -> dict:
+    """Read a ``.rrd`` written by ``Recorder`` back into numpy (for tests and scripts).
+
+    Returns ``{"entities": {path: {"static": {component: value}, "times": {timeline: (N,) array},
+    component: [value per row]}}, "blueprint": [view class identifiers], "blueprint_views":
+    [(class, display name, origin)]}``. Temporal rows are ordered by ``control_step``, ``sim_step``
+    or ``round`` (whichever the entity has); ``sim_time`` comes back in seconds; ``log_time`` is
+    left out. Component names are rerun's column names, e.g. ``Mesh3D:vertex_positions``,
+    ``Scalars:scalars``; list values come back as numpy arrays.
+    """
+    import pyarrow as pa
+    import rerun as rr
+
+    reader = rr.chunk.RrdReader(str(path))
+    entities: dict = {}
+    for ch in reader.stream():
+        rb = ch.to_record_batch()
+        ent = entities.setdefault(ch.entity_path, {"static": {}, "times": {}, "_rows": []})
+        names = [n for n in rb.schema.names if n not in ("rerun.controls.RowId", "log_time")]
+        timelines = [n for n in names if n in ch.timeline_names]
+        comps = [n for n in names if n not in timelines]
+        values = {n: [np.asarray(v) if isinstance(v, list) else v for v in rb.column(n).to_pylist()] for n in comps}
+        if ch.is_static:
+            for n in comps:
+                ent["static"][n] = values[n][-1]
+            continue
+        times = {}
+        for n in timelines:
+            col = rb.column(n)
+            if pa.types.is_duration(col.type):
+                times[n] = col.cast(pa.int64()).to_numpy(zero_copy_only=False) * 1e-9
+            else:
+                times[n] = col.cast(pa.int64()).to_numpy(zero_copy_only=False)
+        for r in range(rb.num_rows):
+            ent["_rows"].append(({k: v[r] for k, v in times.items()}, {n: values[n][r] for n in comps}))
+    for ent in entities.values():
+        rows = ent.pop("_rows")
+        key = next((k for k in ("control_step", "sim_step", "round") if rows and k in rows[0][0]), None)
+        if key is not None:
+            rows.sort(key=lambda r: r[0][key])
+        for t, c in rows:
+            for k, v in t.items():
+                ent["times"].setdefault(k, []).append(v)
+            for k, v in c.items():
+                ent.setdefault(k, []).append(v)
+        ent["times"] = {k: np.asarray(v) for k, v in ent["times"].items()}
+    views = []
+    if reader.blueprints():
+        for ch in reader.stream(store=reader.blueprints()[-1]):
+            rb = ch.to_record_batch()
+            if "ViewBlueprint:class_identifier" in rb.schema.names:
+                get = lambda n: (rb.column(n).to_pylist()[-1] or [None])[0] if n in rb.schema.names else None  # noqa: E731
+                views.append((get("ViewBlueprint:class_identifier"), get("ViewBlueprint:display_name"),
+                              get("ViewBlueprint:space_origin")))
+    return dict(entities=entities, blueprint=sorted({v[0] for v in views}), blueprint_views=views)
