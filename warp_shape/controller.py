@@ -11,7 +11,10 @@ membrane's vertices, then updates
 Phase 1 (initial inflation) actuates only the air until the volume is in its deadband. Increments
 are rate limited; the run stops when volume and every IPAM length are in their deadbands, or at the
 step limit (``converged`` False, with the reason). An IPAM pinned at a pressure limit while its
-target asks for more counts as settled: it cannot do better.
+target asks for more counts as settled: it cannot do better. Eqs. (11)-(12) are deadbeat laws that
+assume the membrane settles within a control period; where it does not (coarse, lightly damped
+membranes), an error that flips sign without halving halves that world's (or IPAM's) gain, down
+to ``min_gain`` (``gain_backoff``; not in the paper).
 
 Several targets of one design run as one batch of simulated worlds (one launch per kernel for all).
 
@@ -58,6 +61,8 @@ class ControlSettings:
     pressure_rate: float = 40e3  # max |dP| per control step, Pa
     air_gain: float = 1.0  # multiplies eq. (11)
     pressure_gain: float = 1.0  # multiplies eq. (12)
+    gain_backoff: float = 0.5  # an error that flips sign without halving scales that actuator's gain by this
+    min_gain: float = 0.05  # floor of the backed-off gains, relative to air_gain / pressure_gain
     jamming: bool = True  # False: never jam (for path-dependence studies)
     curvature_tolerance: float = 1e-6  # m; a move away from the target smaller than this is noise
     max_stretch: float = 4.0  # mean edge stretch beyond which the target is deemed unreachable
@@ -72,7 +77,8 @@ class ControlSettings:
                 raise DesignError(f"ControlSettings.{f.name} must be finite, got {v}")
         if self.dt <= 0 or self.control_period < 1 or self.max_steps < 1:
             raise DesignError("ControlSettings needs dt > 0, control_period >= 1 and max_steps >= 1")
-        for name in ("volume_deadband", "length_deadband", "air_rate", "pressure_rate", "air_gain", "pressure_gain"):
+        for name in ("volume_deadband", "length_deadband", "air_rate", "pressure_rate", "air_gain", "pressure_gain",
+                     "gain_backoff", "min_gain"):
             if getattr(self, name) <= 0:
                 raise DesignError(f"ControlSettings.{name} must be > 0, got {getattr(self, name)}")
 
@@ -267,6 +273,10 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     hinges = h["hinges"]
 
     air = np.full(W, n_rest)
+    gain_air = np.full(W, settings.air_gain)  # backed off per world when the volume oscillates
+    gain_p = np.full((W, n_ipam), settings.pressure_gain)  # per world and IPAM
+    err_v_prev = np.zeros(W)
+    err_l_prev = np.zeros((W, n_ipam))
     pressures = np.zeros((W, n_ipam))
     phase = np.ones(W, dtype=np.int64)
     done = np.zeros(W, dtype=bool)
@@ -358,12 +368,27 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
 
         # ---- control updates (worlds already done keep their controls)
         active = ~done
-        dn = settings.air_gain * (vol_t - vol) * p_abs / rt
+        # gain back-off: eqs. (11)-(12) are deadbeat laws that assume the membrane settles within one
+        # control period; when an error flips sign without halving, the loop overshoots, so halve it
+        err_v = (vol_t - vol) / vol_t
+        flip = (err_v * err_v_prev < 0) & (np.abs(err_v) > 0.5 * np.abs(err_v_prev)) \
+            & (np.abs(err_v) > settings.volume_deadband)
+        gain_air = np.where(flip & active, np.maximum(gain_air * settings.gain_backoff,
+                                                      settings.min_gain * settings.air_gain), gain_air)
+        err_v_prev = err_v
+        if n_ipam:
+            err_l = L_t - L
+            flip_l = (err_l * err_l_prev < 0) & (np.abs(err_l) > 0.5 * np.abs(err_l_prev)) \
+                & (np.abs(err_l) > settings.length_deadband) & (phase[:, None] == 2)
+            gain_p = np.where(flip_l & active[:, None], np.maximum(gain_p * settings.gain_backoff,
+                                                                   settings.min_gain * settings.pressure_gain), gain_p)
+            err_l_prev = err_l
+        dn = gain_air * (vol_t - vol) * p_abs / rt
         lim = settings.air_rate * n_rest
         air = np.where(active, np.maximum(air + np.clip(dn, -lim, lim), 0.0), air)
         shaping = active & (phase == 2)
         if n_ipam:
-            dP = settings.pressure_gain * (L_t - L) / a_over_k
+            dP = gain_p * (L_t - L) / a_over_k
             dP = np.clip(dP, -settings.pressure_rate, settings.pressure_rate)
             newP = np.clip(pressures + dP, limits[:, 0], limits[:, 1])
             pressures = np.where(shaping[:, None], newP, pressures)
