@@ -159,3 +159,29 @@ def test_four_targets_twenty_actuators_fit_at_least_as_well_as_five():
         pcc[opts["actuators"]] = res.pcc_by_round[-1]
         assert np.all(res.pcc_by_round[-1] > res.pcc_by_round[0]), (name, res.pcc_by_round)
     assert np.all(pcc[20] >= pcc[5]), pcc
+
+
+def test_interrupted_design_keeps_finished_rounds(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during round 1 keeps round 0's report and control sequences, whole."""
+    import warp_shape.designer as designer_module
+
+    real = designer_module.control_many
+    calls = {"n": 0}
+
+    def interrupt_second_round(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(designer_module, "control_many", interrupt_second_round)
+    out = tmp_path / "out"
+    rc = main(["design", "--out", str(out), "--actuators", "2"])
+    assert rc == 130 and "interrupted" in capsys.readouterr().err
+    report = json.loads((out / "report.json").read_text())
+    assert report["complete"] is False and report["rounds_done"] == 1
+    for name in ("oval", "heart"):
+        rows = (out / f"control_{name}.csv").read_text().strip().splitlines()
+        assert len(rows) > 2 and rows[0].startswith("step,")
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    assert not (out / "design.usda").exists()  # only finished outputs
