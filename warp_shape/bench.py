@@ -16,30 +16,26 @@ BENCH_COLUMNS = ["vertices", "integrator", "precision", "steps_per_s", "us_per_s
 def _time_steps(sim, seconds: float, repeats: int) -> float:
     """Minimum wall time per internal step over ``repeats`` runs of about ``seconds`` each."""
     sim.step(2)  # build the plan, compile, warm caches
+    return _min_time(sim.step, seconds, repeats, probe=5) / sim.substeps
+
+
+def _min_time(step, seconds: float, repeats: int, probe: int = 1) -> float:
+    """Minimum wall time of one ``step(n)`` call per step, over ``repeats`` runs of about ``seconds``."""
     t0 = time.perf_counter()
-    sim.step(5)
-    per = max((time.perf_counter() - t0) / 5, 1e-6)
-    n = max(5, int(seconds / per))
+    step(probe)
+    per = max((time.perf_counter() - t0) / probe, 1e-6)
+    n = max(probe, int(seconds / per))
     best = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()
-        sim.step(n)
+        step(n)
         best = min(best, (time.perf_counter() - t0) / n)
-    return best / sim.substeps
+    return best
 
 
 def _time_numpy(nm, seconds: float, repeats: int) -> float:
     """Minimum wall time per internal step of the NumPy implementation (few steps on large meshes)."""
-    t0 = time.perf_counter()
-    nm.step(1)
-    per = max(time.perf_counter() - t0, 1e-6)
-    n = max(1, int(seconds / per))
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        nm.step(n)
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best
+    return _min_time(nm.step, seconds, repeats)
 
 
 def _jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph"):

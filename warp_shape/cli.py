@@ -41,6 +41,15 @@ def _progress(done: int, total: int, label: str, stream=sys.stderr):
 
 # --------------------------------------------------------------------------- rerun and figures
 
+def _add_common_args(sp, rerun: bool = True):
+    sp.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
+    sp.add_argument("--out", default="out", help="output directory")
+    sp.add_argument("--json", action="store_true", help="print machine-readable results")
+    sp.add_argument("--verbose", action="store_true", help="show Warp's compile messages")
+    if rerun:
+        _add_rerun_args(sp)
+
+
 def _add_rerun_args(sp):
     sp.add_argument("--rerun", metavar="FILE.rrd", default=None, help="write a rerun recording (open: rerun FILE.rrd)")
     sp.add_argument("--rerun-spawn", action="store_true", help="stream to a live rerun viewer (needs a display)")
@@ -372,7 +381,6 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="inflate and actuate the Fig. 6 sphere-with-five-IPAMs device")
-    s.add_argument("--device", default="cpu")
     s.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
     s.add_argument("--precision", default="float32", choices=["float32", "float64"])
     s.add_argument("--dt", type=float, default=1e-3, help="output step, s (internal substeps are automatic)")
@@ -380,10 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--air-scale", type=float, default=1.6, help="final air amount relative to the rest amount")
     s.add_argument("--inflate-time", type=float, default=0.4, help="s")
     s.add_argument("--actuate-time", type=float, default=0.4, help="s")
-    s.add_argument("--out", default="out", help="output directory")
-    s.add_argument("--json", action="store_true", help="print machine-readable results")
-    s.add_argument("--verbose", action="store_true")
-    _add_rerun_args(s)
+    _add_common_args(s)
     s.set_defaults(func=cmd_simulate)
 
     d = sub.add_parser("design", help="design a display for target shapes (default: oval + heart, 4 IPAMs)")
@@ -395,25 +400,17 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
     d.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
-    d.add_argument("--device", default="cpu")
-    d.add_argument("--out", default="out")
-    d.add_argument("--json", action="store_true")
-    d.add_argument("--verbose", action="store_true")
-    _add_rerun_args(d)
+    _add_common_args(d)
     d.set_defaults(func=cmd_design)
 
     c = sub.add_parser("control", help="drive a design to target shapes; writes the control sequences")
     c.add_argument("scene", nargs="?", default=None, help="problem: cube_fig6 (default) or a scene file/name")
     c.add_argument("--target", nargs="+", help="target names (oval pear heart cube) or mesh files")
-    c.add_argument("--device", default="cpu")
     c.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
     c.add_argument("--precision", default="float32", choices=["float32", "float64"])
     c.add_argument("--max-steps", type=int, default=300, help="control-step limit")
     c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
-    c.add_argument("--out", default="out")
-    c.add_argument("--json", action="store_true")
-    c.add_argument("--verbose", action="store_true")
-    _add_rerun_args(c)
+    _add_common_args(c)
     c.set_defaults(func=cmd_control)
 
     b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")

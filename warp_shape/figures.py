@@ -56,6 +56,14 @@ def _shade_inflation(ax, step, phase):
         ax.axvspan(step[0], end, color="0.92", zorder=0, lw=0)
 
 
+def _plot_with_target(ax, step, values_m, targets_m, color, label, width):
+    """A quantity (solid) and its target (dashed, same colour), in mm; returns the values in mm."""
+    values = np.asarray(values_m) * 1e3
+    ax.plot(step, values, color=color, lw=width, label=label)
+    ax.plot(step, np.asarray(targets_m) * 1e3, color=color, ls="--", lw=0.6 * width)
+    return values
+
+
 def control_figure(result, path, title: str | None = None) -> Path:
     """Fig. 6-style panels of one control run (``ws.ControlResult``) as a PNG at ``path``."""
     h = result.history
@@ -74,9 +82,7 @@ def control_figure(result, path, title: str | None = None) -> Path:
 
     lengths = _columns(h, "ipam", "_length_m")
     for i, col in enumerate(lengths):
-        a_col = colors[i % 10]
-        b.plot(step, np.asarray(h[col]) * 1e3, color=a_col, lw=1.8, label=f"IPAM {i}")
-        b.plot(step, np.asarray(h[f"ipam{i}_target_length_m"]) * 1e3, color=a_col, ls="--", lw=1.0)
+        _plot_with_target(b, step, h[col], h[f"ipam{i}_target_length_m"], colors[i % 10], f"IPAM {i}", 1.8)
     b.set_ylabel("length (mm)")
     b.set_title("(b) IPAM lengths (solid) and targets (dashed)")
     if lengths:
@@ -88,9 +94,7 @@ def control_figure(result, path, title: str | None = None) -> Path:
     jam_steps = np.asarray(getattr(result, "jam_steps", np.full(len(kappas), -1)))
     for j, col in enumerate(kappas):
         k_col = colors[j % 10]
-        k = np.asarray(h[col]) * 1e3
-        c.plot(step, k, color=k_col, lw=1.5, label=f"cell {j}")
-        c.plot(step, np.asarray(h[f"cell{j}_kappa_target_m"]) * 1e3, color=k_col, ls="--", lw=0.9)
+        k = _plot_with_target(c, step, h[col], h[f"cell{j}_kappa_target_m"], k_col, f"cell {j}", 1.5)
         js = int(jam_steps[j]) if j < len(jam_steps) else -1
         if js < 0 and f"cell{j}_jammed" in h:  # fall back to the recorded jam state
             on = np.flatnonzero(np.asarray(h[f"cell{j}_jammed"]) > 0)

@@ -75,6 +75,15 @@ def diverging_colors(values, value_range: float) -> np.ndarray:
     return out
 
 
+def _value_and_target_lines(pal, names):
+    """Series styling for n values followed by their n targets: bold colours, then paler thin lines."""
+    import rerun as rr
+
+    n = len(names)
+    return rr.SeriesLines(colors=np.concatenate([pal, (pal.astype(np.int32) + 255) // 2]).astype(np.uint8),
+                          widths=[2.0] * n + [1.0] * n, names=list(names) + [f"{nm} target" for nm in names])
+
+
 def _palette(n: int) -> np.ndarray:
     return _PALETTE[np.arange(n) % len(_PALETTE)]
 
@@ -254,22 +263,16 @@ class Recorder:
             s.log(f"{b}/pressure", rr.SeriesLines(colors=[[31, 119, 180]], names=[f"{name} p"]), static=True)
             if run.n_ipam:
                 pal = _palette(run.n_ipam)
-                s.log(f"{b}/ipam/length", rr.SeriesLines(
-                    colors=np.concatenate([pal, (pal.astype(np.int32) + 255) // 2]).astype(np.uint8),
-                    widths=[2.0] * run.n_ipam + [1.0] * run.n_ipam,
-                    names=[f"{name} ipam{i} L" for i in range(run.n_ipam)]
-                    + [f"{name} ipam{i} L target" for i in range(run.n_ipam)]), static=True)
+                s.log(f"{b}/ipam/length", _value_and_target_lines(pal, [f"{name} ipam{i} L" for i in range(run.n_ipam)]),
+                      static=True)
                 s.log(f"{b}/ipam/force", rr.SeriesLines(colors=pal, names=[f"{name} ipam{i} F" for i in
                                                                             range(run.n_ipam)]), static=True)
                 s.log(f"{b}/ipam/pressure", rr.SeriesLines(colors=pal, names=[f"{name} ipam{i} P" for i in
                                                                                range(run.n_ipam)]), static=True)
             if run.n_cell:
                 pal = _palette(run.n_cell)
-                s.log(f"{b}/cell/kappa", rr.SeriesLines(
-                    colors=np.concatenate([pal, (pal.astype(np.int32) + 255) // 2]).astype(np.uint8),
-                    widths=[2.0] * run.n_cell + [1.0] * run.n_cell,
-                    names=[f"{name} cell{j} kappa" for j in range(run.n_cell)]
-                    + [f"{name} cell{j} kappa target" for j in range(run.n_cell)]), static=True)
+                s.log(f"{b}/cell/kappa", _value_and_target_lines(pal, [f"{name} cell{j} kappa" for j in range(run.n_cell)]),
+                      static=True)
                 s.log(f"{b}/cell/jammed", rr.SeriesLines(colors=pal, names=[f"{name} cell{j} jammed" for j in
                                                                              range(run.n_cell)]), static=True)
             if run.kind == "control":
