@@ -316,6 +316,52 @@ def cmd_design(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------- export
+
+def cmd_export(args) -> int:
+    """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
+    _quiet_warp(args.verbose)
+    from .controller import ControlSettings, control_many
+    from .errors import DesignError
+    from .molds import inner_mold, outer_mold, write_stl
+    from .scene import load_scene, save_scene
+
+    scene = load_scene(args.scene)
+    if scene.design is None:
+        raise DesignError(f"{args.scene} holds no design (only targets); export needs a design scene, "
+                          f"e.g. out/design.usda from warp-shape design or the shipped cube_fig6")
+    named = list(zip(scene.target_names, scene.targets))
+    if args.targets:
+        named = _load_targets(args.targets)
+    out = Path(args.out)
+    written = []
+    if "molds" in args.what:
+        written.append(write_stl(inner_mold(scene.design, args.marker_height), out / "mold_inner.stl"))
+        written.append(write_stl(outer_mold(scene.design, args.layer_thickness), out / "mold_outer.stl"))
+    if "usd" in args.what:
+        written.append(save_scene(scene, out / "design.usda"))
+    if "control" in args.what and named:
+        names = [n for n, _ in named]
+
+        def progress(step, total, done, worlds):
+            _progress(total if done == worlds else step, total, f"control ({done}/{worlds} targets done)")
+
+        with _recorder(args) as rec:
+            results = control_many(scene.design, [t for _, t in named], device=args.device,
+                                   settings=ControlSettings(), progress=progress, recorder=rec, target_names=names)
+        for name, res in zip(names, results):
+            written.append(res.to_csv(out / f"control_{name}.csv"))
+            written.append(res.to_json(out / f"control_{name}.json"))
+            if "usd" in args.what:
+                written.append(res.export_usd(out / f"actuation_{name}.usdc", target_name=name))
+        written += _figures(results, out, names)
+    if args.json:
+        print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))
+    else:
+        print(f"exported {len(written)} files to {out}/: " + ", ".join(Path(p).name for p in written))
+    return 0
+
+
 # --------------------------------------------------------------------------- bench
 
 def cmd_bench(args) -> int:
@@ -412,6 +458,15 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
     _add_common_args(c)
     c.set_defaults(func=cmd_control)
+
+    e = sub.add_parser("export", help="molds (STL), control sequences (CSV/JSON) and USD of a design scene")
+    e.add_argument("scene", help="a design scene: a .usda/.usdc file (e.g. out/design.usda) or a shipped name")
+    e.add_argument("--what", nargs="+", default=["molds", "control", "usd"], choices=["molds", "control", "usd"])
+    e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
+    e.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
+    e.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
+    _add_common_args(e)
+    e.set_defaults(func=cmd_export)
 
     b = sub.add_parser("bench", help="speed benchmarks (tables + JSON)")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "peer", "rays", "all"])
