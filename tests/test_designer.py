@@ -185,3 +185,15 @@ def test_interrupted_design_keeps_finished_rounds(tmp_path, monkeypatch, capsys)
         assert len(rows) > 2 and rows[0].startswith("step,")
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
     assert not (out / "design.usda").exists()  # only finished outputs
+
+
+def test_saved_design_reproduces_its_control_sequences(default_run, tmp_path):
+    """The scene records which actuators each target's sequence uses, so re-controlling the saved
+    design gives the designer's own results."""
+    rc, out = default_run
+    report = json.loads((out / "report.json").read_text())
+    assert main(["control", str(out / "design.usda"), "--out", str(tmp_path)]) == 0
+    for j, name in enumerate(report["targets"]):
+        again = json.loads((tmp_path / f"control_{name}.json").read_text())
+        assert again["pcc"] == pytest.approx(report["pcc_by_round"][-1][j], abs=1e-9), name
+        assert again["passive_ipams"] == report["final"][name]["passive_ipams"]

@@ -156,7 +156,7 @@ def _resolve_design_and_targets(scene: str | None, target_names):
     from .scenarios import cube_fig6_design
     from .targets import TARGET_NAMES, target
 
-    design, targets = None, []
+    design, targets, settings = None, [], {}
     if scene in (None, "cube_fig6", "fig6"):
         design, targets = cube_fig6_design(), [("cube", target("cube"))]
     else:
@@ -165,7 +165,7 @@ def _resolve_design_and_targets(scene: str | None, target_names):
         except ImportError:
             raise SystemExit(f"warp-shape: error: unknown problem {scene!r}; built in: cube_fig6") from None
         sc = load_scene(scene)
-        design = sc.design
+        design, settings = sc.design, sc.settings or {}
         names = getattr(sc, "target_names", None) or [f"target{i}" for i in range(len(sc.targets))]
         targets = list(zip(names, sc.targets))
     if target_names:
@@ -181,14 +181,24 @@ def _resolve_design_and_targets(scene: str | None, target_names):
 
                 chosen.append((Path(name).stem, TriMesh.load(name, center=True)))
         targets = chosen
-    return design, targets
+    return design, targets, settings
+
+
+def _selection(args, scene_settings, names) -> dict:
+    """The per-target actuator selection a design stored in its scene (unless --all-actuators)."""
+    from .designer import selection_from_settings
+
+    if getattr(args, "all_actuators", False):
+        return {}
+    ipams, cells = selection_from_settings(scene_settings, names)
+    return dict(passive_ipams=ipams, passive_cells=cells) if any(ipams) or any(cells) else {}
 
 
 def cmd_control(args) -> int:
     _quiet_warp(args.verbose)
     from .controller import ControlSettings, control_many
 
-    design, targets = _resolve_design_and_targets(args.scene, args.target)
+    design, targets, scene_settings = _resolve_design_and_targets(args.scene, args.target)
     settings = ControlSettings(integrator=args.integrator, precision=args.precision, max_steps=args.max_steps,
                                jamming=not args.no_jamming)
 
@@ -197,7 +207,8 @@ def cmd_control(args) -> int:
 
     with _recorder(args) as rec:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
-                               progress=progress, recorder=rec, target_names=[n for n, _ in targets])
+                               progress=progress, recorder=rec, target_names=[n for n, _ in targets],
+                               **_selection(args, scene_settings, [n for n, _ in targets]))
     out = Path(args.out)
     _figures(results, out, [n for n, _ in targets])
     report = {}
@@ -295,7 +306,8 @@ def cmd_design(args) -> int:
     report = res.report()
     report.update(complete=True, wall_seconds=wall, device=args.device)
     keep(save_scene(Scene(design=res.design, targets=res.targets, target_names=names,
-                          settings={"designer": {"actuators": actuators, "cell_radius": settings.cell_radius}}),
+                          settings={"designer": {"actuators": actuators, "cell_radius": settings.cell_radius},
+                                    "controller": res.selection_settings()}),
                     out / "design.usda"))
     for name, r in zip(names, res.results):
         keep(r.export_usd(out / f"actuation_{name}.usdc", target_name=name))
@@ -348,7 +360,8 @@ def cmd_export(args) -> int:
 
         with _recorder(args) as rec:
             results = control_many(scene.design, [t for _, t in named], device=args.device,
-                                   settings=ControlSettings(), progress=progress, recorder=rec, target_names=names)
+                                   settings=ControlSettings(), progress=progress, recorder=rec, target_names=names,
+                                   **_selection(args, scene.settings, names))
         for name, res in zip(names, results):
             written.append(res.to_csv(out / f"control_{name}.csv"))
             written.append(res.to_json(out / f"control_{name}.json"))
@@ -456,6 +469,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--precision", default="float32", choices=["float32", "float64"])
     c.add_argument("--max-steps", type=int, default=300, help="control-step limit")
     c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
+    c.add_argument("--all-actuators", action="store_true",
+                   help="use every actuator for every target, ignoring the design's per-target selection")
     _add_common_args(c)
     c.set_defaults(func=cmd_control)
 
@@ -463,6 +478,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("scene", help="a design scene: a .usda/.usdc file (e.g. out/design.usda) or a shipped name")
     e.add_argument("--what", nargs="+", default=["molds", "control", "usd"], choices=["molds", "control", "usd"])
     e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
+    e.add_argument("--all-actuators", action="store_true",
+                   help="use every actuator for every target, ignoring the design's per-target selection")
     e.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
     e.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
     _add_common_args(e)

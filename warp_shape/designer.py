@@ -36,7 +36,8 @@ from .errors import DesignError
 from .material import Material
 from .mesh import TriMesh
 
-__all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design"]
+__all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "selection_to_settings",
+           "selection_from_settings"]
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,8 @@ class DesignResult:
     target_names: list
     targets: list  # centred targets (TriMesh)
     added: list = field(default_factory=list)  # per added actuator: round, target, faces, errors
+    passive_ipams: list = field(default_factory=list)  # per target: IPAMs left out of its control sequence
+    passive_cells: list = field(default_factory=list)  # per target: cells left out of its control sequence
     settings: DesignSettings = field(default_factory=DesignSettings)
     control_settings: ControlSettings = field(default_factory=ControlSettings)
 
@@ -81,6 +84,11 @@ class DesignResult:
     def results(self) -> list[ControlResult]:
         """One control result per target for the final design."""
         return self.rounds[-1]
+
+    def selection_settings(self) -> dict:
+        """Controller settings recording which actuators each target's sequence leaves out (flat
+        string entries, as scene settings require): ``passive_ipams_<target>`` = "2 3"."""
+        return selection_to_settings(self.target_names, self.passive_ipams, self.passive_cells)
 
     def report(self) -> dict:
         fin = self.results
@@ -125,6 +133,28 @@ class DesignResult:
                              f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f} to "
                              f"{a['pressure_max_pa'] / 1e3:.1f} kPa")
         return "\n".join(lines) + "\n"
+
+
+def _setting_key(name: str) -> str:
+    return "".join(ch if ch.isalnum() else "_" for ch in name)
+
+
+def selection_to_settings(names, passive_ipams, passive_cells) -> dict:
+    out = {}
+    for name, pi, pc in zip(names, passive_ipams, passive_cells):
+        if pi:
+            out[f"passive_ipams_{_setting_key(name)}"] = " ".join(str(int(i)) for i in pi)
+        if pc:
+            out[f"passive_cells_{_setting_key(name)}"] = " ".join(str(int(c)) for c in pc)
+    return out
+
+
+def selection_from_settings(settings: dict | None, names) -> tuple[list, list]:
+    """Per-target passive IPAM and cell lists stored by ``selection_to_settings`` (empty if none)."""
+    ctl = (settings or {}).get("controller", {})
+    ipams = [[int(v) for v in str(ctl.get(f"passive_ipams_{_setting_key(n)}", "")).split()] for n in names]
+    cells = [[int(v) for v in str(ctl.get(f"passive_cells_{_setting_key(n)}", "")).split()] for n in names]
+    return ipams, cells
 
 
 def copy_design(d: Design, rest: TriMesh | None = None) -> Design:
@@ -303,4 +333,5 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         added.append(dict(round=i, target=int(j_max), face_a=int(f_max), face_b=f_other, error=float(e_max),
                           error_b=float(errors[j_max, f_other])))
     return DesignResult(design=current, designs=designs, rounds=rounds, pcc_by_round=pcc, target_names=names,
-                        targets=targets, added=added, settings=settings, control_settings=control_settings)
+                        targets=targets, added=added, settings=settings, control_settings=control_settings,
+                        passive_ipams=[sorted(p) for p in passive_i], passive_cells=[sorted(p) for p in passive_c])
