@@ -152,35 +152,22 @@ def cmd_simulate(args) -> int:
 # --------------------------------------------------------------------------- control
 
 def _resolve_design_and_targets(scene: str | None, target_names):
-    """A built-in problem name, or (when scenes are available) a scene file or shipped scene name."""
+    """The built-in Fig. 6 problem (no USD needed), or a scene file / shipped scene name; then the
+    chosen targets: the scene's own by name, else shipped target names or mesh files."""
     from .scenarios import cube_fig6_design
-    from .targets import TARGET_NAMES, target
+    from .targets import target
 
-    design, targets, settings = None, [], {}
     if scene in (None, "cube_fig6", "fig6"):
-        design, targets = cube_fig6_design(), [("cube", target("cube"))]
+        design, targets, settings = cube_fig6_design(), [("cube", target("cube"))], {}
     else:
-        try:
-            from .scene import load_scene
-        except ImportError:
-            raise SystemExit(f"warp-shape: error: unknown problem {scene!r}; built in: cube_fig6") from None
+        from .scene import load_scene
+
         sc = load_scene(scene)
         design, settings = sc.design, sc.settings or {}
-        names = getattr(sc, "target_names", None) or [f"target{i}" for i in range(len(sc.targets))]
-        targets = list(zip(names, sc.targets))
+        targets = list(zip(sc.target_names, sc.targets))
     if target_names:
-        chosen = []
-        for name in target_names:
-            match = [t for t in targets if t[0] == name]
-            if match:
-                chosen.append(match[0])
-            elif name in TARGET_NAMES:
-                chosen.append((name, target(name)))
-            else:
-                from .mesh import TriMesh
-
-                chosen.append((Path(name).stem, TriMesh.load(name, center=True)))
-        targets = chosen
+        own = dict(targets)
+        targets = [(name, own[name]) if name in own else _load_targets([name])[0] for name in target_names]
     return design, targets, settings
 
 
