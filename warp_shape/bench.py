@@ -38,13 +38,13 @@ def _time_numpy(nm, seconds: float, repeats: int) -> float:
     return _min_time(nm.step, seconds, repeats)
 
 
-def _jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph"):
-    """The Fig. 6 device inflated (air x 1.3), every cell jammed, IPAMs at 20 kPa."""
+def _jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph", air_scale=1.3):
+    """The Fig. 6 device inflated (air x ``air_scale``), every cell jammed, IPAMs at 20 kPa: its stiffest state."""
     from .simulator import Simulator
 
     sim = Simulator(design, device=device, integrator=integrator, precision=precision, dt=dt, substeps=substeps,
                     launch_mode=launch_mode)
-    sim.air_moles = sim.air_moles * 1.3
+    sim.air_moles = sim.air_moles * air_scale
     for c in range(design.n_cells):
         sim.jam(c)
     if design.n_ipams:

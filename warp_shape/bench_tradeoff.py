@@ -86,8 +86,8 @@ def pareto_front(rows: list[dict], x: str = "wall_s", y: str = "error_mm") -> li
 def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdivisions: int = 4,
                    step_fractions=(1.0, 0.5, 0.25)) -> dict:
     """Error of the achieved Fig. 6 shape versus wall time over the numerical settings."""
+    from .bench import _jammed_fig6
     from .scenarios import cube_fig6_design
-    from .simulator import Simulator
     from .targets import target
 
     cube = target("cube")
@@ -97,10 +97,7 @@ def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdiv
 
     def worst_case_step(d, integrator):
         # the smallest stable step of the run: every cell jammed at the highest air amount
-        probe = Simulator(d, integrator=integrator, precision="float64", dt=seq.dt)
-        probe.air_moles = probe.air_moles * seq.air_relative.max()
-        for c in range(d.n_cells):
-            probe.jam(c)
+        probe = _jammed_fig6(d, device, integrator, "float64", dt=seq.dt, air_scale=seq.air_relative.max())
         return seq.dt / probe.substeps
 
     references = {}

@@ -39,6 +39,11 @@ def _progress(done: int, total: int, label: str, stream=sys.stderr):
     stream.flush()
 
 
+def _control_progress(step, total, done, worlds, prefix: str = ""):
+    """Progress of a control run over several targets; complete once every target is done."""
+    _progress(total if done == worlds else step, total, f"{prefix}control ({done}/{worlds} targets done)")
+
+
 # --------------------------------------------------------------------------- rerun and figures
 
 def _add_common_args(sp, rerun: bool = True):
@@ -81,7 +86,6 @@ def cmd_simulate(args) -> int:
     from .scenarios import cube_fig6_design
     from .simulator import Simulator
 
-    stack = contextlib.ExitStack()
     design = cube_fig6_design(subdivisions=args.subdivisions)
     sim = Simulator(design, device=args.device, integrator=args.integrator, dt=args.dt, precision=args.precision)
     n_inflate = int(round(args.inflate_time / args.dt))
@@ -89,22 +93,21 @@ def cmd_simulate(args) -> int:
     air0 = sim.air_moles
     rows = []
 
-    rec = stack.enter_context(_recorder(args))
-    if rec is not None:
-        rec.begin_simulation(design)
-
-    def frame(force=False):
+    with _recorder(args) as rec:  # closed (and the recording saved) even when the run fails
         if rec is not None:
-            rec.log_sim_frame(sim.step_count, sim.time, sim.positions, sim.volume(), sim.pressure(), sim.ipam_lengths(),
-                              sim.ipam_forces(), sim.jammed, force=force)
+            rec.begin_simulation(design)
 
-    def record(phase):
-        rows.append(dict(phase=phase, time=sim.time, volume=sim.volume(), pressure=sim.pressure(),
-                         ipam_length=sim.ipam_lengths().tolist(), ipam_force=sim.ipam_forces().tolist(),
-                         jammed=int(sim.jammed.sum())))
-        frame(force=True)
+        def frame(force=False):
+            if rec is not None:
+                rec.log_sim_frame(sim.step_count, sim.time, sim.positions, sim.volume(), sim.pressure(),
+                                  sim.ipam_lengths(), sim.ipam_forces(), sim.jammed, force=force)
 
-    try:
+        def record(phase):
+            rows.append(dict(phase=phase, time=sim.time, volume=sim.volume(), pressure=sim.pressure(),
+                             ipam_length=sim.ipam_lengths().tolist(), ipam_force=sim.ipam_forces().tolist(),
+                             jammed=int(sim.jammed.sum())))
+            frame(force=True)
+
         t0 = time.perf_counter()
         record("rest")
         chunk = max(1, n_inflate // 20)
@@ -129,8 +132,6 @@ def cmd_simulate(args) -> int:
             frame()
             _progress(n_inflate + min(i + chunk, n_actuate), n_inflate + n_actuate, "simulate")
         record("actuated")
-    finally:
-        stack.close()  # the recording is saved even when the run fails
     wall = time.perf_counter() - t0
     result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
                   device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
@@ -189,12 +190,9 @@ def cmd_control(args) -> int:
     settings = ControlSettings(integrator=args.integrator, precision=args.precision, max_steps=args.max_steps,
                                jamming=not args.no_jamming)
 
-    def progress(step, total, done, worlds):
-        _progress(total if done == worlds else step, total, f"control ({done}/{worlds} targets done)")
-
     with _recorder(args) as rec:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
-                               progress=progress, recorder=rec, target_names=[n for n, _ in targets],
+                               progress=_control_progress, recorder=rec, target_names=[n for n, _ in targets],
                                **_selection(args, scene_settings, [n for n, _ in targets]))
     out = Path(args.out)
     _figures(results, out, [n for n, _ in targets])
@@ -266,7 +264,7 @@ def cmd_design(args) -> int:
         return path
 
     def progress(i, p, step, total, done, worlds):
-        _progress(total if done == worlds else step, total, f"round {i}/{p}: control ({done}/{worlds} targets done)")
+        _control_progress(step, total, done, worlds, prefix=f"round {i}/{p}: ")
 
     def on_round(i, d_i, results):
         # finished rounds are written as they complete, so an interrupted run keeps them
@@ -342,12 +340,9 @@ def cmd_export(args) -> int:
     if "control" in args.what and named:
         names = [n for n, _ in named]
 
-        def progress(step, total, done, worlds):
-            _progress(total if done == worlds else step, total, f"control ({done}/{worlds} targets done)")
-
         with _recorder(args) as rec:
             results = control_many(scene.design, [t for _, t in named], device=args.device,
-                                   settings=ControlSettings(), progress=progress, recorder=rec, target_names=names,
+                                   settings=ControlSettings(), progress=_control_progress, recorder=rec, target_names=names,
                                    **_selection(args, scene.settings, names))
         for name, res in zip(names, results):
             written.append(res.to_csv(out / f"control_{name}.csv"))

@@ -43,8 +43,19 @@ from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
 from .mesh import TriMesh
+from .model import volumes_np
 
 __all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces"]
+
+
+def replace_settings(settings, changes: dict, what: str):
+    """A copy of a settings dataclass with ``changes`` applied; unknown names are an error."""
+    d = asdict(settings)
+    unknown = sorted(set(changes) - set(d))
+    if unknown:
+        raise DesignError(f"unknown {what} setting(s) {unknown}; known: {sorted(d)}")
+    d.update(changes)
+    return type(settings)(**d)
 
 
 @dataclass(frozen=True)
@@ -83,12 +94,7 @@ class ControlSettings:
                 raise DesignError(f"ControlSettings.{name} must be > 0, got {getattr(self, name)}")
 
     def replace(self, **changes) -> "ControlSettings":
-        d = asdict(self)
-        unknown = sorted(set(changes) - set(d))
-        if unknown:
-            raise DesignError(f"unknown controller setting(s) {unknown}; known: {sorted(d)}")
-        d.update(changes)
-        return ControlSettings(**d)
+        return replace_settings(self, changes, "controller")
 
 
 @dataclass
@@ -220,11 +226,6 @@ def _passive_mask(spec, W: int, n: int, what: str) -> np.ndarray:
     return mask
 
 
-def _volumes(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    xf = x[:, faces]
-    return np.einsum("wfi,wfi->w", xf[:, :, 0], np.cross(xf[:, :, 1], xf[:, :, 2])) / 6.0
-
-
 def control_many(design: Design, targets, *, device: str = "cpu", settings: ControlSettings | None = None,
                  recorder=None, progress=None, passive_ipams=(), passive_cells=(), target_names=None,
                  recorder_prefix: str = "control", **overrides) -> list[ControlResult]:
@@ -248,7 +249,9 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     for t in targets:
         if not isinstance(t, TriMesh):
             raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('cube')), got {type(t).__name__}")
-    settings = (settings or ControlSettings()).replace(**overrides) if overrides else (settings or ControlSettings())
+    settings = settings or ControlSettings()
+    if overrides:
+        settings = settings.replace(**overrides)
     targets = [t.centered() for t in targets]
     W = len(targets)
     sampler = RadialSampler(targets, device=device)  # checks star-shape; raises ShapeError naming directions
@@ -295,8 +298,8 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     for step in range(settings.max_steps + 1):
         x = np.asarray(sim.positions, dtype=np.float64).reshape(W, -1, 3)
         sampled = sampler.sample_worlds(x, w_idx)
-        vol = _volumes(x, faces)
-        vol_t = _volumes(sampled, faces)
+        vol = volumes_np(x, faces)
+        vol_t = volumes_np(sampled, faces)
         p_abs = air * rt / vol
         cen = x[:, faces].mean(axis=2)  # (W, F, 3)
         cen_t = sampled[:, faces].mean(axis=2)

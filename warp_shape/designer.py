@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .controller import ControlResult, ControlSettings, control_many
+from .controller import ControlResult, ControlSettings, control_many, replace_settings
 from .design import (DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS,
                      Design)
 from .errors import DesignError
@@ -232,12 +232,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         raise DesignError(f"actuators must be a whole number >= 1, got {actuators!r}")
     settings = settings or DesignSettings()
     if overrides:
-        d = asdict(settings)
-        unknown = sorted(set(overrides) - set(d))
-        if unknown:
-            raise DesignError(f"unknown designer setting(s) {unknown}; known: {sorted(d)}")
-        d.update(overrides)
-        settings = DesignSettings(**d)
+        settings = replace_settings(settings, overrides, "designer")
     control_settings = control_settings or ControlSettings()
     targets, names = _check_targets(targets, target_names)
     from .sampling import RadialSampler
@@ -287,7 +282,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         rounds.append(results)
         pcc[i] = [r.pcc for r in results]
         if recorder is not None:
-            recorder.log_design_round(i, pcc[i].copy(), names, copy_design(current))
+            recorder.log_design_round(i, pcc[i].copy(), names, designs[-1])
         if on_round is not None:
             on_round(i, designs[-1], results)
         if i == actuators:

@@ -15,7 +15,7 @@ from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
 
-__all__ = ["Model", "State", "Control", "build_model", "host_arrays", "PRECISIONS"]
+__all__ = ["Model", "State", "Control", "build_model", "host_arrays", "volumes_np", "PRECISIONS"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -33,6 +33,12 @@ def dihedral_angles_np(x: np.ndarray, hinges: np.ndarray) -> np.ndarray:
     sin_t = np.einsum("...i,...i->...", np.cross(n_a, n_b), e) / len_e
     cos_t = np.einsum("...i,...i->...", n_a, n_b)
     return np.arctan2(sin_t, cos_t)
+
+
+def volumes_np(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Enclosed volume (m^3, float64) of each world's membrane by the divergence theorem; x is (W, V, 3)."""
+    xf = x[:, faces]
+    return np.einsum("wfi,wfi->w", xf[:, :, 0], np.cross(xf[:, :, 1], xf[:, :, 2])) / 6.0
 
 
 @dataclass

@@ -21,7 +21,7 @@ from warp_shape.kernels import membrane as km
 from .design import Design
 from .errors import DesignError, SimulationError, StabilityError
 from .material import GAS_CONSTANT
-from .model import Control, State, build_model, dihedral_angles_np
+from .model import Control, State, build_model, dihedral_angles_np, volumes_np
 from .solver import (FORCE_TERMS, elastic_omega2_bound, eval_forces, eval_forces_fused, make_solver,
                      stable_dt_estimate, substeps_for)
 
@@ -298,9 +298,7 @@ class Simulator:
             kt = m.bending_stiffness * np.where(jam, m.jam_bend_factor, 1.0)
             theta = dihedral_angles_np(x, hinges)
             bend = 0.5 * np.sum(kt * (theta - st.rest_angle.numpy()) ** 2, axis=1)
-        faces = h["faces"]
-        xf = x[:, faces]
-        vol = np.einsum("wfi,wfi->w", xf[:, :, 0], np.cross(xf[:, :, 1], xf[:, :, 2])) / 6.0
+        vol = volumes_np(x, h["faces"])
         air = self.control.air.numpy()
         gas = m.atmospheric_pressure * vol - air * m.gas_rt * np.log(vol)
         ipam = np.zeros(self.worlds)

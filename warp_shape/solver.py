@@ -17,7 +17,7 @@ from warp_shape.kernels import integrate as ki
 from warp_shape.kernels import membrane as km
 
 from .errors import DesignError
-from .model import Control, Model, State
+from .model import Control, Model, State, volumes_np
 
 __all__ = ["FORCE_TERMS", "eval_forces", "eval_forces_fused", "Solver", "RK4Solver", "SemiImplicitSolver", "make_solver",
            "stable_dt_estimate", "elastic_omega2_bound", "lanczos_upper_bound",
@@ -403,11 +403,11 @@ def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: n
     faces = h["faces"]
     gas_eig = np.zeros(W)
     press = np.zeros((W, V))
+    volumes = np.maximum(volumes_np(x, faces), 1e-300)
     for w in range(W):
         xf = x[w][faces]
         n2a = np.cross(xf[:, 1] - xf[:, 0], xf[:, 2] - xf[:, 0])
-        vol = float(np.einsum("ij,ij->i", xf[:, 0], np.cross(xf[:, 1], xf[:, 2])).sum() / 6.0)
-        vol = max(vol, 1e-300)
+        vol = float(volumes[w])
         p_abs = air[w] * model.gas_rt / vol
         p_gauge = abs(p_abs - model.atmospheric_pressure)
         perim = sum(np.linalg.norm(xf[:, (k + 1) % 3] - xf[:, k], axis=1) for k in range(3))
