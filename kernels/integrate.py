@@ -46,6 +46,7 @@ def check_state_kernel(
     # Out:
     status_out: wp.array(dtype=wp.int32),  # (W,) worst code: 4 x non-finite, 3 v non-finite, 2 x runaway, 1 v runaway
 ):
+    """Flag blow-ups per world: non-finite or runaway positions (m) or speeds (m/s)."""
     w, i = wp.tid()
     x = x_in[w, i]
     v = v_in[w, i]

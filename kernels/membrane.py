@@ -137,6 +137,7 @@ def eval_spring_kernel(
     # Out:
     f_out: wp.array2d(dtype=Any),  # (W, V) accumulated
 ):
+    """Edge springs with a damper along each edge: f_i = [k (|d| - L) + c_s (v_j - v_i) . d_hat] d_hat."""
     w, e = wp.tid()
     h = hinges[e]
     k = stiffness[e]
@@ -237,6 +238,7 @@ def edge_state_kernel(
     length_out: wp.array2d(dtype=Any),  # (W, E) current edge lengths
     angle_out: wp.array2d(dtype=Any),  # (W, E) current dihedral angles
 ):
+    """Current edge lengths (m) and dihedral angles (rad), for jamming and read-outs."""
     w, e = wp.tid()
     h = hinges[e]
     x0 = x_in[w, h[0]]

@@ -37,6 +37,7 @@ def atomic_target(path):
 
 
 def atomic_write(path, data: bytes | str) -> Path:
+    """Write ``data`` (bytes, or str as UTF-8) to ``path`` atomically; returns the path."""
     with atomic_target(path) as tmp:
         tmp.write_bytes(data.encode() if isinstance(data, str) else data)
     return Path(path)

@@ -97,6 +97,7 @@ def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4"
 
 
 def format_rows(rows: list[dict], columns: list[str]) -> str:
+    """A plain-text table of ``rows`` (dicts) with the given columns, right-aligned."""
     widths = {c: max(len(c), *(len(str(r.get(c, ""))) for r in rows)) for c in columns}
     lines = ["  ".join(c.rjust(widths[c]) for c in columns), "  ".join("-" * widths[c] for c in columns)]
     for r in rows:

@@ -418,6 +418,7 @@ def cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``warp-shape`` argument parser with every subcommand."""
     p = argparse.ArgumentParser(prog="warp-shape", description="Simulate and design soft 3-D haptic shape displays.")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -486,6 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Entry point of ``warp-shape``: returns 0 on success, 2 on a clear input error, 130 on Ctrl-C."""
     args = build_parser().parse_args(argv)
     from .errors import WarpShapeError
 

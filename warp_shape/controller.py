@@ -94,6 +94,7 @@ class ControlSettings:
                 raise DesignError(f"ControlSettings.{name} must be > 0, got {getattr(self, name)}")
 
     def replace(self, **changes) -> "ControlSettings":
+        """A copy with some settings changed; unknown names raise ``DesignError``."""
         return replace_settings(self, changes, "controller")
 
 
@@ -154,6 +155,7 @@ class ControlResult:
         return out
 
     def history_csv(self) -> str:
+        """The control record as CSV text, one row per control step (columns in the module docstring)."""
         buf = io.StringIO()
         w = csv.writer(buf)
         cols = list(self.history)
@@ -167,6 +169,7 @@ class ControlResult:
         return atomic_write(path, self.history_csv())
 
     def summary(self) -> dict:
+        """Fit, final actuator state, convergence and settings as a JSON-ready dict (SI units)."""
         return dict(pcc=self.pcc, mare_m=self.mare, mpre_pct=self.mpre, volume_error=self.volume_error,
                     converged=self.converged, reason=self.reason, control_steps=self.control_steps,
                     air_moles=self.air_moles, ipam_forces_n=self.ipam_forces.tolist(),

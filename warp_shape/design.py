@@ -48,6 +48,7 @@ class Ipam:
         return self.area / self.stiffness
 
     def natural_length(self, pressure: float) -> float:
+        """Natural length L_n = L0 + (A/k) P in m at gauge pressure ``pressure`` (Pa)."""
         return self.free_length + self.area_over_stiffness * pressure
 
     def pressure_for_length(self, length: float) -> float:
@@ -163,10 +164,12 @@ class Design:
     # ------------------------------------------------------------------ queries
     @property
     def n_ipams(self) -> int:
+        """Number of IPAMs."""
         return len(self.ipams)
 
     @property
     def n_cells(self) -> int:
+        """Number of jamming cells."""
         return len(self.cells)
 
     def face_cell(self) -> np.ndarray:

@@ -91,6 +91,7 @@ class DesignResult:
         return selection_to_settings(self.target_names, self.passive_ipams, self.passive_cells)
 
     def report(self) -> dict:
+        """The design outcome as a JSON-ready dict: PCC by round, actuators added, final fit, settings."""
         fin = self.results
         return dict(
             targets=self.target_names,
@@ -103,6 +104,7 @@ class DesignResult:
         )
 
     def markdown(self) -> str:
+        """A short Markdown report: PCC table by round, actuators added, final fit, actuator needs."""
         names = self.target_names
         lines = [f"# Design report: {', '.join(names)}", "",
                  f"{self.design.n_ipams} IPAMs, {self.design.n_cells} jamming cells, "
@@ -140,6 +142,7 @@ def _setting_key(name: str) -> str:
 
 
 def selection_to_settings(names, passive_ipams, passive_cells) -> dict:
+    """Scene controller settings recording each target's passive IPAMs and cells (flat strings)."""
     out = {}
     for name, pi, pc in zip(names, passive_ipams, passive_cells):
         if pi:

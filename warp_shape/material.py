@@ -69,10 +69,12 @@ class Material:
         return self.youngs_modulus * self.thickness
 
     def to_dict(self) -> dict:
+        """Every field by name, SI units."""
         return asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> "Material":
+        """A Material from ``to_dict`` output; unknown fields raise ``DesignError``."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:

@@ -197,15 +197,18 @@ class TriMesh:
         return self.copy_with(self.vertices - self.centroid())
 
     def scaled(self, factor: float) -> "TriMesh":
+        """A copy with every vertex multiplied by ``factor`` (about the origin)."""
         return self.copy_with(self.vertices * float(factor))
 
     def to_trimesh(self):
+        """The mesh as a ``trimesh.Trimesh`` (copied, not processed)."""
         import trimesh
 
         return trimesh.Trimesh(self.vertices.copy(), self.faces.copy(), process=False)
 
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
+        """Check the mesh (see the class docstring); raises ``MeshError`` naming the defect."""
         v, f = self.vertices, self.faces
         nv = v.shape[0]
         if nv < 4 or f.shape[0] < 4:
@@ -255,36 +258,45 @@ class TriMesh:
 
     @property
     def topology(self) -> EdgeTopology:
+        """Hinge topology of the edges (built once, cached)."""
         if self._topology is None:
             self._topology = edge_topology(self.vertices, self.faces)
         return self._topology
 
     @property
     def edges(self) -> np.ndarray:
+        """(E, 2) int32 vertex pairs of the undirected edges."""
         return self.topology.edges
 
     @property
     def n_vertices(self) -> int:
+        """Number of vertices V."""
         return int(self.vertices.shape[0])
 
     @property
     def n_faces(self) -> int:
+        """Number of faces F."""
         return int(self.faces.shape[0])
 
     def face_areas(self) -> np.ndarray:
+        """(F,) face areas in m^2."""
         return 0.5 * np.linalg.norm(self._face_cross(), axis=1)
 
     def face_normals(self) -> np.ndarray:
+        """(F, 3) outward unit normals."""
         c = self._face_cross()
         return c / np.linalg.norm(c, axis=1, keepdims=True)
 
     def face_centroids(self) -> np.ndarray:
+        """(F, 3) face centroids in m."""
         return self.vertices[self.faces].mean(axis=1)
 
     def area(self) -> float:
+        """Surface area in m^2."""
         return float(self.face_areas().sum())
 
     def volume(self) -> float:
+        """Enclosed (signed) volume in m^3, positive for outward winding."""
         v, f = self.vertices, self.faces
         return float(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() / 6.0)
 

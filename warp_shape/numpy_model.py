@@ -142,11 +142,13 @@ class NumpyMembrane:
 
     # ------------------------------------------------------------------ physics
     def volume(self, x: np.ndarray | None = None) -> float:
+        """Enclosed volume in m^3."""
         x = self._x if x is None else x
         f0, f1, f2 = (x[:, fk] for fk in self._f)
         return float(np.sum(_dot(f0, _cross(f1, f2)))) / 6.0
 
     def pressure(self) -> float:
+        """Gauge pressure n R T / V - p_atm in Pa."""
         return self.air_moles * self.gas_rt / self.volume() - self.p_atm
 
     def _forces_soa(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:

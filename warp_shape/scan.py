@@ -80,6 +80,7 @@ class ScanComparison:
     reference_centroid: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def to_dict(self) -> dict:
+        """The comparison as a JSON-ready dict (lengths in m, MPRE in %)."""
         d = asdict(self)
         for k, v in d.items():
             if isinstance(v, np.ndarray):

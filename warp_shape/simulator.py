@@ -340,6 +340,7 @@ class Simulator:
 
     @property
     def internal_dt(self) -> float:
+        """Internal step dt / substeps in s."""
         return self.dt / self.substeps
 
     def _update_plan(self):

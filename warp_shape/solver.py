@@ -31,21 +31,25 @@ FORCE_TERMS = ("spring", "bending", "pressure", "ipam", "viscous")
 # --------------------------------------------------------------------------- force families
 
 def eval_init_viscous(model: Model, v, f, volume, launch: Launch, enabled: bool = True):
+    """Start a force evaluation: f = -c_v v (or 0 without the viscous term), volume zeroed."""
     c_v = model.viscous_damping if enabled else 0.0
     launch(km.init_forces_viscous, f.shape, [model.scalar(c_v), v, f, volume])
 
 
 def eval_volume(model: Model, x, volume, launch: Launch):
+    """Accumulate each world's enclosed volume (m^3, float64)."""
     launch(km.eval_volume_kernel, (x.shape[0], model.n_faces), [model.faces, x, volume])
 
 
 def eval_pressure(model: Model, x, volume, control: Control, f, launch: Launch):
+    """Add the pressure force p A / 3 n_hat of every face (p gauge, from air and volume)."""
     launch(km.eval_pressure_kernel, (x.shape[0], model.n_faces),
            [model.faces, wp.float64(model.gas_rt), wp.float64(model.atmospheric_pressure), x, volume,
             control.air, f])
 
 
 def eval_springs(model: Model, state: State, x, v, f, launch: Launch):
+    """Add edge spring and damper forces (jammed edges stiffened)."""
     s = model.scalar
     launch(km.eval_spring_kernel, (x.shape[0], model.n_edges),
            [model.hinges, model.edge_stiffness, s(model.spring_damping), s(model.jam_stretch_factor), x, v,
@@ -53,6 +57,7 @@ def eval_springs(model: Model, state: State, x, v, f, launch: Launch):
 
 
 def eval_bending(model: Model, state: State, x, f, launch: Launch, paper: bool = False):
+    """Add hinge bending forces; launches nothing when k_t = 0."""
     if not model.has_bending:
         return
     s = model.scalar
@@ -62,6 +67,7 @@ def eval_bending(model: Model, state: State, x, f, launch: Launch, paper: bool =
 
 
 def eval_ipams(model: Model, x, v, control: Control, f, launch: Launch):
+    """Add IPAM sub-spring forces; launches nothing without IPAMs."""
     if not model.has_ipams:
         return
     launch(km.eval_ipam_kernel, (x.shape[0], 3 * model.n_ipams),
@@ -202,6 +208,7 @@ INTEGRATORS = {"rk4": RK4Solver, "semi_implicit": SemiImplicitSolver}
 
 
 def make_solver(integrator: str, model: Model, state: State, control: Control, paper_bending: bool = False) -> Solver:
+    """The solver for an integrator name ('rk4', 'semi_implicit' and aliases); unknown names raise."""
     key = integrator.lower().replace("-", "_")
     if key in ("euler", "semi_implicit_euler", "symplectic_euler"):
         key = "semi_implicit"
@@ -427,4 +434,5 @@ def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: n
 
 
 def substeps_for(dt: float, dt_stable: float) -> int:
+    """Fewest equal internal steps of an output step ``dt`` (s) within ``dt_stable`` (s)."""
     return max(1, int(math.ceil(dt / dt_stable - 1e-9)))
