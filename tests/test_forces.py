@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -136,3 +138,32 @@ def test_rigid_rotation_rotates_forces():
     sim.velocities = s.v @ Rm.T
     f1 = sim.forces()
     assert rel_err(f1, f0 @ Rm.T) < 1e-9
+
+
+def test_float32_atan2_polynomial_within_float32_resolution():
+    """The inlined float32 atan2 of the hinge pass stays within 1e-7 rad plus 1.5 float32 spacings of
+    the exact angle in every quadrant, on the axes and at the origin (a library atan2f is good to
+    about one spacing); float64 uses the library function itself."""
+    import warp as wp
+    from warp_shape.kernels.membrane import hinge_atan2
+
+    @wp.kernel
+    def angles(y: wp.array(dtype=Any), x: wp.array(dtype=Any), out: wp.array(dtype=Any)):
+        i = wp.tid()
+        out[i] = hinge_atan2(y[i], x[i])
+
+    rng = np.random.default_rng(3)
+    r = 10.0 ** rng.uniform(-6, 3, 20000)
+    t = rng.uniform(-np.pi, np.pi, r.size)
+    y, x = r * np.sin(t), r * np.cos(t)
+    special = np.array([[0, 1], [0, -1], [1, 0], [-1, 0], [0, 0], [1, 1], [-1, -1], [1e-30, -1], [-1e-30, -1]])
+    y, x = np.concatenate([y, special[:, 0]]), np.concatenate([x, special[:, 1]])
+    for dtype in (np.float32, np.float64):
+        yd, xd = y.astype(dtype), x.astype(dtype)
+        out = wp.zeros(y.size, dtype=wp.dtype_from_numpy(dtype), device="cpu")
+        wp.launch(angles, y.size, [wp.array(yd, device="cpu"), wp.array(xd, device="cpu"), out], device="cpu")
+        exact = np.arctan2(yd.astype(np.float64), xd.astype(np.float64))
+        err = np.abs(out.numpy().astype(np.float64) - exact)
+        err = np.minimum(err, 2 * np.pi - err)  # +-pi on the negative axis are the same angle
+        tol = (1e-7 if dtype == np.float32 else 1e-15) + 1.5 * np.spacing(np.abs(exact).astype(dtype))
+        assert np.all(err <= tol), (dtype, err.max(), y[err.argmax()], x[err.argmax()])

@@ -276,3 +276,19 @@ def test_refined_estimate_is_within_gershgorin_and_above_the_true_limit():
     assert np.allclose(A, A.T, rtol=1e-9, atol=1e-9 * np.abs(A).max())
     true = np.linalg.eigvalsh(A).max()
     assert elastic_omega2_bound(m, jam, x, rest)[0] >= true
+
+
+def test_stable_step_is_reestimated_every_n_internal_steps():
+    """The periodic re-estimate counts internal steps: with 3 substeps and reestimate_every=7 the
+    estimate (made at construction) runs again before output steps 4, 7 and 10, after 9, 18 and 27
+    internal steps; a jam forces one more right away."""
+    dt = 3 * 0.5 * ws.Simulator(_design(1)).stable_dt()
+    sim = ws.Simulator(_design(1), dt=dt, substeps=3, reestimate_every=7)
+    calls = []
+    original = sim.stable_dt
+    sim.stable_dt = lambda: calls.append(sim.step_count) or original()
+    sim.step(10)
+    assert calls == [3, 6, 9]
+    sim.jam(0)
+    sim.step(1)
+    assert calls == [3, 6, 9, 10]

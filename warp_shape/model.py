@@ -180,18 +180,33 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
 
 
 class State:
-    """Per-world dynamic state: positions, velocities and the jammed rest values of the edges."""
+    """Per-world dynamic state: positions, velocities and the jammed rest values of the edges.
+
+    The step kernels take few, packed arrays (on CPU every array argument costs loads on every
+    element), so related fields share one buffer and the named fields are views into it:
+    ``xv`` (2, W, V) holds positions ``x`` and velocities ``v``; ``edge`` (4, W, E) holds each edge's
+    ``rest_length`` (m), ``rest_angle`` (rad), ``stretch_stiffness`` (N/m) and ``bend_stiffness``
+    (N m/rad), the last two already multiplied by the jam factors where the edge is jammed.
+    """
 
     def __init__(self, model: Model, worlds: int):
         dev, vec3, np_dtype = model.device, model.vec3, model.np_dtype
         W, V, E = worlds, model.n_vertices, model.n_edges
         h = model.host
-        x0 = np.broadcast_to(h["rest_vertices"], (W, V, 3)).astype(np_dtype)
+        xv = np.zeros((2, W, V, 3), dtype=np_dtype)
+        xv[0] = h["rest_vertices"]
+        edge = np.empty((4, W, E), dtype=np_dtype)
+        edge[0], edge[1] = h["rest_length"], h["rest_angle"]
+        edge[2], edge[3] = h["edge_stiffness"], model.bending_stiffness
         self.worlds = W
-        self.x = wp.array(x0, dtype=vec3, device=dev)  # (W, V) m
-        self.v = wp.zeros((W, V), dtype=vec3, device=dev)  # (W, V) m/s
-        self.rest_length = wp.array(np.broadcast_to(h["rest_length"], (W, E)).astype(np_dtype), device=dev)  # (W, E)
-        self.rest_angle = wp.array(np.broadcast_to(h["rest_angle"], (W, E)).astype(np_dtype), device=dev)  # (W, E)
+        self.xv = wp.array(xv, dtype=vec3, device=dev)  # (2, W, V): x (m), v (m/s)
+        self.x = self.xv[0]  # (W, V) m
+        self.v = self.xv[1]  # (W, V) m/s
+        self.edge = wp.array(edge, dtype=model.scalar, device=dev)  # (4, W, E)
+        self.rest_length = self.edge[0]  # (W, E) m
+        self.rest_angle = self.edge[1]  # (W, E) rad
+        self.stretch_stiffness = self.edge[2]  # (W, E) N/m, jam factor applied
+        self.bend_stiffness = self.edge[3]  # (W, E) N m/rad, jam factor applied
         self.jammed = wp.zeros((W, E), dtype=wp.int32, device=dev)  # (W, E) 1 where jammed
         self.cell_jammed = np.zeros((W, model.n_cells), dtype=bool)  # host mirror, (W, n_cell)
         self.cell_jam_time = np.full((W, model.n_cells), np.nan)  # (W, n_cell) s

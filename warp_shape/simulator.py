@@ -3,9 +3,10 @@
 ``dt`` is the output (control) step. By default each output step is split into the fewest equal
 internal steps that respect the model's stable-step estimate (``sim.substeps``); the estimate is
 re-evaluated when air is changed, a cell jams or positions are set, and every
-``reestimate_every`` output steps. With ``substeps`` fixed by the user, an internal step beyond the
-estimate is refused with a ``StabilityError`` naming a safe dt. A blow-up (non-finite or runaway
-positions or speeds) raises ``SimulationError`` naming the step, the quantity and a safe dt.
+``reestimate_every`` internal steps (default 1000; each costs milliseconds of host work). With
+``substeps`` fixed by the user, an internal step beyond the estimate is refused with a
+``StabilityError`` naming a safe dt. A blow-up (non-finite or runaway positions or speeds) raises
+``SimulationError`` naming the step, the quantity and a safe dt.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ class Simulator:
 
     def __init__(self, design: Design, device: str = "cpu", integrator: str = "rk4", dt: float = 1e-3,
                  precision: str = "float32", bending: str = "exact", substeps: int | None = None,
-                 worlds: int = 1, launch_mode: str = "graph", reestimate_every: int = 100):
+                 worlds: int = 1, launch_mode: str = "graph", reestimate_every: int = 1000):
         if not isinstance(design, Design):
             raise DesignError(f"Simulator needs a ws.Design, got {type(design).__name__}")
         if bending not in ("exact", "paper"):
@@ -82,17 +83,15 @@ class Simulator:
         self.solver = make_solver(integrator, m, self.state, self.control, paper_bending=(bending == "paper"))
         self.integrator = self.solver.name
         # probe buffers for read-outs outside the step loop
-        self._f_probe = wp.zeros_like(self.solver.f)
+        self._fg_probe = wp.zeros_like(self.solver.fg)  # (2, W, V) forces, dV/dx
+        self._f_probe = self._fg_probe[0]
         self._vol_probe = wp.zeros(self.worlds, dtype=wp.float64, device=self.device)
-        self._gradv_probe = wp.zeros_like(self.solver.f)
         self._vol2_probe = wp.zeros((self.worlds, 1), dtype=wp.float64, device=self.device)
-        self._status = wp.zeros(self.worlds, dtype=wp.int32, device=self.device)
+        # blow-up codes written by the step's last kernel; on CPU the host reads them in place
+        self._status = self.solver.status
+        self._status_host = self._status.numpy() if self._status.device.is_cpu else None
         self._edge_len = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)
         self._edge_ang = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)
-        rest = m.host["rest_vertices"]
-        center = rest.mean(axis=0)
-        self._size = float(2.0 * np.linalg.norm(rest - center, axis=1).max())
-        self._x_bound = float(np.linalg.norm(center) + 50.0 * self._size)
         # stepping plan
         self._h = None
         self._substeps = None
@@ -102,6 +101,9 @@ class Simulator:
         self._dirty = True
         self._geometry_version = 0  # bumped when positions are set (invalidates the cached elastic bound)
         self._elastic_cache = None
+        self._internal_steps = 0  # internal steps taken
+        self._estimated_at = 0  # internal step count at the last periodic re-estimate
+        self._estimate_epoch = 0  # bumped by each periodic re-estimate (invalidates the elastic bound)
         self.step_count = 0
         self.time = 0.0
         self._update_plan()
@@ -206,8 +208,9 @@ class Simulator:
         edges = m.cell_edges[cell]
         st = self.state
         wp.launch(ki.jam_edges_kernel, (self.worlds, edges.shape[0]),
-                  [m.hinges, edges, wp.array(mask, dtype=wp.int32, device=self.device), st.x,
-                   st.rest_length, st.rest_angle, st.jammed], device=self.device)
+                  [m.hinges, edges, wp.array(mask, dtype=wp.int32, device=self.device),
+                   m.scalar(m.jam_stretch_factor), m.scalar(m.jam_bend_factor), st.x, st.edge, st.jammed],
+                  device=self.device)
         st.cell_jammed[mask.astype(bool), cell] = True
         st.cell_jam_time[mask.astype(bool), cell] = self.time
         self._dirty = True
@@ -226,8 +229,8 @@ class Simulator:
             terms = (term,)
         st = self.state
         if term is None:  # the total goes through the same fused kernels as a step
-            eval_forces_fused(self.model, st, self.control, st.x, st.v, self._f_probe, self._gradv_probe,
-                              self._vol2_probe, self._direct, paper_bending=(self.bending == "paper"))
+            eval_forces_fused(self.model, st, self.control, self._fg_probe, self._vol2_probe, self._direct,
+                              paper_bending=(self.bending == "paper"))
         else:
             eval_forces(self.model, st, self.control, st.x, st.v, self._f_probe, self._vol_probe, self._direct,
                         paper_bending=(self.bending == "paper"), terms=terms)
@@ -317,14 +320,13 @@ class Simulator:
         """Current conservative stable internal step (s), the minimum over worlds.
 
         The elastic part of the bound (a short Lanczos run, see solver.elastic_omega2_bound) is
-        cached until a cell jams, positions are set or ``reestimate_every`` output steps pass; air
+        cached until a cell jams, positions are set or ``reestimate_every`` internal steps pass; air
         changes only re-evaluate the cheap pressure and gas terms."""
         m, st = self.model, self.state
         edge_jam = st.jammed.numpy().astype(bool)
         x = st.x.numpy().astype(np.float64)
         rest = st.rest_length.numpy().astype(np.float64)
-        key = (self._geometry_version, int(edge_jam.sum()),
-               self.step_count // self.reestimate_every if self.reestimate_every else 0)
+        key = (self._geometry_version, int(edge_jam.sum()), self._estimate_epoch)
         if self._elastic_cache is None or self._elastic_cache[0] != key:
             self._elastic_cache = (key, elastic_omega2_bound(m, edge_jam, x, rest))
         est = stable_dt_estimate(m, type(self.solver), edge_jam, self.control.air.numpy(), x, rest,
@@ -374,12 +376,6 @@ class Simulator:
 
         self.solver.step(h, record)
         self.step_kernels = names
-        # the blow-up check after every output step, recorded once per plan (its bounds depend on h)
-        m = self.model
-        self._check_cmd = wp.launch(
-            ki.check_state_kernel, self.state.x.shape,
-            [m.scalar(self._x_bound), m.scalar(self._size / h), self.state.x, self.state.v, self._status],
-            device=self.device, record_cmd=True)
         self._plan = ("record", cmds)
         if self.launch_mode == "direct":
             self._plan = ("direct", None)
@@ -406,8 +402,8 @@ class Simulator:
                 self.solver.step(self._h, self._direct)
 
     def _check(self):
-        self._check_cmd.launch()  # status stays zero until a blow-up (zeroed again when one is reported)
-        status = self._status.numpy()
+        # the step kernels flag blow-ups; status stays zero until one (zeroed again once reported)
+        status = self._status_host if self._status_host is not None else self._status.numpy()
         if status.any():
             status = status.copy()
             self._status.zero_()
@@ -425,10 +421,14 @@ class Simulator:
         if not isinstance(n, (int, np.integer)) or n < 0:
             raise DesignError(f"step count must be an integer >= 0, got {n!r}")
         for _ in range(int(n)):
-            if self._dirty or (self.reestimate_every and self.step_count % self.reestimate_every == 0
-                               and self.step_count > 0):
+            if self.reestimate_every and self._internal_steps - self._estimated_at >= self.reestimate_every:
+                self._estimated_at = self._internal_steps
+                self._estimate_epoch += 1
+                self._dirty = True
+            if self._dirty:
                 self._update_plan()
             self._run_internal(self._substeps)
+            self._internal_steps += self._substeps
             self.step_count += 1
             self.time += self.dt
             self._check()

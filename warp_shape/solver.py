@@ -91,36 +91,34 @@ def eval_forces(model: Model, state: State, control: Control, x, v, f, volume, l
         eval_ipams(model, x, v, control, f, launch)
 
 
-def eval_init_step(model: Model, v, f, gradv, volume2d, launch: Launch):
-    """f = -c_v v, dV/dx = 0 and every volume slot zeroed (start of a fused evaluation)."""
-    W, V = f.shape
-    launch(km.init_step_forces, (W * V,), [model.scalar(model.viscous_damping), W, V, v, f, gradv, volume2d])
+def eval_init_step(model: Model, xv, fg, volume2d, launch: Launch):
+    """Forces = -c_v v, dV/dx = 0 and every volume slot zeroed (start of a fused evaluation).
+    xv and fg are packed (2, W, V) buffers: (positions, velocities) and (forces, dV/dx)."""
+    _, W, V = fg.shape
+    launch(km.init_step_forces, (W * V,), [model.scalar(model.viscous_damping), W, V, xv, fg, volume2d])
 
 
-def eval_hinges(model: Model, state: State, x, v, f, gradv, volume2d, slot: int, launch: Launch,
-                paper: bool = False):
-    """One fused pass over the hinges: springs + dampers, bending (only when k_t > 0), the enclosed
-    volume (into column ``slot`` of volume2d) and dV/dx (into gradv). Accumulates."""
-    s = model.scalar
-    W = x.shape[0]
+def eval_hinges(model: Model, state: State, xv, fg, volume2d, slot: int, launch: Launch, paper: bool = False):
+    """One fused pass over the hinges at the point xv (2, W, V): springs + dampers, bending (only
+    when k_t > 0), the enclosed volume (into column ``slot`` of volume2d) and dV/dx (into fg[1]).
+    Accumulates."""
+    _, W, _ = xv.shape
     E = model.n_edges
     kernel = km.eval_hinge_bending_kernel if model.has_bending else km.eval_hinge_kernel
     launch(kernel, (W * E,),
-           [model.hinges, model.edge_stiffness, s(model.spring_damping), s(model.jam_stretch_factor),
-            s(model.bending_stiffness), s(model.jam_bend_factor), int(paper), W, E, x, v,
-            state.rest_length, state.rest_angle, state.jammed, slot, f, gradv, volume2d])
+           [model.hinges, model.scalar(model.spring_damping), int(paper), W, E, state.edge, xv, slot, fg, volume2d])
 
 
-def eval_forces_fused(model: Model, state: State, control: Control, x, v, f, gradv, volume2d, launch: Launch,
+def eval_forces_fused(model: Model, state: State, control: Control, fg, volume2d, launch: Launch,
                       paper_bending: bool = False):
-    """Total force at (x, v) into f (overwritten) through the same fused kernels as a step."""
-    W, V = f.shape
-    eval_init_step(model, v, f, gradv, volume2d, launch)
-    eval_hinges(model, state, x, v, f, gradv, volume2d, 0, launch, paper_bending)
-    eval_ipams(model, x, v, control, f, launch)
+    """Total force at the current state into fg[0] (overwritten; fg is (2, W, V), fg[1] receives
+    dV/dx) through the same fused kernels as a step."""
+    _, W, V = fg.shape
+    eval_init_step(model, state.xv, fg, volume2d, launch)
+    eval_hinges(model, state, state.xv, fg, volume2d, 0, launch, paper_bending)
+    eval_ipams(model, state.x, state.v, control, fg[0], launch)
     launch(km.finish_forces_kernel, (W * V,),
-           [wp.float64(model.gas_rt), wp.float64(model.atmospheric_pressure), W, V, control.air, volume2d, 0,
-            gradv, f])
+           [wp.float64(model.gas_rt), wp.float64(model.atmospheric_pressure), W, V, control.air, volume2d, 0, fg])
 
 
 # --------------------------------------------------------------------------- integrators
@@ -137,17 +135,28 @@ class Solver:
         self.model, self.state, self.control = model, state, control
         self.paper_bending = paper_bending
         W, V = state.x.shape
-        self.f = wp.zeros((W, V), dtype=model.vec3, device=model.device)  # forces without pressure
-        self.gradv = wp.zeros((W, V), dtype=model.vec3, device=model.device)  # dV/dx
-        self.volume = wp.zeros((W, 4), dtype=wp.float64, device=model.device)  # volume at each stage point
+        dev = model.device
+        self.fg = wp.zeros((2, W, V), dtype=model.vec3, device=dev)  # forces without pressure; dV/dx
+        self.f, self.gradv = self.fg[0], self.fg[1]  # (W, V) views
+        self.volume = wp.zeros((W, 4), dtype=wp.float64, device=dev)  # volume at each stage point
+        # blow-up bounds, checked by the kernel that writes the new state
+        rest = model.host["rest_vertices"]
+        center = rest.mean(axis=0)
+        self.size = float(2.0 * np.linalg.norm(rest - center, axis=1).max())  # m
+        self.x_bound = float(np.linalg.norm(center) + 50.0 * self.size)  # |x| beyond this (m) is a blow-up
+        self.status = wp.zeros(W, dtype=wp.int32, device=dev)  # (W,) worst blow-up code since last cleared
+
+    def _check_args(self, h: float) -> list:
+        """Blow-up bounds for internal step h: |x| and |v| (one mesh size per step)."""
+        return [self.model.scalar(self.x_bound), self.model.scalar(self.size / h)]
 
     def begin(self, launch: Launch):
         """Start the first force evaluation of a step at the current state."""
-        eval_init_step(self.model, self.state.v, self.f, self.gradv, self.volume, launch)
+        eval_init_step(self.model, self.state.xv, self.fg, self.volume, launch)
 
-    def forces(self, x, v, slot: int, launch: Launch):
-        """Accumulate every force family but pressure (applied by the stage kernel) at (x, v)."""
-        eval_hinges(self.model, self.state, x, v, self.f, self.gradv, self.volume, slot, launch, self.paper_bending)
+    def forces(self, xv, x, v, slot: int, launch: Launch):
+        """Accumulate every force family but pressure (applied by the stage kernel) at xv = (x, v)."""
+        eval_hinges(self.model, self.state, xv, self.fg, self.volume, slot, launch, self.paper_bending)
         eval_ipams(self.model, x, v, self.control, self.f, launch)
 
     def _pressure_args(self):
@@ -169,10 +178,10 @@ class SemiImplicitSolver(Solver):
         st, m = self.state, self.model
         W, V = st.x.shape
         self.begin(launch)
-        self.forces(st.x, st.v, 0, launch)
+        self.forces(st.xv, st.x, st.v, 0, launch)
         launch(ki.integrate_semi_implicit_fused, (W * V,),
-               [m.inv_mass, *self._pressure_args(), m.scalar(h), W, V, self.control.air, self.f, self.gradv,
-                self.volume, st.x, st.v])
+               [m.inv_mass, *self._pressure_args(), m.scalar(h), W, V, *self._check_args(h), self.control.air,
+                self.fg, self.volume, st.xv, self.status])
 
 
 class RK4Solver(Solver):
@@ -184,11 +193,10 @@ class RK4Solver(Solver):
 
     def __init__(self, model: Model, state: State, control: Control, paper_bending: bool = False):
         super().__init__(model, state, control, paper_bending)
-        shape, dev, vec3 = state.x.shape, model.device, model.vec3
-        self.xs = wp.zeros(shape, dtype=vec3, device=dev)
-        self.vs = wp.zeros(shape, dtype=vec3, device=dev)
-        self.acc_x = wp.zeros(shape, dtype=vec3, device=dev)
-        self.acc_v = wp.zeros(shape, dtype=vec3, device=dev)
+        shape, dev, vec3 = state.xv.shape, model.device, model.vec3
+        self.stage_xv = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) the next stage point
+        self.xs, self.vs = self.stage_xv[0], self.stage_xv[1]
+        self.acc = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) weighted slope sums
 
     def step(self, h: float, launch: Launch):
         st, m = self.state, self.model
@@ -196,12 +204,14 @@ class RK4Solver(Solver):
         hs = m.scalar(h)
         self.begin(launch)
         for stage in range(4):
-            x_eval, v_eval = (st.x, st.v) if stage == 0 else (self.xs, self.vs)
-            self.forces(x_eval, v_eval, stage, launch)
+            if stage == 0:
+                self.forces(st.xv, st.x, st.v, stage, launch)
+            else:
+                self.forces(self.stage_xv, self.xs, self.vs, stage, launch)
             launch(ki.rk4_stage_fused, (W * V,),
                    [m.inv_mass, m.scalar(m.viscous_damping), *self._pressure_args(), hs, stage, W, V,
-                    self.control.air, self.f, self.gradv, self.volume, v_eval, st.x, st.v, self.xs, self.vs,
-                    self.acc_x, self.acc_v])
+                    *self._check_args(h), self.control.air, self.fg, self.volume, st.xv, self.stage_xv, self.acc,
+                    self.status])
 
 
 INTEGRATORS = {"rk4": RK4Solver, "semi_implicit": SemiImplicitSolver}
