@@ -355,14 +355,13 @@ def _make_hinge_kernel(name: str, with_bending: bool):
             f2 = n_a * (torque_l / wp.max(wp.dot(n_a, n_a), tiny))
             f3 = n_b * (torque_l / wp.max(wp.dot(n_b, n_b), tiny))
             if paper_variant != 0:
-                fe = (f2 + f3) * type(damping)(-0.5)
-                f0 = f0 + fe
-                f1 = f1 + fe
+                fb1 = (f2 + f3) * type(damping)(-0.5)
             else:
-                t2 = wp.dot(wing_a, edge) * (inv_len * inv_len)
-                t3 = wp.dot(wing_b, edge) * (inv_len * inv_len)
-                f1 = f1 - (f2 * t2 + f3 * t3)
-                f0 = f0 - (f2 * (one - t2) + f3 * (one - t3))
+                # lever rule: each wing's reaction split by where it projects onto the edge
+                il2 = inv_len * inv_len
+                fb1 = -(f2 * (wp.dot(wing_a, edge) * il2) + f3 * (wp.dot(wing_b, edge) * il2))
+            f1 = f1 + fb1
+            f0 = f0 - (f2 + f3 + fb1)  # the bending forces sum to zero
         wp.atomic_add(fg_out, 0, w, h[0], f0)
         wp.atomic_add(fg_out, 0, w, h[1], f1)
         if wp.static(with_bending):
