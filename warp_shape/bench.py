@@ -80,7 +80,7 @@ def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4"
                     sim.step(2)  # build the plan, compile, warm caches
                     cases.append(((precision, mode), sim, sim.step, win))
             best = [float("inf")] * len(cases)
-            for _ in range(max(1, min(repeats, 2) if V > 20000 else repeats)):
+            for _ in range(max(1, repeats)):
                 for c, (_, _, step, window) in enumerate(cases):
                     best[c] = min(best[c], _min_time(step, window, 1))
             np_per = best[0] if numpy else None
