@@ -286,8 +286,8 @@ def edge_state_kernel(
 # k_t > 0, and the pressure's volume gradient), launched 1-D over W * n so that no thread pays for
 # a 2-D index decomposition when there is one world. Pressure needs the enclosed volume before it
 # can be applied, so the hinge pass accumulates the volume and dV/dx (gradv); the integrator stage
-# kernel then adds p gradv with p = n R T / V - p_atm. Each face appears in exactly three hinges
-# (once per edge), so every hinge adds a third of each of its two faces' contributions.
+# kernel then adds p gradv with p = n R T / V - p_atm. Each face appears in three hinges (once per
+# edge); the model gives it to one of them (Model.hinge_owns), which adds its whole contribution.
 
 
 @wp.func
@@ -306,6 +306,7 @@ def _make_hinge_kernel(name: str, with_bending: bool):
     def kernel(
         # Model:
         hinges: wp.array(dtype=wp.vec4i),  # (E,)
+        owns: wp.array(dtype=wp.int32),  # (E,) bit 0 / 1: the hinge owns face A / B
         damping: Any,  # c_s, N s/m
         paper_variant: int,  # 0: exact gradient; 1: paper eq. (9) edge forces
         n_worlds: int,
@@ -327,13 +328,6 @@ def _make_hinge_kernel(name: str, with_bending: bool):
         wing_b = xv_in[0, w, h[3]] - x0
         n_a = wp.cross(edge, wing_a)  # face A (v0, v1, v2): 2 area n_hat
         n_b = wp.cross(wing_b, edge)  # face B (v1, v0, v3)
-        # pressure: volume (divergence theorem) and its gradient, a third of each face per hinge
-        third = type(damping)(1.0) / type(damping)(18.0)
-        vol = wp.float64(wp.dot(x0, n_a) + wp.dot(x1, n_b)) * (wp.float64(1.0) / wp.float64(18.0))
-        wp.atomic_add(volume_out, w, vslot, vol)
-        g_a = n_a * third
-        g_b = n_b * third
-        g_ab = g_a + g_b
         # Branch-free guards (the hinge pass runs as one serial loop on CPU, where a select is cheaper
         # than a branch): a zero-length edge or a zero-area wing yields zero force through the floor.
         one = type(damping)(1.0)
@@ -367,10 +361,22 @@ def _make_hinge_kernel(name: str, with_bending: bool):
         if wp.static(with_bending):
             wp.atomic_add(fg_out, 0, w, h[2], f2)
             wp.atomic_add(fg_out, 0, w, h[3], f3)
-        wp.atomic_add(fg_out, 1, w, h[0], g_ab)
-        wp.atomic_add(fg_out, 1, w, h[1], g_ab)
-        wp.atomic_add(fg_out, 1, w, h[2], g_a)
-        wp.atomic_add(fg_out, 1, w, h[3], g_b)
+        # pressure: each face's volume (divergence theorem) and its gradient n / 6 on its three
+        # vertices, added by the one hinge that owns the face
+        sixth = type(damping)(1.0) / type(damping)(6.0)
+        own = owns[e]
+        if own & 1:
+            g_a = n_a * sixth
+            wp.atomic_add(volume_out, w, vslot, wp.float64(wp.dot(x0, g_a)))
+            wp.atomic_add(fg_out, 1, w, h[0], g_a)
+            wp.atomic_add(fg_out, 1, w, h[1], g_a)
+            wp.atomic_add(fg_out, 1, w, h[2], g_a)
+        if own & 2:
+            g_b = n_b * sixth
+            wp.atomic_add(volume_out, w, vslot, wp.float64(wp.dot(x1, g_b)))
+            wp.atomic_add(fg_out, 1, w, h[0], g_b)
+            wp.atomic_add(fg_out, 1, w, h[1], g_b)
+            wp.atomic_add(fg_out, 1, w, h[3], g_b)
 
     kernel.__name__ = kernel.__qualname__ = name
     return wp.kernel(kernel, enable_backward=False)

@@ -167,3 +167,16 @@ def test_float32_atan2_polynomial_within_float32_resolution():
         err = np.minimum(err, 2 * np.pi - err)  # +-pi on the negative axis are the same angle
         tol = (1e-7 if dtype == np.float32 else 1e-15) + 1.5 * np.spacing(np.abs(exact).astype(dtype))
         assert np.all(err <= tol), (dtype, err.max(), y[err.argmax()], x[err.argmax()])
+
+
+@pytest.mark.parametrize("subdivisions", [0, 2, 4])
+def test_every_face_has_exactly_one_owner_hinge(subdivisions):
+    """The fused pass adds each face's volume and dV/dx once: exactly one of its three hinges owns it."""
+    from warp_shape.model import face_owners
+
+    topo = ws.icosphere(subdivisions, 0.04).topology
+    owns = face_owners(topo)
+    count = np.zeros(topo.face_edges.shape[0], dtype=int)
+    np.add.at(count, topo.faces[:, 0], owns & 1)
+    np.add.at(count, topo.faces[:, 1], owns >> 1 & 1)
+    assert np.all(count == 1)

@@ -63,6 +63,7 @@ class Model:
     # device arrays
     faces: wp.array  # (F,) vec3i
     hinges: wp.array  # (E,) vec4i: v0, v1 (edge), v2, v3 (wings)
+    hinge_owns: wp.array  # (E,) int32: bit 0 / bit 1 where the hinge owns face A / B (see face_owners)
     edge_stiffness: wp.array  # (E,) k_e, N/m
     inv_mass: wp.array  # (V,) 1/kg
     ipam_sub_pairs: wp.array | None  # (3 n_ipam,) vec2i
@@ -100,6 +101,15 @@ class Model:
         return self.n_ipams > 0
 
 
+def face_owners(topo) -> np.ndarray:
+    """(E,) int32 bit mask giving every face to exactly one of its three hinges (the lowest edge
+    index): bit 0 set where the hinge owns its face A, bit 1 where it owns face B. The fused hinge
+    pass adds a face's volume and dV/dx only from its owner."""
+    owner = topo.face_edges.min(axis=1)  # (F,)
+    e = np.arange(topo.count)
+    return ((owner[topo.faces[:, 0]] == e) * 1 + (owner[topo.faces[:, 1]] == e) * 2).astype(np.int32)
+
+
 def host_arrays(design: Design) -> dict:
     """Float64/int64 host arrays of a design (rest geometry, stiffness, mass, IPAMs, cells); shared by the
     device model and the NumPy implementation (warp_shape.numpy_model)."""
@@ -115,7 +125,7 @@ def host_arrays(design: Design) -> dict:
     host = dict(
         rest_vertices=x, faces=mesh.faces.astype(np.int64), hinges=hinges.astype(np.int64),
         rest_length=rest_length, rest_angle=dihedral_angles_np(x, hinges), edge_stiffness=stiffness, mass=mass,
-        hinge_faces=topo.faces.astype(np.int64),
+        hinge_faces=topo.faces.astype(np.int64), hinge_owns=face_owners(topo),
     )
     if design.n_ipams:
         ips = design.ipams
@@ -171,6 +181,7 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
         atmospheric_pressure=mat.atmospheric_pressure,
         faces=arr(mesh.faces.astype(np.int32), wp.vec3i),
         hinges=arr(hinges.astype(np.int32), wp.vec4i),
+        hinge_owns=arr(host["hinge_owns"], wp.int32),
         edge_stiffness=arr(stiffness.astype(np_dtype)),
         inv_mass=arr((1.0 / mass).astype(np_dtype)),
         cell_edges=[arr(c.astype(np.int32), wp.int32) for c in cell_edges_np],

@@ -106,7 +106,8 @@ def eval_hinges(model: Model, state: State, xv, fg, volume2d, slot: int, launch:
     E = model.n_edges
     kernel = km.eval_hinge_bending_kernel if model.has_bending else km.eval_hinge_kernel
     launch(kernel, (W * E,),
-           [model.hinges, model.scalar(model.spring_damping), int(paper), W, E, state.edge, xv, slot, fg, volume2d])
+           [model.hinges, model.hinge_owns, model.scalar(model.spring_damping), int(paper), W, E, state.edge, xv, slot,
+            fg, volume2d])
 
 
 def eval_forces_fused(model: Model, state: State, control: Control, fg, volume2d, launch: Launch,
