@@ -3,6 +3,7 @@ report the minimum of repeats."""
 
 from __future__ import annotations
 
+import ctypes
 import time
 
 import numpy as np
@@ -25,6 +26,25 @@ def _min_time(step, seconds: float, repeats: int, probe: int = 1) -> float:
         step(n)
         best = min(best, (time.perf_counter() - t0) / n)
     return best
+
+
+def keep_numpy_temporaries_on_heap() -> str:
+    """Stop glibc from mapping and unmapping every large NumPy temporary; returns what was set.
+
+    glibc serves allocations above its mmap threshold (128 KiB at start, raised only after such a
+    block is freed) with fresh mappings, so each NumPy temporary of a mesh above ~2k vertices is
+    page-faulted in again on every use. Whether the threshold has been raised depends on the
+    process's allocation history, which made the NumPy baseline bimodal (up to 1.7x slower by
+    chance). A fixed 32 MiB threshold (glibc's maximum) keeps those blocks on the heap for the rest
+    of the process, giving NumPy its best and a steady time."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3
+        if libc.mallopt(m_mmap_threshold, 32 << 20) and libc.mallopt(m_trim_threshold, 1 << 30):
+            return "glibc mmap threshold 32 MiB"
+    except (OSError, AttributeError):
+        pass
+    return "default"
 
 
 def _jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph", air_scale=1.3):
@@ -50,12 +70,15 @@ def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4"
     Each row: vertices, integrator, precision, launch_mode, device, steps_per_s, us_per_step,
     ns_per_vertex_step, launches_per_step, internal_dt (0.9 x the stable estimate), estimate_ms (one
     stable-step estimate on the host), numpy_steps_per_s and speedup_vs_numpy (Warp / NumPy steps per
-    second; None when numpy=False). NumPy and Warp are timed in alternating rounds and each keeps its
-    best round, so the ratio compares the two under the same machine load. Timing windows shrink with
+    second; None when numpy=False) and numpy_allocator. NumPy and Warp are timed in alternating
+    rounds and each keeps its best round, so the ratio compares the two under the same machine load;
+    NumPy's large temporaries are kept on the heap (``keep_numpy_temporaries_on_heap``) so that it is
+    measured at its best. Timing windows shrink with
     the mesh size (the 40962-vertex NumPy rows are timed over a few steps)."""
     from .numpy_model import NumpyMembrane
     from .scenarios import cube_fig6_design
 
+    allocator = keep_numpy_temporaries_on_heap() if numpy else "default"
     rows = []
     for sub in subdivisions:
         design = cube_fig6_design(subdivisions=sub)
@@ -94,7 +117,8 @@ def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4"
                     us_per_step=round(per_step * 1e6, 2), ns_per_vertex_step=round(per_step * 1e9 / V, 2),
                     launches_per_step=len(sim.step_kernels), internal_dt=h, estimate_ms=round(estimate_ms, 2),
                     numpy_steps_per_s=None if np_per is None else round(1.0 / np_per, 2),
-                    speedup_vs_numpy=None if np_per is None else round(np_per / per_step, 1)))
+                    speedup_vs_numpy=None if np_per is None else round(np_per / per_step, 1),
+                    numpy_allocator=allocator))
     return rows
 
 
