@@ -299,6 +299,27 @@ def world_and_index(t: int, n: int, n_worlds: int):
     return w, t - w * n
 
 
+@wp.func
+def add_face_volume(
+    n: Any,  # the face's outward normal times twice its area
+    x_face: Any,  # any vertex of the face
+    a: int,  # the face's vertices
+    b: int,
+    c: int,
+    w: int,
+    vslot: int,
+    fg_out: wp.array3d(dtype=Any),  # (2, W, V) row 1 += dV/dx
+    volume_out: wp.array2d(dtype=wp.float64),  # (W, slots) += volume
+):
+    """Add one face's share of the enclosed volume (divergence theorem, x . n / 6) and its gradient
+    n / 6 on each of its three vertices."""
+    g = n * (type(x_face[0])(1.0) / type(x_face[0])(6.0))
+    wp.atomic_add(volume_out, w, vslot, wp.float64(wp.dot(x_face, g)))
+    wp.atomic_add(fg_out, 1, w, a, g)
+    wp.atomic_add(fg_out, 1, w, b, g)
+    wp.atomic_add(fg_out, 1, w, c, g)
+
+
 def _make_hinge_kernel(name: str, with_bending: bool):
     """The fused per-hinge kernel, specialised at compile time with or without bending (k_t = 0
     designs launch the kernel whose name carries no 'bending' and that holds no bending code)."""
@@ -361,22 +382,12 @@ def _make_hinge_kernel(name: str, with_bending: bool):
         if wp.static(with_bending):
             wp.atomic_add(fg_out, 0, w, h[2], f2)
             wp.atomic_add(fg_out, 0, w, h[3], f3)
-        # pressure: each face's volume (divergence theorem) and its gradient n / 6 on its three
-        # vertices, added by the one hinge that owns the face
-        sixth = type(damping)(1.0) / type(damping)(6.0)
+        # pressure: each face's volume and dV/dx, added by the one hinge that owns the face
         own = owns[e]
         if own & 1:
-            g_a = n_a * sixth
-            wp.atomic_add(volume_out, w, vslot, wp.float64(wp.dot(x0, g_a)))
-            wp.atomic_add(fg_out, 1, w, h[0], g_a)
-            wp.atomic_add(fg_out, 1, w, h[1], g_a)
-            wp.atomic_add(fg_out, 1, w, h[2], g_a)
+            add_face_volume(n_a, x0, h[0], h[1], h[2], w, vslot, fg_out, volume_out)
         if own & 2:
-            g_b = n_b * sixth
-            wp.atomic_add(volume_out, w, vslot, wp.float64(wp.dot(x1, g_b)))
-            wp.atomic_add(fg_out, 1, w, h[0], g_b)
-            wp.atomic_add(fg_out, 1, w, h[1], g_b)
-            wp.atomic_add(fg_out, 1, w, h[3], g_b)
+            add_face_volume(n_b, x1, h[0], h[1], h[3], w, vslot, fg_out, volume_out)
 
     kernel.__name__ = kernel.__qualname__ = name
     return wp.kernel(kernel, enable_backward=False)
