@@ -40,8 +40,9 @@ def jam_edges_kernel(
 
 
 @wp.func
-def blowup_code(x: Any, v: Any, x_bound: Any, v_bound: Any):
-    """0 for a sane vertex, else 4 x non-finite, 3 v non-finite, 2 x runaway, 1 v runaway."""
+def flag_blowup(x: Any, v: Any, x_bound: Any, v_bound: Any, w: int, status_out: wp.array(dtype=wp.int32)):
+    """Raise world w's status to this vertex's code if it is worse: 4 x non-finite, 3 v non-finite,
+    2 x runaway (|x| > x_bound, m), 1 v runaway (|v| > v_bound, m/s); a sane vertex writes nothing."""
     code = int(0)
     if not (wp.isfinite(x[0]) and wp.isfinite(x[1]) and wp.isfinite(x[2])):
         code = 4
@@ -51,7 +52,8 @@ def blowup_code(x: Any, v: Any, x_bound: Any, v_bound: Any):
         code = 2
     elif wp.length(v) > v_bound:
         code = 1
-    return code
+    if code > 0:
+        wp.atomic_max(status_out, w, code)
 
 
 # --------------------------------------------------------------------------- fused-step integrators
@@ -87,7 +89,7 @@ def rk4_stage_fused(
     stage_xv: wp.array3d(dtype=Any),  # (2, W, V) the next stage point
     acc: wp.array3d(dtype=Any),  # (2, W, V) weighted sums of the stage slopes
     # Out:
-    status_out: wp.array(dtype=wp.int32),  # (W,) worst blow-up code (see blowup_code)
+    status_out: wp.array(dtype=wp.int32),  # (W,) worst blow-up code (see flag_blowup)
 ):
     """Classical RK4 on y = (x, v), y' = (v, f/m) with pressure applied here; controls held."""
     w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
@@ -123,9 +125,7 @@ def rk4_stage_fused(
         v_new = xv[1, w, i] + acc[1, w, i] * sixth
         xv[0, w, i] = x_new
         xv[1, w, i] = v_new
-        code = blowup_code(x_new, v_new, x_bound, v_bound)
-        if code > 0:
-            wp.atomic_max(status_out, w, code)
+        flag_blowup(x_new, v_new, x_bound, v_bound, w, status_out)
 
 
 @wp.kernel(enable_backward=False)
@@ -147,7 +147,7 @@ def integrate_semi_implicit_fused(
     # State in/out:
     xv: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities
     # Out:
-    status_out: wp.array(dtype=wp.int32),  # (W,) worst blow-up code (see blowup_code)
+    status_out: wp.array(dtype=wp.int32),  # (W,) worst blow-up code (see flag_blowup)
 ):
     """Semi-implicit (symplectic) Euler with the pressure force applied here."""
     w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
@@ -156,6 +156,4 @@ def integrate_semi_implicit_fused(
     x_new = xv[0, w, i] + v_new * h
     xv[1, w, i] = v_new
     xv[0, w, i] = x_new
-    code = blowup_code(x_new, v_new, x_bound, v_bound)
-    if code > 0:
-        wp.atomic_max(status_out, w, code)
+    flag_blowup(x_new, v_new, x_bound, v_bound, w, status_out)

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-__all__ = ["bench_sim", "format_rows", "BENCH_COLUMNS"]
+__all__ = ["bench_sim", "format_rows", "keep_numpy_temporaries_on_heap", "BENCH_COLUMNS"]
 
 BENCH_COLUMNS = ["vertices", "integrator", "precision", "steps_per_s", "us_per_step", "ns_per_vertex_step",
                  "launches_per_step", "numpy_steps_per_s", "speedup_vs_numpy"]

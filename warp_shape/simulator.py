@@ -102,8 +102,7 @@ class Simulator:
         self._geometry_version = 0  # bumped when positions are set (invalidates the cached elastic bound)
         self._elastic_cache = None
         self._internal_steps = 0  # internal steps taken
-        self._estimated_at = 0  # internal step count at the last periodic re-estimate
-        self._estimate_epoch = 0  # bumped by each periodic re-estimate (invalidates the elastic bound)
+        self._estimated_at = 0  # internal step count at the last periodic re-estimate (keys the elastic bound)
         self.step_count = 0
         self.time = 0.0
         self._update_plan()
@@ -326,7 +325,7 @@ class Simulator:
         edge_jam = st.jammed.numpy().astype(bool)
         x = st.x.numpy().astype(np.float64)
         rest = st.rest_length.numpy().astype(np.float64)
-        key = (self._geometry_version, int(edge_jam.sum()), self._estimate_epoch)
+        key = (self._geometry_version, int(edge_jam.sum()), self._estimated_at)
         if self._elastic_cache is None or self._elastic_cache[0] != key:
             self._elastic_cache = (key, elastic_omega2_bound(m, edge_jam, x, rest))
         est = stable_dt_estimate(m, type(self.solver), edge_jam, self.control.air.numpy(), x, rest,
@@ -423,7 +422,6 @@ class Simulator:
         for _ in range(int(n)):
             if self.reestimate_every and self._internal_steps - self._estimated_at >= self.reestimate_every:
                 self._estimated_at = self._internal_steps
-                self._estimate_epoch += 1
                 self._dirty = True
             if self._dirty:
                 self._update_plan()
