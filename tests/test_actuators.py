@@ -103,7 +103,7 @@ def test_jam_resets_rest_values_and_stiffens_once():
     np.testing.assert_allclose(rest_len[edges], lengths[edges], rtol=1e-12)
     np.testing.assert_allclose(rest_ang[edges], angles[edges], rtol=1e-12, atol=1e-14)
     other = np.setdiff1d(np.arange(len(rest_len)), edges)
-    np.testing.assert_allclose(rest_len[other], sim.model.host["rest_length"][other], rtol=1e-12)
+    np.testing.assert_allclose(rest_len[other], sim.model.host.rest_length[other], rtol=1e-12)
     # jammed edges are at rest right after jamming: the cell's springs and hinges carry no force
     H = ref.hinges(d.rest.faces)
     mask = ref.cell_edge_mask(d.rest.faces, d.cells[0].faces)
@@ -145,7 +145,7 @@ def test_edge_shared_by_two_cells_is_stiffened_once():
     assert jammed[shared[0]] == 1 and jammed.sum() == 5
     # the shared edge kept the length it had when the first cell jammed
     e = shared[0]
-    a, b = sim.model.host["hinges"][e, :2]
+    a, b = sim.model.host.hinges[e, :2]
     assert sim.state.rest_length.numpy()[0, e] == pytest.approx(np.linalg.norm(x1[b] - x1[a]), rel=1e-12)
 
 

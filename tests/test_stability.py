@@ -267,7 +267,7 @@ def test_refined_estimate_is_within_gershgorin_and_above_the_true_limit():
     rest = st.rest_length.numpy()
     gersh = stable_dt_estimate(m, type(sim.solver), jam, sim.control.air.numpy(), x, rest, refine=False)
     assert est >= gersh.min() * (1 - 1e-12)
-    k_edge = m.host["edge_stiffness"] * np.where(jam[0], m.jam_stretch_factor, 1.0)
+    k_edge = m.host.edge_stiffness * np.where(jam[0], m.jam_stretch_factor, 1.0)
     kt = m.bending_stiffness * np.where(jam[0], m.jam_bend_factor, 1.0)
     op = _ElasticOperator(m, x[0], k_edge, rest[0], kt)
     n = 3 * m.n_vertices

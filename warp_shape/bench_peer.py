@@ -64,10 +64,10 @@ def bench_peer(subdivisions=(3, 4, 5), device: str = "cpu", seconds: float = 0.3
         host = ours.model.host
         builder = newton.ModelBuilder(gravity=(0.0, 0.0, 0.0))
         builder.add_particles(pos=[tuple(p) for p in rest.vertices], vel=[(0.0, 0.0, 0.0)] * rest.n_vertices,
-                              mass=list(host["mass"]), radius=[1e-4] * rest.n_vertices)
-        hinges = host["hinges"]
+                              mass=list(host.mass), radius=[1e-4] * rest.n_vertices)
+        hinges = host.hinges
         for e in range(len(hinges)):
-            builder.add_spring(int(hinges[e, 0]), int(hinges[e, 1]), ke=float(host["edge_stiffness"][e]),
+            builder.add_spring(int(hinges[e, 0]), int(hinges[e, 1]), ke=float(host.edge_stiffness[e]),
                                kd=mat.spring_damping, control=0.0)
         # Newton's edge (i, j | k, l): triangles (i, k, l) and (j, l, k); ours: A = (v0, v1, v2), B = (v1, v0, v3)
         builder.add_edges(hinges[:, 2].tolist(), hinges[:, 3].tolist(), hinges[:, 0].tolist(), hinges[:, 1].tolist(),

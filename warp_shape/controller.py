@@ -262,21 +262,21 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
                     precision=settings.precision, substeps=settings.substeps, worlds=W)
     m = sim.model
     h = m.host
-    faces = h["faces"]
+    faces = h.faces
     n_ipam, n_cell = design.n_ipams, design.n_cells
     rt = GAS_CONSTANT * m.temperature
     n_rest = float(np.atleast_1d(sim.air_moles)[0])
-    k_ipam = h.get("ipam_stiffness", np.zeros(0))
-    a_over_k = h.get("ipam_area_over_k", np.zeros(0))
-    free_len = h.get("ipam_free_length", np.zeros(0))
-    limits = h.get("ipam_limits", np.zeros((0, 2)))
-    ipam_faces = h.get("ipam_faces", np.zeros((0, 2), dtype=np.int64))
+    k_ipam = h.ipam_stiffness
+    a_over_k = h.ipam_area_over_k
+    free_len = h.ipam_free_length
+    limits = h.ipam_limits
+    ipam_faces = h.ipam_faces
     anchors = cell_anchor_faces(design)
     passive_i = _passive_mask(passive_ipams, W, n_ipam, "passive_ipams")  # (W, n_ipam)
     passive_c = _passive_mask(passive_cells, W, n_cell, "passive_cells")  # (W, n_cell)
     cell_faces = [c.faces for c in design.cells]
-    rest_edge = h["rest_length"]
-    hinges = h["hinges"]
+    rest_edge = h.rest_length
+    hinges = h.hinges
 
     air = np.full(W, n_rest)
     gain_air = np.full(W, settings.air_gain)  # backed off per world when the volume oscillates

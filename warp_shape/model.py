@@ -15,7 +15,7 @@ from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
 
-__all__ = ["Model", "State", "Control", "build_model", "host_arrays", "volumes_np", "PRECISIONS"]
+__all__ = ["Model", "State", "Control", "build_model", "HostModel", "host_model", "volumes_np", "PRECISIONS"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -73,8 +73,8 @@ class Model:
     ipam_free_length: wp.array | None  # (n_ipam,) m
     ipam_damping: wp.array | None  # (n_ipam,) N s/m
     cell_edges: list  # n_cell x wp.array (n_c,) int32
-    # host copies (float64) used for estimates, energies and read-outs
-    host: dict = field(repr=False)
+    # host copies (float64) used for estimates, energies, observations and read-outs
+    host: HostModel = field(repr=False)
 
     @property
     def scalar(self):
@@ -110,9 +110,35 @@ def face_owners(topo) -> np.ndarray:
     return ((owner[topo.faces[:, 0]] == e) * 1 + (owner[topo.faces[:, 1]] == e) * 2).astype(np.int32)
 
 
-def host_arrays(design: Design) -> dict:
-    """Float64/int64 host arrays of a design (rest geometry, stiffness, mass, IPAMs, cells); shared by the
-    device model and the NumPy implementation (warp_shape.numpy_model)."""
+@dataclass(frozen=True)
+class HostModel:
+    """Host (float64 / int64) arrays of a design, built once: rest geometry, stiffness, mass, IPAMs
+    and cells. Shared by the device model, the energies, the stable-step estimate, the controller's
+    observations and the NumPy baseline. E edges (hinges), F faces, V vertices, n IPAMs."""
+
+    rest_vertices: np.ndarray  # (V, 3) m
+    faces: np.ndarray  # (F, 3) int64
+    hinges: np.ndarray  # (E, 4) int64: v0, v1 (edge), v2, v3 (wings)
+    hinge_faces: np.ndarray  # (E, 2) int64: face A, face B of each hinge
+    hinge_owns: np.ndarray  # (E,) int32 bit mask (see face_owners)
+    rest_length: np.ndarray  # (E,) m
+    rest_angle: np.ndarray  # (E,) rad
+    edge_stiffness: np.ndarray  # (E,) k_e, N/m
+    mass: np.ndarray  # (V,) kg
+    ipam_faces: np.ndarray  # (n, 2) int64: end faces a, b
+    ipam_sub_pairs: np.ndarray  # (3 n, 2) int64: vertex of face a, vertex of face b
+    ipam_sub_offsets: np.ndarray  # (3 n,) m
+    ipam_stiffness: np.ndarray  # (n,) k, N/m
+    ipam_area_over_k: np.ndarray  # (n,) A / k, m/Pa
+    ipam_free_length: np.ndarray  # (n,) L0, m
+    ipam_damping: np.ndarray  # (n,) N s/m per sub-spring
+    ipam_limits: np.ndarray  # (n, 2) Pa gauge: P_min, P_max
+    cell_edges: list  # n_cell x (n_c,) int32 edge indices
+    cell_faces: list  # n_cell x (n_c,) int64 face indices
+
+
+def host_model(design: Design) -> HostModel:
+    """The float64/int64 host arrays of a design (see ``HostModel``)."""
     mesh, mat = design.rest, design.material
     topo = mesh.topology
     x = mesh.vertices
@@ -120,28 +146,24 @@ def host_arrays(design: Design) -> dict:
     areas = mesh.face_areas()
     rest_length = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1)
     hinge_area = areas[topo.faces[:, 0]] + areas[topo.faces[:, 1]]
-    stiffness = mat.stretch_modulus * hinge_area / rest_length**2
-    mass = mat.areal_density * mesh.vertex_areas()
-    host = dict(
+    ips = design.ipams
+    return HostModel(
         rest_vertices=x, faces=mesh.faces.astype(np.int64), hinges=hinges.astype(np.int64),
-        rest_length=rest_length, rest_angle=dihedral_angles_np(x, hinges), edge_stiffness=stiffness, mass=mass,
         hinge_faces=topo.faces.astype(np.int64), hinge_owns=face_owners(topo),
+        rest_length=rest_length, rest_angle=dihedral_angles_np(x, hinges),
+        edge_stiffness=mat.stretch_modulus * hinge_area / rest_length**2,
+        mass=mat.areal_density * mesh.vertex_areas(),
+        ipam_faces=np.array([[ip.face_a, ip.face_b] for ip in ips], dtype=np.int64).reshape(-1, 2),
+        ipam_sub_pairs=np.concatenate([ip.pairs for ip in ips] or [np.zeros((0, 2))]).astype(np.int64),
+        ipam_sub_offsets=np.concatenate([ip.offsets for ip in ips] or [np.zeros(0)]),
+        ipam_stiffness=np.array([ip.stiffness for ip in ips], dtype=np.float64),
+        ipam_area_over_k=np.array([ip.area_over_stiffness for ip in ips], dtype=np.float64),
+        ipam_free_length=np.array([ip.free_length for ip in ips], dtype=np.float64),
+        ipam_damping=np.array([ip.damping for ip in ips], dtype=np.float64),
+        ipam_limits=np.array([ip.pressure_limits for ip in ips], dtype=np.float64).reshape(-1, 2),
+        cell_edges=[design.cell_edges(c) for c in range(design.n_cells)],
+        cell_faces=[c.faces.astype(np.int64) for c in design.cells],
     )
-    if design.n_ipams:
-        ips = design.ipams
-        host.update(
-            ipam_sub_pairs=np.concatenate([ip.pairs for ip in ips]).astype(np.int64),
-            ipam_sub_offsets=np.concatenate([ip.offsets for ip in ips]),
-            ipam_stiffness=np.array([ip.stiffness for ip in ips]),
-            ipam_area_over_k=np.array([ip.area_over_stiffness for ip in ips]),
-            ipam_free_length=np.array([ip.free_length for ip in ips]),
-            ipam_damping=np.array([ip.damping for ip in ips]),
-            ipam_faces=np.array([[ip.face_a, ip.face_b] for ip in ips], dtype=np.int64),
-            ipam_limits=np.array([ip.pressure_limits for ip in ips], dtype=np.float64),
-        )
-    host["cell_edges"] = [design.cell_edges(c) for c in range(design.n_cells)]
-    host["cell_faces"] = [c.faces.astype(np.int64) for c in design.cells]
-    return host
 
 
 def build_model(design: Design, device: str = "cpu", precision: str = "float32") -> Model:
@@ -151,8 +173,8 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
     scalar, _, np_dtype = PRECISIONS[precision]
     mesh, mat = design.rest, design.material
     topo = mesh.topology
-    host = host_arrays(design)
-    hinges, stiffness, mass = host["hinges"], host["edge_stiffness"], host["mass"]
+    host = host_model(design)
+    hinges, stiffness, mass = host.hinges, host.edge_stiffness, host.mass
 
     def arr(a, dtype=scalar):
         return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
@@ -162,14 +184,14 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
                                  "ipam_free_length", "ipam_damping"])
     if n_ipam:
         ipam_arrays = dict(
-            ipam_sub_pairs=arr(host["ipam_sub_pairs"].astype(np.int32), wp.vec2i),
-            ipam_sub_offsets=arr(host["ipam_sub_offsets"].astype(np_dtype)),
-            ipam_stiffness=arr(host["ipam_stiffness"].astype(np_dtype)),
-            ipam_area_over_k=arr(host["ipam_area_over_k"].astype(np_dtype)),
-            ipam_free_length=arr(host["ipam_free_length"].astype(np_dtype)),
-            ipam_damping=arr(host["ipam_damping"].astype(np_dtype)),
+            ipam_sub_pairs=arr(host.ipam_sub_pairs.astype(np.int32), wp.vec2i),
+            ipam_sub_offsets=arr(host.ipam_sub_offsets.astype(np_dtype)),
+            ipam_stiffness=arr(host.ipam_stiffness.astype(np_dtype)),
+            ipam_area_over_k=arr(host.ipam_area_over_k.astype(np_dtype)),
+            ipam_free_length=arr(host.ipam_free_length.astype(np_dtype)),
+            ipam_damping=arr(host.ipam_damping.astype(np_dtype)),
         )
-    cell_edges_np = host["cell_edges"]
+    cell_edges_np = host.cell_edges
 
     return Model(
         device=str(device), precision=precision,
@@ -181,7 +203,7 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32")
         atmospheric_pressure=mat.atmospheric_pressure,
         faces=arr(mesh.faces.astype(np.int32), wp.vec3i),
         hinges=arr(hinges.astype(np.int32), wp.vec4i),
-        hinge_owns=arr(host["hinge_owns"], wp.int32),
+        hinge_owns=arr(host.hinge_owns, wp.int32),
         edge_stiffness=arr(stiffness.astype(np_dtype)),
         inv_mass=arr((1.0 / mass).astype(np_dtype)),
         cell_edges=[arr(c.astype(np.int32), wp.int32) for c in cell_edges_np],
@@ -205,10 +227,10 @@ class State:
         W, V, E = worlds, model.n_vertices, model.n_edges
         h = model.host
         xv = np.zeros((2, W, V, 3), dtype=np_dtype)
-        xv[0] = h["rest_vertices"]
+        xv[0] = h.rest_vertices
         edge = np.empty((4, W, E), dtype=np_dtype)
-        edge[0], edge[1] = h["rest_length"], h["rest_angle"]
-        edge[2], edge[3] = h["edge_stiffness"], model.bending_stiffness
+        edge[0], edge[1] = h.rest_length, h.rest_angle
+        edge[2], edge[3] = h.edge_stiffness, model.bending_stiffness
         self.worlds = W
         self.xv = wp.array(xv, dtype=vec3, device=dev)  # (2, W, V): x (m), v (m/s)
         self.x = self.xv[0]  # (W, V) m

@@ -18,7 +18,7 @@ import numpy as np
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
-from .model import host_arrays
+from .model import host_model
 
 __all__ = ["NumpyMembrane"]
 
@@ -51,33 +51,33 @@ class NumpyMembrane:
         self.h = float(h)
         self.paper = bending == "paper"
         mat = design.material
-        host = host_arrays(design)
+        host = host_model(design)
         self.host = host
         self.V = design.rest.n_vertices
-        hinges, faces = host["hinges"], host["faces"]
+        hinges, faces = host.hinges, host.faces
         self._h = [np.ascontiguousarray(hinges[:, k]) for k in range(4)]
         self._f = [np.ascontiguousarray(faces[:, k]) for k in range(3)]
-        self.k_edge = host["edge_stiffness"]
+        self.k_edge = host.edge_stiffness
         self.c_s, self.c_v = mat.spring_damping, mat.viscous_damping
         self.k_t = mat.bending_stiffness
         self.jam_stretch, self.jam_bend = mat.jam_stretch_factor, mat.jam_bend_factor
         self.gas_rt, self.p_atm = GAS_CONSTANT * mat.temperature, mat.atmospheric_pressure
-        self.inv_mass = 1.0 / host["mass"]
+        self.inv_mass = 1.0 / host.mass
         self.n_ipams = design.n_ipams
         if self.n_ipams:
-            pairs = host["ipam_sub_pairs"]
+            pairs = host.ipam_sub_pairs
             self._pa, self._pb = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
-            self.k_sub = np.repeat(host["ipam_stiffness"] / 3.0, 3)
-            self.c_sub = np.repeat(host["ipam_damping"], 3)
-            self.sub_offsets = host["ipam_sub_offsets"]
+            self.k_sub = np.repeat(host.ipam_stiffness / 3.0, 3)
+            self.c_sub = np.repeat(host.ipam_damping, 3)
+            self.sub_offsets = host.ipam_sub_offsets
         # one scatter for every family: hinge vertices, face vertices, IPAM ends
         idx = list(self._h) + list(self._f) + ([self._pa, self._pb] if self.n_ipams else [])
         self._scatter_index = np.concatenate(idx)
         # state (structure of arrays), jam values and controls
-        self._x = np.ascontiguousarray(host["rest_vertices"].T, dtype=np.float64)
+        self._x = np.ascontiguousarray(host.rest_vertices.T, dtype=np.float64)
         self._v = np.zeros_like(self._x)
-        self.rest_length = host["rest_length"].copy()
-        self.rest_angle = host["rest_angle"].copy()
+        self.rest_length = host.rest_length.copy()
+        self.rest_angle = host.rest_angle.copy()
         self.edge_jammed = np.zeros(hinges.shape[0], dtype=bool)
         self.cell_jammed = np.zeros(design.n_cells, dtype=bool)
         self.air_moles = self.p_atm * design.rest.volume() / self.gas_rt
@@ -126,7 +126,7 @@ class NumpyMembrane:
         """Freeze the cell's edges at their current length and angle; x10 / x30 stiffness (once)."""
         if self.cell_jammed[cell]:
             return
-        edges = self.host["cell_edges"][cell]
+        edges = self.host.cell_edges[cell]
         edges = edges[~self.edge_jammed[edges]]
         x = self._x
         h0, h1, h2, h3 = (hk[edges] for hk in self._h)
@@ -193,7 +193,7 @@ class NumpyMembrane:
             d = x[:, pb] - x[:, pa]
             dl = np.sqrt(_dot(d, d))
             dh = d / dl
-            natural = np.repeat(self.host["ipam_free_length"] + self.host["ipam_area_over_k"] * self.ipam_pressures,
+            natural = np.repeat(self.host.ipam_free_length + self.host.ipam_area_over_k * self.ipam_pressures,
                                 3) + self.sub_offsets
             fi = dh * (self.k_sub * (dl - natural) + self.c_sub * _dot(v[:, pb] - v[:, pa], dh))
             parts += [fi, -fi]
@@ -211,7 +211,7 @@ class NumpyMembrane:
         """Mechanical energy terms (J), same definitions as Simulator.energy()."""
         x, v = self._x, self._v
         h0, h1, h2, h3 = self._h
-        kinetic = 0.5 * float(np.sum(self.host["mass"] * _dot(v, v)))
+        kinetic = 0.5 * float(np.sum(self.host.mass * _dot(v, v)))
         e = x[:, h1] - x[:, h0]
         length = np.sqrt(_dot(e, e))
         spring = 0.5 * float(np.sum(self.k_eff * (length - self.rest_length) ** 2))
@@ -224,7 +224,7 @@ class NumpyMembrane:
         ipam = 0.0
         if self.n_ipams:
             d = x[:, self._pb] - x[:, self._pa]
-            natural = np.repeat(self.host["ipam_free_length"] + self.host["ipam_area_over_k"] * self.ipam_pressures,
+            natural = np.repeat(self.host.ipam_free_length + self.host.ipam_area_over_k * self.ipam_pressures,
                                 3) + self.sub_offsets
             ipam = 0.5 * float(np.sum(self.k_sub * (np.sqrt(_dot(d, d)) - natural) ** 2))
         out = dict(kinetic=kinetic, spring=spring, bending=bending, gas=gas, ipam=ipam)

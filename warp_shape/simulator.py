@@ -171,7 +171,7 @@ class Simulator:
         if n == 0:
             raise DesignError("this design has no IPAMs; add one with Design.add_ipam before setting pressures")
         a = self._per_world(value, (n,), "ipam_pressures")
-        lim = self.model.host["ipam_limits"]
+        lim = self.model.host.ipam_limits
         low, high = a < lim[:, 0] - 1e-9, a > lim[:, 1] + 1e-9
         if np.any(low | high):
             w, i = np.argwhere(low | high)[0]
@@ -255,10 +255,10 @@ class Simulator:
     def _ipam_geometry(self):
         h = self.model.host
         x = self.state.x.numpy().astype(np.float64)
-        fa, fb = h["faces"][h["ipam_faces"][:, 0]], h["faces"][h["ipam_faces"][:, 1]]
+        fa, fb = h.faces[h.ipam_faces[:, 0]], h.faces[h.ipam_faces[:, 1]]
         length = np.linalg.norm(x[:, fb].mean(axis=2) - x[:, fa].mean(axis=2), axis=-1)  # (W, n_ipam)
         p = self.control.ipam_pressure.numpy()[:, : self.model.n_ipams]
-        natural = h["ipam_free_length"] + h["ipam_area_over_k"] * p
+        natural = h.ipam_free_length + h.ipam_area_over_k * p
         return length, natural
 
     def ipam_lengths(self) -> np.ndarray:
@@ -272,7 +272,7 @@ class Simulator:
         if self.model.n_ipams == 0:
             return self._out(np.zeros((self.worlds, 0)))
         length, natural = self._ipam_geometry()
-        return self._out(self.model.host["ipam_stiffness"] * (length - natural))
+        return self._out(self.model.host.ipam_stiffness * (length - natural))
 
     def edge_state(self):
         """Current (lengths, dihedral angles) of every edge, each (E,) (or (W, E))."""
@@ -290,26 +290,26 @@ class Simulator:
         x = st.x.numpy().astype(np.float64)
         v = st.v.numpy().astype(np.float64)
         jam = st.jammed.numpy().astype(bool)
-        hinges = h["hinges"]
-        kinetic = 0.5 * np.einsum("v,wvi,wvi->w", h["mass"], v, v)
+        hinges = h.hinges
+        kinetic = 0.5 * np.einsum("v,wvi,wvi->w", h.mass, v, v)
         length = np.linalg.norm(x[:, hinges[:, 1]] - x[:, hinges[:, 0]], axis=-1)
-        k = h["edge_stiffness"] * np.where(jam, m.jam_stretch_factor, 1.0)
+        k = h.edge_stiffness * np.where(jam, m.jam_stretch_factor, 1.0)
         spring = 0.5 * np.sum(k * (length - st.rest_length.numpy()) ** 2, axis=1)
         bend = np.zeros(self.worlds)
         if m.has_bending:
             kt = m.bending_stiffness * np.where(jam, m.jam_bend_factor, 1.0)
             theta = dihedral_angles_np(x, hinges)
             bend = 0.5 * np.sum(kt * (theta - st.rest_angle.numpy()) ** 2, axis=1)
-        vol = volumes_np(x, h["faces"])
+        vol = volumes_np(x, h.faces)
         air = self.control.air.numpy()
         gas = m.atmospheric_pressure * vol - air * m.gas_rt * np.log(vol)
         ipam = np.zeros(self.worlds)
         if m.has_ipams:
-            pairs = h["ipam_sub_pairs"]
+            pairs = h.ipam_sub_pairs
             p = self.control.ipam_pressure.numpy()[:, : m.n_ipams]
-            natural = np.repeat(h["ipam_free_length"] + h["ipam_area_over_k"] * p, 3, axis=1) + h["ipam_sub_offsets"]
+            natural = np.repeat(h.ipam_free_length + h.ipam_area_over_k * p, 3, axis=1) + h.ipam_sub_offsets
             d = np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1)
-            ipam = 0.5 * np.sum(np.repeat(h["ipam_stiffness"] / 3.0, 3) * (d - natural) ** 2, axis=1)
+            ipam = 0.5 * np.sum(np.repeat(h.ipam_stiffness / 3.0, 3) * (d - natural) ** 2, axis=1)
         out = dict(kinetic=kinetic, spring=spring, bending=bend, gas=gas, ipam=ipam)
         out["total"] = sum(out.values())
         return {key: (float(val[0]) if self.worlds == 1 else val) for key, val in out.items()}

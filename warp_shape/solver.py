@@ -141,7 +141,7 @@ class Solver:
         self.f, self.gradv = self.fg[0], self.fg[1]  # (W, V) views
         self.volume = wp.zeros((W, 4), dtype=wp.float64, device=dev)  # volume at each stage point
         # blow-up bounds, checked by the kernel that writes the new state
-        rest = model.host["rest_vertices"]
+        rest = model.host.rest_vertices
         center = rest.mean(axis=0)
         self.size = float(2.0 * np.linalg.norm(rest - center, axis=1).max())  # m
         self.x_bound = float(np.linalg.norm(center) + 50.0 * self.size)  # |x| beyond this (m) is a blow-up
@@ -263,18 +263,18 @@ class _ElasticOperator:
     def __init__(self, model: Model, x: np.ndarray, k_edge: np.ndarray, rest_len: np.ndarray, kt: np.ndarray | None):
         h = model.host
         self.V = model.n_vertices
-        self.inv_sqrt = 1.0 / np.sqrt(h["mass"])
-        hinges = h["hinges"]
+        self.inv_sqrt = 1.0 / np.sqrt(h.mass)
+        hinges = h.hinges
         xT = np.ascontiguousarray(x.T)
         a, b = [hinges[:, 0]], [hinges[:, 1]]
         d = xT[:, hinges[:, 1]] - xT[:, hinges[:, 0]]
         length = np.maximum(np.sqrt((d * d).sum(axis=0)), 1e-300)
         k_ax, k_tr, dirs = [k_edge], [np.abs(k_edge * (1.0 - rest_len / length))], [d / length]
         if model.has_ipams:
-            pairs = h["ipam_sub_pairs"]
+            pairs = h.ipam_sub_pairs
             dp = xT[:, pairs[:, 1]] - xT[:, pairs[:, 0]]
             lp = np.maximum(np.sqrt((dp * dp).sum(axis=0)), 1e-300)
-            k_sub = np.repeat(h["ipam_stiffness"] / 3.0, 3)
+            k_sub = np.repeat(h.ipam_stiffness / 3.0, 3)
             a.append(pairs[:, 0])
             b.append(pairs[:, 1])
             k_ax.append(k_sub)
@@ -364,9 +364,9 @@ def elastic_omega2_bound(model: Model, edge_jammed: np.ndarray, x: np.ndarray,
     re-estimates, and stable_dt_estimate caps it by the Gershgorin bound."""
     h = model.host
     W = x.shape[0]
-    E = h["hinges"].shape[0]
-    rest = np.broadcast_to(h["rest_length"], (W, E)) if rest_length is None else rest_length
-    k_edge = h["edge_stiffness"][None, :] * np.where(edge_jammed, model.jam_stretch_factor, 1.0)
+    E = h.hinges.shape[0]
+    rest = np.broadcast_to(h.rest_length, (W, E)) if rest_length is None else rest_length
+    k_edge = h.edge_stiffness[None, :] * np.where(edge_jammed, model.jam_stretch_factor, 1.0)
     kt = model.bending_stiffness * np.where(edge_jammed, model.jam_bend_factor, 1.0) if model.has_bending else None
     out = np.zeros(W)
     for w in range(W):
@@ -391,21 +391,21 @@ def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: n
     """
     h = model.host
     W = x.shape[0]
-    m = h["mass"]
+    m = h.mass
     inv_m = 1.0 / m
     inv_sqrt = np.sqrt(inv_m)
-    hinges = h["hinges"]
+    hinges = h.hinges
     a, b = hinges[:, 0], hinges[:, 1]
     V = model.n_vertices
     stiff = np.zeros((W, V))
     damp = np.zeros((W, V))
-    k_edge = h["edge_stiffness"][None, :] * np.where(edge_jammed, model.jam_stretch_factor, 1.0)
+    k_edge = h.edge_stiffness[None, :] * np.where(edge_jammed, model.jam_stretch_factor, 1.0)
     _pair_rows(stiff, a, b, k_edge, inv_m, inv_sqrt)
     _pair_rows(damp, a, b, np.full((W, a.size), model.spring_damping), inv_m, inv_sqrt)
     damp += model.viscous_damping * inv_m[None, :]
     kt = None
     if model.has_bending:
-        g = hinge_gradient_norms(h["rest_vertices"], hinges)  # rest geometry: frozen per model
+        g = hinge_gradient_norms(h.rest_vertices, hinges)  # rest geometry: frozen per model
         kt = model.bending_stiffness * np.where(edge_jammed, model.jam_bend_factor, 1.0)  # (W, E)
         gs = g * inv_sqrt[hinges]  # |g_a| / sqrt(m_a)
         total = gs.sum(axis=1)
@@ -413,12 +413,12 @@ def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: n
             for c in range(4):
                 np.add.at(stiff[w], hinges[:, c], kt[w] * gs[:, c] * total)
     if model.has_ipams:
-        pairs = h["ipam_sub_pairs"]
-        k_sub = np.repeat(h["ipam_stiffness"] / 3.0, 3)
-        c_sub = np.repeat(h["ipam_damping"], 3)
+        pairs = h.ipam_sub_pairs
+        k_sub = np.repeat(h.ipam_stiffness / 3.0, 3)
+        c_sub = np.repeat(h.ipam_damping, 3)
         _pair_rows(stiff, pairs[:, 0], pairs[:, 1], np.broadcast_to(k_sub, (W, k_sub.size)), inv_m, inv_sqrt)
         _pair_rows(damp, pairs[:, 0], pairs[:, 1], np.broadcast_to(c_sub, (W, c_sub.size)), inv_m, inv_sqrt)
-    faces = h["faces"]
+    faces = h.faces
     gas_eig = np.zeros(W)
     press = np.zeros((W, V))
     volumes = np.maximum(volumes_np(x, faces), 1e-300)
