@@ -12,7 +12,7 @@ Quick start::
 from .controller import ControlResult, ControlSettings, control, control_many
 from .design import Cell, Design, Ipam
 from .designer import DesignResult, DesignSettings, design
-from .figures import control_figure, pcc_by_round_figure, write_figures
+from .io.figures import control_figure, pcc_by_round_figure, write_figures
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .material import GAS_CONSTANT, Material
 from .mesh import TriMesh, icosphere

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
+from .io.atomic import atomic_write
 
 __all__ = ["main", "write_json_atomic"]
 
@@ -71,7 +71,7 @@ def _recorder(args):
 
 def _figures(result, out, target_names=None) -> list:
     try:
-        from .figures import write_figures
+        from .io.figures import write_figures
 
         return write_figures(result, out, target_names=target_names)
     except ImportError as exc:

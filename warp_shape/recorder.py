@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import finalize_permissions
+from .io.atomic import finalize_permissions
 from .errors import DesignError
 
 __all__ = ["Recorder", "bench_recorder", "read_recording", "count_control_launches", "diverging_colors", "ERROR_RANGE_M", "FORCE_RANGE_N"]

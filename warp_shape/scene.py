@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_target
+from .io.atomic import atomic_target
 from .design import Design
 from .errors import DesignError, MeshError, SceneError
 from .material import Material
