@@ -17,7 +17,7 @@ from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationEr
 from .material import GAS_CONSTANT, Material
 from .mesh import TriMesh, icosphere
 from .numpy_model import NumpyMembrane
-from .recorder import Recorder, bench_recorder, read_recording
+from .io.recorder import Recorder, read_recording
 from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
                        radial_sample, shape_metrics)
 from .scan import ScanComparison, compare_scan, load_scan

@@ -64,7 +64,7 @@ def _add_rerun_args(sp):
 def _recorder(args):
     if not (getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)):
         return contextlib.nullcontext(None)
-    from .recorder import Recorder
+    from .io.recorder import Recorder
 
     return Recorder(args.rerun, spawn=args.rerun_spawn, every=args.rerun_every)
 
