@@ -27,7 +27,7 @@ from warp_shape.design import Design
 from warp_shape.material import Material
 from warp_shape.mesh import icosphere
 from warp_shape.scenarios import cube_fig6_design
-from warp_shape.scene import DEFAULT_SIMULATION_SETTINGS, Scene, save_scene
+from warp_shape.io.scene import DEFAULT_SIMULATION_SETTINGS, Scene, save_scene
 from warp_shape.targets import TARGET_NAMES, target
 
 BASE_SUBDIVISIONS = 3

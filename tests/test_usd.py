@@ -13,11 +13,11 @@ pxr = pytest.importorskip("pxr")
 from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402
 
 import warp_shape as ws  # noqa: E402
-from warp_shape import scene as scene_mod  # noqa: E402
+from warp_shape.io import scene as scene_mod  # noqa: E402
 from warp_shape.errors import SceneError  # noqa: E402
 from warp_shape.scenarios import cube_fig6_design  # noqa: E402
-from warp_shape.scene import Scene, list_scenes, load_scene, save_scene, scene_dirs, validate_usd  # noqa: E402
-from warp_shape.usd_export import export_animation  # noqa: E402
+from warp_shape.io.scene import Scene, list_scenes, load_scene, save_scene, scene_dirs, validate_usd  # noqa: E402
+from warp_shape.io.usd_export import export_animation  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ["cube_fig6", "oval_heart", "four_targets_5", "four_targets_20",

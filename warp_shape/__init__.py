@@ -21,10 +21,10 @@ from .io.recorder import Recorder, read_recording
 from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
                        radial_sample, shape_metrics)
 from .scan import ScanComparison, compare_scan, load_scan
-from .scene import Scene, list_scenes, load_scene, save_scene, validate_usd
+from .io.scene import Scene, list_scenes, load_scene, save_scene, validate_usd
 from .simulator import Simulator
 from .solver import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
-from .usd_export import bench_usd_export, export_animation
+from .io.usd_export import bench_usd_export, export_animation
 
 __version__ = "0.1.0"

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import Design
-from .errors import SceneError
+from ..design import Design
+from ..errors import SceneError
 from .scene import NS, Scene, _check_extension, _extent, _pxr, build_stage, face_colors, ipam_endpoints, \
     write_stage_atomic
 
@@ -154,7 +154,7 @@ def bench_usd_export(frames: int = 1000, subdivisions: int = 4, formats=("usdc",
     """Time ``export_animation`` of ``frames`` frames of an ``icosphere(subdivisions)`` membrane
     (Fig. 6 device: 5 IPAMs, 10 cells, pressures, forces and jam state). Returns seconds (minimum
     of ``repeats``) and file sizes per format."""
-    from .scenarios import cube_fig6_design
+    from ..scenarios import cube_fig6_design
 
     d = cube_fig6_design(subdivisions=subdivisions)
     rest = d.rest.vertices

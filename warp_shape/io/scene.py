@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .io.atomic import atomic_target
-from .design import Design
-from .errors import DesignError, MeshError, SceneError
-from .material import Material
-from .mesh import TriMesh
+from ..design import Design
+from ..errors import DesignError, MeshError, SceneError
+from ..material import Material
+from ..mesh import TriMesh
+from .atomic import atomic_target
 
 __all__ = ["Scene", "save_scene", "load_scene", "list_scenes", "scene_dirs", "validate_usd", "build_stage",
            "read_stage", "write_stage_atomic", "face_colors", "ipam_endpoints", "MATERIAL_ATTRIBUTES",
@@ -86,7 +86,7 @@ class Scene:
         meshes, auto_names = [], []
         for i, t in enumerate(raw):
             if isinstance(t, str):
-                from .targets import target
+                from ..targets import target
 
                 meshes.append(target(t))
                 auto_names.append(t.strip().lower())
@@ -128,7 +128,7 @@ class Scene:
         """A ``ws.Simulator`` of the scene's design with its simulation settings (overridable)."""
         if self.design is None:
             raise SceneError("this scene holds no design (targets only); nothing to simulate")
-        from .simulator import Simulator
+        from ..simulator import Simulator
 
         kw = self.simulation_settings
         kw.update(overrides)
@@ -518,8 +518,8 @@ def _resolve(path_or_name) -> Path:
 
 def scene_dirs() -> list[Path]:
     """Directories searched for scenes by name: the repository's ``scenes/`` and ``warp_shape/scenes``."""
-    here = Path(__file__).resolve().parent
-    return [d for d in (here.parent / "scenes", here / "scenes") if d.is_dir()]
+    package = Path(__file__).resolve().parents[1]
+    return [d for d in (package.parent / "scenes", package / "scenes") if d.is_dir()]
 
 
 def list_scenes() -> list[str]:
