@@ -7,6 +7,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from warp_shape.controller import control
+from warp_shape.io.recorder import Recorder
+from warp_shape.scenarios import cube_fig6_design
+from warp_shape.targets import target
+
 __all__ = ["bench_recorder"]
 
 
@@ -16,11 +21,6 @@ def bench_recorder(subdivisions: int = 2, max_steps: int = 30, repeats: int = 3,
     with one logging every control step, and with ``every=5``: minimum of ``repeats``, measured
     side by side; plus the recording sizes. (That a recorder adds no Warp launch is a test:
     tests/test_rerun.py.)"""
-    from warp_shape.controller import control
-    from warp_shape.io.recorder import Recorder
-    from warp_shape.scenarios import cube_fig6_design
-    from warp_shape.targets import target
-
     d = cube_fig6_design(subdivisions=subdivisions)
     cube = target("cube")
     kw = dict(device=device, max_steps=max_steps, target_name="cube")

@@ -150,7 +150,7 @@ def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdiv
 def bench_design(device: str = "cpu", four_targets: bool = True) -> list[dict]:
     """Wall time of the default design problem and of the four-target 5-actuator problem."""
     from .designer import design
-    from .io.scene import load_scene
+    from .io.scene_read import load_scene
 
     rows = []
     names = ["oval_heart"] + (["four_targets_5"] if four_targets else [])

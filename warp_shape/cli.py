@@ -161,7 +161,7 @@ def _resolve_design_and_targets(scene: str | None, target_names):
     if scene in (None, "cube_fig6", "fig6"):
         design, targets, settings = cube_fig6_design(), [("cube", target("cube"))], {}
     else:
-        from .io.scene import load_scene
+        from .io.scene_read import load_scene
 
         sc = load_scene(scene)
         design, settings = sc.design, sc.settings or {}
@@ -238,7 +238,9 @@ def cmd_design(args) -> int:
     from .designer import DesignSettings, design
     from .errors import DesignError
     from .mesh import icosphere
-    from .io.scene import Scene, load_scene, save_scene
+    from .io.scene_read import load_scene
+    from .io.scene_schema import Scene
+    from .io.scene_write import save_scene
 
     # ---- everything is validated before anything is written
     scene = load_scene(args.scene or "oval_heart")
@@ -321,7 +323,8 @@ def cmd_export(args) -> int:
     from .controller import ControlSettings, control_many
     from .errors import DesignError
     from .molds import inner_mold, outer_mold, write_stl
-    from .io.scene import load_scene, save_scene
+    from .io.scene_read import load_scene
+    from .io.scene_write import save_scene
 
     scene = load_scene(args.scene)
     if scene.design is None:

@@ -127,7 +127,7 @@ class ControlResult:
     def export_usd(self, path, target_name: str = "target") -> Path:
         """The controlled run as an animated USD stage: membrane points, IPAM curves, pressures,
         forces and jam state time-sampled once per control step (``.usda`` or ``.usdc``)."""
-        from .io.usd_export import export_animation
+        from .io.usd_animation import export_animation
 
         h = self.history
         n_ipam, n_cell = len(self.ipam_forces), len(self.jammed)
