@@ -366,7 +366,7 @@ def cmd_bench(args) -> int:
     import warp as wp
 
     _quiet_warp()
-    from .bench import BENCH_COLUMNS, bench_sim, format_rows
+    from warp_shape.benchmarks.sim import BENCH_COLUMNS, bench_sim, format_rows
 
     results = {}
     if args.which in ("sim", "all"):
@@ -374,7 +374,7 @@ def cmd_bench(args) -> int:
         results["sim"] = rows
         print(format_rows(rows, BENCH_COLUMNS + ["estimate_ms"]))
     if args.which in ("tradeoff", "all"):
-        from .bench_tradeoff import bench_tradeoff
+        from warp_shape.benchmarks.tradeoff import bench_tradeoff
 
         out = bench_tradeoff(device=args.device)
         results["tradeoff"] = out
@@ -391,13 +391,13 @@ def cmd_bench(args) -> int:
         print(format_rows([dict(r, error_vs_finest_mm=f"{r['error_vs_finest_mm']:.3f}") for r in out["resolution"]],
                           ["vertices", "error_vs_finest_mm"]))
     if args.which in ("design", "all"):
-        from .bench_tradeoff import bench_design
+        from warp_shape.benchmarks.design import bench_design
 
         rows = bench_design(device=args.device)
         results["design"] = rows
         print(format_rows(rows, ["problem", "targets", "actuators", "wall_s", "final_pcc", "control_steps"]))
     if args.which in ("peer", "all"):
-        from .bench_peer import bench_peer
+        from warp_shape.benchmarks.peer import bench_peer
 
         rows = bench_peer(subdivisions=args.subdivisions, device=args.device)
         results["peer"] = rows
@@ -406,7 +406,7 @@ def cmd_bench(args) -> int:
         print(format_rows(rows, list(rows[0].keys())))
     if args.which in ("rays", "all"):
         try:
-            from .bench_shapes import bench_rays, format_table
+            from warp_shape.benchmarks.rays import bench_rays, format_table
         except ImportError:
             print("ray benchmark unavailable in this build")
         else:
