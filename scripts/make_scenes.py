@@ -27,11 +27,15 @@ from warp_shape.design import Design
 from warp_shape.material import Material
 from warp_shape.mesh import icosphere
 from warp_shape.scenarios import cube_fig6_design
-from warp_shape.scene import DEFAULT_SIMULATION_SETTINGS, Scene, save_scene
+from warp_shape.settings import SimulationSettings
+from warp_shape.io.scene_schema import Scene
+from warp_shape.io.scene_write import save_scene
 from warp_shape.targets import TARGET_NAMES, target
 
 BASE_SUBDIVISIONS = 3
 BASE_RADIUS = 0.035  # m
+#: the simulation settings a problem scene states (the defaults of SimulationSettings)
+SIMULATION_KEYS = ("integrator", "dt", "precision", "bending")
 
 
 def _base_design() -> Design:
@@ -39,7 +43,8 @@ def _base_design() -> Design:
 
 
 def _problem(design: Design, names, designer: dict | None = None) -> Scene:
-    settings = {"simulation": dict(DEFAULT_SIMULATION_SETTINGS)}
+    defaults = SimulationSettings().to_dict()
+    settings = {"simulation": {k: defaults[k] for k in SIMULATION_KEYS}}
     if designer:
         settings["designer"] = dict(designer)
     return Scene(design=design, targets=[target(n) for n in names], target_names=list(names), settings=settings)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import warp_shape as ws
-from warp_shape.bench_tradeoff import pareto_front, record_sequence, replay
+from warp_shape.benchmarks.tradeoff import pareto_front, record_sequence, replay
 from warp_shape.controller import control
 from warp_shape.scenarios import cube_fig6_design
 
@@ -35,7 +35,7 @@ def test_pareto_front():
 def test_peer_bench_says_why_it_cannot_run_without_newton():
     import importlib.util
 
-    from warp_shape.bench_peer import bench_peer
+    from warp_shape.benchmarks.peer import bench_peer
 
     if importlib.util.find_spec("newton") is not None:
         return  # Newton present: the bench runs (measured, not asserted)

@@ -10,7 +10,7 @@ import warp_shape as ws
 pytest.importorskip("matplotlib")
 from matplotlib.image import imread  # noqa: E402
 
-from warp_shape.figures import control_figure, pcc_by_round_figure, write_figures  # noqa: E402
+from warp_shape.io.figures import control_figure, pcc_by_round_figure, write_figures  # noqa: E402
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -3,25 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
-import warp as wp
+from launch_counter import LaunchCounter
 
 import warp_shape as ws
 
 
 def _count_launches(sim, n=2):
-    counts = {}
-    real = wp.launch
-
-    def counting(kernel, *args, **kwargs):
-        counts[kernel.key] = counts.get(kernel.key, 0) + 1
-        return real(kernel, *args, **kwargs)
-
-    wp.launch = counting
-    try:
+    with LaunchCounter() as counter:
         sim.step(n)
-    finally:
-        wp.launch = real
-    return counts
+    return counter.kernels
 
 
 def test_plain_membrane_launches_no_ipam_bending_or_jamming():

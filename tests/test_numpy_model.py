@@ -7,7 +7,7 @@ import pytest
 
 import warp_shape as ws
 from conftest import Scenario, rel_err
-from warp_shape.numpy_model import NumpyMembrane
+from warp_shape.benchmarks.numpy_baseline import NumpyMembrane
 
 
 @pytest.fixture(scope="module")

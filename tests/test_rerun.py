@@ -9,7 +9,8 @@ import warp_shape as ws
 from warp_shape.scenarios import cube_fig6_design
 
 rr = pytest.importorskip("rerun")
-from warp_shape.recorder import Recorder, count_control_launches, diverging_colors, read_recording  # noqa: E402
+from launch_counter import count_control_launches  # noqa: E402
+from warp_shape.io.recorder import Recorder, diverging_colors, read_recording  # noqa: E402
 
 
 @pytest.fixture(scope="module")

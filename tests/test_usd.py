@@ -13,11 +13,15 @@ pxr = pytest.importorskip("pxr")
 from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402
 
 import warp_shape as ws  # noqa: E402
-from warp_shape import scene as scene_mod  # noqa: E402
 from warp_shape.errors import SceneError  # noqa: E402
+from warp_shape.io import scene_write  # noqa: E402
+from warp_shape.io.scene_read import load_scene, validate_usd  # noqa: E402
+from warp_shape.io.scene_registry import list_scenes, resolve_targets, scene_dirs  # noqa: E402
+from warp_shape.io.scene_schema import IPAM_ATTRIBUTES, MATERIAL_ATTRIBUTES, Scene  # noqa: E402
+from warp_shape.io.scene_write import save_scene  # noqa: E402
+from warp_shape.io.usd_animation import export_animation  # noqa: E402
 from warp_shape.scenarios import cube_fig6_design  # noqa: E402
-from warp_shape.scene import Scene, list_scenes, load_scene, save_scene, scene_dirs, validate_usd  # noqa: E402
-from warp_shape.usd_export import export_animation  # noqa: E402
+from warp_shape.settings import SimulationSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ["cube_fig6", "oval_heart", "four_targets_5", "four_targets_20",
@@ -107,6 +111,17 @@ def test_round_trip_every_field(tmp_path, ext):
         assert 'defaultPrim = "Scene"' in text and 'familyName = "jammingCell"' in text
 
 
+def test_attribute_table_names_and_types_what_is_written(tmp_path):
+    stage = Usd.Stage.Open(str(save_scene(_full_scene(), tmp_path / "table.usda")))
+    for prim_path, table in (("/Scene/Membrane", MATERIAL_ATTRIBUTES), ("/Scene/Ipams", IPAM_ATTRIBUTES)):
+        prim = stage.GetPrimAtPath(prim_path)
+        for attr in table:
+            a = prim.GetAttribute(attr.name)
+            assert a and str(a.GetTypeName()) == attr.usd_type, attr.name
+    n = len(_full_scene().design.ipams)
+    assert len(stage.GetPrimAtPath("/Scene/Ipams").GetAttribute("warpShape:pairs").Get()) == 3 * n
+
+
 def test_shipped_scenes_present_valid_and_equal_to_generator(definitions):
     assert sorted(list_scenes()) == sorted(SHIPPED)
     assert list(definitions) and sorted(definitions) == sorted(SHIPPED)
@@ -167,10 +182,24 @@ def test_loaded_scene_simulates_identically():
     assert np.array_equal(out[0], out[1])
 
 
-def test_scene_simulator_uses_settings():
+def test_scene_simulation_settings():
     sc = load_scene("cube_fig6")
-    sim = sc.simulator(dt=2e-3)
-    assert sim.dt == 2e-3 and sim.precision == sc.simulation_settings["precision"]
+    settings = sc.simulation_settings
+    assert isinstance(settings, SimulationSettings) and settings == SimulationSettings()
+    assert Scene(settings={"simulation": {"dt": 2e-3, "precision": "float64"}}).simulation_settings == \
+        SimulationSettings(dt=2e-3, precision="float64")
+    sim = ws.Simulator(sc.design, **settings.replace(dt=2e-3).to_dict())
+    assert sim.dt == 2e-3 and sim.precision == settings.precision
+
+
+def test_targets_by_name_resolve_outside_the_scene():
+    meshes, names = resolve_targets(["oval", ws.target("cube")])
+    assert names == ["oval", "target1"]
+    np.testing.assert_array_equal(meshes[0].vertices, ws.target("oval").vertices)
+    sc = Scene(targets=meshes, target_names=names)
+    assert sc.target("oval") is meshes[0]
+    with pytest.raises(SceneError, match="resolve_targets"):
+        Scene(targets=["oval"])
 
 
 # ------------------------------------------------------------------------------------------ errors
@@ -325,7 +354,7 @@ def test_failed_save_leaves_no_partial_or_temporary_file(tmp_path, monkeypatch, 
             fh.write(b"#usda 1.0\n(\n  partial")
         raise RuntimeError("disk full (injected)")
 
-    monkeypatch.setattr(scene_mod, "_export_layer", failing_export)
+    monkeypatch.setattr(scene_write, "export_layer", failing_export)
     with pytest.raises(RuntimeError, match="injected"):
         save_scene(_full_scene(), good)  # overwrite: the old file must survive intact
     with pytest.raises(RuntimeError, match="injected"):

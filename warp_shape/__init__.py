@@ -12,19 +12,21 @@ Quick start::
 from .controller import ControlResult, ControlSettings, control, control_many
 from .design import Cell, Design, Ipam
 from .designer import DesignResult, DesignSettings, design
-from .figures import control_figure, pcc_by_round_figure, write_figures
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
+from .io.figures import control_figure, pcc_by_round_figure, write_figures
+from .io.recorder import Recorder, read_recording
+from .io.scene_read import load_scene, validate_usd
+from .io.scene_registry import list_scenes
+from .io.scene_schema import Scene
+from .io.scene_write import save_scene
+from .io.usd_animation import export_animation
 from .material import GAS_CONSTANT, Material
 from .mesh import TriMesh, icosphere
-from .numpy_model import NumpyMembrane
-from .recorder import Recorder, bench_recorder, read_recording
 from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
                        radial_sample, shape_metrics)
 from .scan import ScanComparison, compare_scan, load_scan
-from .scene import Scene, list_scenes, load_scene, save_scene, validate_usd
 from .simulator import Simulator
 from .solver import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
-from .usd_export import bench_usd_export, export_animation
 
 __version__ = "0.1.0"

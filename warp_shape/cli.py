@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
+from .io.atomic import atomic_write
 
 __all__ = ["main", "write_json_atomic"]
 
@@ -64,14 +64,14 @@ def _add_rerun_args(sp):
 def _recorder(args):
     if not (getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)):
         return contextlib.nullcontext(None)
-    from .recorder import Recorder
+    from .io.recorder import Recorder
 
     return Recorder(args.rerun, spawn=args.rerun_spawn, every=args.rerun_every)
 
 
 def _figures(result, out, target_names=None) -> list:
     try:
-        from .figures import write_figures
+        from .io.figures import write_figures
 
         return write_figures(result, out, target_names=target_names)
     except ImportError as exc:
@@ -161,7 +161,7 @@ def _resolve_design_and_targets(scene: str | None, target_names):
     if scene in (None, "cube_fig6", "fig6"):
         design, targets, settings = cube_fig6_design(), [("cube", target("cube"))], {}
     else:
-        from .scene import load_scene
+        from .io.scene_read import load_scene
 
         sc = load_scene(scene)
         design, settings = sc.design, sc.settings or {}
@@ -238,7 +238,9 @@ def cmd_design(args) -> int:
     from .designer import DesignSettings, design
     from .errors import DesignError
     from .mesh import icosphere
-    from .scene import Scene, load_scene, save_scene
+    from .io.scene_read import load_scene
+    from .io.scene_schema import Scene
+    from .io.scene_write import save_scene
 
     # ---- everything is validated before anything is written
     scene = load_scene(args.scene or "oval_heart")
@@ -321,7 +323,8 @@ def cmd_export(args) -> int:
     from .controller import ControlSettings, control_many
     from .errors import DesignError
     from .molds import inner_mold, outer_mold, write_stl
-    from .scene import load_scene, save_scene
+    from .io.scene_read import load_scene
+    from .io.scene_write import save_scene
 
     scene = load_scene(args.scene)
     if scene.design is None:
@@ -363,7 +366,7 @@ def cmd_bench(args) -> int:
     import warp as wp
 
     _quiet_warp()
-    from .bench import BENCH_COLUMNS, bench_sim, format_rows
+    from warp_shape.benchmarks.sim import BENCH_COLUMNS, bench_sim, format_rows
 
     results = {}
     if args.which in ("sim", "all"):
@@ -371,7 +374,7 @@ def cmd_bench(args) -> int:
         results["sim"] = rows
         print(format_rows(rows, BENCH_COLUMNS + ["estimate_ms"]))
     if args.which in ("tradeoff", "all"):
-        from .bench_tradeoff import bench_tradeoff
+        from warp_shape.benchmarks.tradeoff import bench_tradeoff
 
         out = bench_tradeoff(device=args.device)
         results["tradeoff"] = out
@@ -388,13 +391,13 @@ def cmd_bench(args) -> int:
         print(format_rows([dict(r, error_vs_finest_mm=f"{r['error_vs_finest_mm']:.3f}") for r in out["resolution"]],
                           ["vertices", "error_vs_finest_mm"]))
     if args.which in ("design", "all"):
-        from .bench_tradeoff import bench_design
+        from warp_shape.benchmarks.design import bench_design
 
         rows = bench_design(device=args.device)
         results["design"] = rows
         print(format_rows(rows, ["problem", "targets", "actuators", "wall_s", "final_pcc", "control_steps"]))
     if args.which in ("peer", "all"):
-        from .bench_peer import bench_peer
+        from warp_shape.benchmarks.peer import bench_peer
 
         rows = bench_peer(subdivisions=args.subdivisions, device=args.device)
         results["peer"] = rows
@@ -403,7 +406,7 @@ def cmd_bench(args) -> int:
         print(format_rows(rows, list(rows[0].keys())))
     if args.which in ("rays", "all"):
         try:
-            from .bench_shapes import bench_rays, format_table
+            from warp_shape.benchmarks.rays import bench_rays, format_table
         except ImportError:
             print("ray benchmark unavailable in this build")
         else:

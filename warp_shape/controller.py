@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
+from .io.atomic import atomic_write
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
@@ -127,7 +127,7 @@ class ControlResult:
     def export_usd(self, path, target_name: str = "target") -> Path:
         """The controlled run as an animated USD stage: membrane points, IPAM curves, pressures,
         forces and jam state time-sampled once per control step (``.usda`` or ``.usdc``)."""
-        from .usd_export import export_animation
+        from .io.usd_animation import export_animation
 
         h = self.history
         n_ipam, n_cell = len(self.ipam_forces), len(self.jammed)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
+from .io.atomic import atomic_write
 from .design import Design
 from .errors import DesignError
 from .mesh import TriMesh

@@ -1,31 +1,22 @@
-"""Speed benchmarks. Timings on shared machines are noisy: compare rows measured in one run and
-report the minimum of repeats."""
+"""Simulation speed benchmark: steps per second of the Fig. 6 device, Warp beside the NumPy baseline.
+
+Timings on shared machines are noisy: compare rows measured in one run and report the minimum of
+repeats."""
 
 from __future__ import annotations
 
 import ctypes
 import time
 
-import numpy as np
+from warp_shape.scenarios import cube_fig6_design
+
+from .common import jammed_fig6, min_time_per_step
+from .numpy_baseline import NumpyMembrane
 
 __all__ = ["bench_sim", "format_rows", "keep_numpy_temporaries_on_heap", "BENCH_COLUMNS"]
 
 BENCH_COLUMNS = ["vertices", "integrator", "precision", "steps_per_s", "us_per_step", "ns_per_vertex_step",
                  "launches_per_step", "numpy_steps_per_s", "speedup_vs_numpy"]
-
-
-def _min_time(step, seconds: float, repeats: int, probe: int = 1) -> float:
-    """Minimum wall time of one ``step(n)`` call per step, over ``repeats`` runs of about ``seconds``."""
-    t0 = time.perf_counter()
-    step(probe)
-    per = max((time.perf_counter() - t0) / probe, 1e-6)
-    n = max(probe, int(seconds / per))
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        step(n)
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best
 
 
 def keep_numpy_temporaries_on_heap() -> str:
@@ -47,25 +38,11 @@ def keep_numpy_temporaries_on_heap() -> str:
     return "default"
 
 
-def _jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph", air_scale=1.3):
-    """The Fig. 6 device inflated (air x ``air_scale``), every cell jammed, IPAMs at 20 kPa: its stiffest state."""
-    from .simulator import Simulator
-
-    sim = Simulator(design, device=device, integrator=integrator, precision=precision, dt=dt, substeps=substeps,
-                    launch_mode=launch_mode)
-    sim.air_moles = sim.air_moles * air_scale
-    for c in range(design.n_cells):
-        sim.jam(c)
-    if design.n_ipams:
-        sim.ipam_pressures = np.full(design.n_ipams, 20e3)
-    return sim
-
-
 def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4", "semi_implicit"),
               precisions=("float32", "float64"), repeats: int = 3, seconds: float = 0.3,
               launch_modes=("graph",), numpy: bool = True, numpy_seconds: float = 0.3) -> list[dict]:
     """Internal steps per second of the Fig. 6 device (all force families, cells jammed), Warp beside
-    the vectorized NumPy float64 implementation (warp_shape.numpy_model) at the same internal step.
+    the vectorized NumPy float64 implementation (``numpy_baseline.NumpyMembrane``) at the same internal step.
 
     Each row: vertices, integrator, precision, launch_mode, device, steps_per_s, us_per_step,
     ns_per_vertex_step, launches_per_step, internal_dt (0.9 x the stable estimate), estimate_ms (one
@@ -75,9 +52,6 @@ def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4"
     NumPy's large temporaries are kept on the heap (``keep_numpy_temporaries_on_heap``) so that it is
     measured at its best. Timing windows shrink with
     the mesh size (the 40962-vertex NumPy rows are timed over a few steps)."""
-    from .numpy_model import NumpyMembrane
-    from .scenarios import cube_fig6_design
-
     allocator = keep_numpy_temporaries_on_heap() if numpy else "default"
     rows = []
     for sub in subdivisions:
@@ -86,7 +60,7 @@ def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4"
         scale = min(1.0, 2562.0 / V) ** 0.5  # shorter windows on large meshes
         win, np_win = seconds * max(scale, 0.25), numpy_seconds * max(scale, 0.25)
         for integrator in integrators:
-            probe = _jammed_fig6(design, device, integrator, "float64")
+            probe = jammed_fig6(design, device, integrator, "float64")
             t0 = time.perf_counter()
             h = 0.9 * probe.stable_dt()
             estimate_ms = (time.perf_counter() - t0) * 1e3
@@ -99,13 +73,13 @@ def bench_sim(device: str = "cpu", subdivisions=(3, 4, 5, 6), integrators=("rk4"
                 cases.append(("numpy", None, nm.step, np_win))
             for precision in precisions:
                 for mode in launch_modes:
-                    sim = _jammed_fig6(design, device, integrator, precision, dt=h, substeps=1, launch_mode=mode)
+                    sim = jammed_fig6(design, device, integrator, precision, dt=h, substeps=1, launch_mode=mode)
                     sim.step(2)  # build the plan, compile, warm caches
                     cases.append(((precision, mode), sim, sim.step, win))
             best = [float("inf")] * len(cases)
             for _ in range(max(1, repeats)):
                 for c, (_, _, step, window) in enumerate(cases):
-                    best[c] = min(best[c], _min_time(step, window, 1))
+                    best[c] = min(best[c], min_time_per_step(step, window, 1))
             np_per = best[0] if numpy else None
             for (key, sim, _, _), per_step in zip(cases, best):
                 if sim is None:

@@ -41,16 +41,15 @@ from __future__ import annotations
 
 import os
 import tempfile
-import time
 import uuid
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import DesignError
 from .atomic import finalize_permissions
-from .errors import DesignError
 
-__all__ = ["Recorder", "bench_recorder", "read_recording", "count_control_launches", "diverging_colors", "ERROR_RANGE_M", "FORCE_RANGE_N"]
+__all__ = ["Recorder", "read_recording", "diverging_colors", "ERROR_RANGE_M", "FORCE_RANGE_N"]
 
 ERROR_RANGE_M = 5e-3  # radial error (m) at which the membrane colour saturates
 FORCE_RANGE_N = 2.0  # IPAM axial force (N) at which the segment colour saturates
@@ -441,91 +440,6 @@ class Recorder:
             if jam is not None:
                 s.log(f"{b}/cell/jammed", rr.Scalars(jam))
             run.logged_frames[w] += 1
-
-
-# ---------------------------------------------------------------------- benchmark
-class _LaunchCounter:
-    """Counts Warp kernel launches (``wp.launch``, replayed recorded launches, graph launches)."""
-
-    def __init__(self):
-        import warp as wp
-
-        self.wp = wp
-        self.count = 0
-
-    def __enter__(self):
-        wp = self.wp
-        self._launch, self._replay, self._graph = wp.launch, wp.Launch.launch, wp.capture_launch
-        real_launch, real_replay, real_graph = self._launch, self._replay, self._graph
-
-        def launch(*a, **k):
-            self.count += 1
-            return real_launch(*a, **k)
-
-        def replay(cmd, *a, **k):
-            self.count += 1
-            return real_replay(cmd, *a, **k)
-
-        def graph(*a, **k):
-            self.count += 1
-            return real_graph(*a, **k)
-
-        wp.launch, wp.Launch.launch, wp.capture_launch = launch, replay, graph
-        return self
-
-    def __exit__(self, *exc):
-        self.wp.launch, self.wp.Launch.launch, self.wp.capture_launch = self._launch, self._replay, self._graph
-
-
-def count_control_launches(design, target, recorder=None, **control_kwargs) -> int:
-    """Warp launches of one ``ws.control`` run (with or without a recorder)."""
-    from .controller import control
-
-    with _LaunchCounter() as c:
-        control(design, target, recorder=recorder, **control_kwargs)
-    return c.count
-
-
-def bench_recorder(subdivisions: int = 2, max_steps: int = 30, repeats: int = 3, device: str = "cpu",
-                   out_dir=None) -> dict:
-    """Wall time of a short control run (the Fig. 6 device driven to the cube) without a recorder,
-    with one logging every control step, and with ``every=5``: minimum of ``repeats``, measured
-    side by side; plus the Warp launch counts with and without a recorder (equal: logging is
-    host-side only) and the recording sizes."""
-    from .controller import control
-    from .scenarios import cube_fig6_design
-    from .targets import target
-
-    d = cube_fig6_design(subdivisions=subdivisions)
-    cube = target("cube")
-    kw = dict(device=device, max_steps=max_steps, target_name="cube")
-    control(d, cube, **kw)  # warm up: kernels loaded, caches filled
-    tmp = Path(out_dir) if out_dir is not None else Path(tempfile.mkdtemp(prefix="bench_recorder_"))
-    tmp.mkdir(parents=True, exist_ok=True)
-    times = {"none": [], "every1": [], "every5": []}
-    sizes = {}
-    steps = 0
-    for _ in range(repeats):
-        for key in times:
-            rec = None if key == "none" else Recorder(tmp / f"{key}.rrd", every=1 if key == "every1" else 5)
-            t0 = time.perf_counter()
-            res = control(d, cube, recorder=rec, **kw)
-            if rec is not None:
-                rec.close()
-            times[key].append(time.perf_counter() - t0)
-            steps = res.control_steps + 1
-            if rec is not None:
-                sizes[key] = os.path.getsize(rec.path)
-    n_without = count_control_launches(d, cube, **kw)
-    with Recorder(tmp / "launches.rrd") as rec:
-        n_with = count_control_launches(d, cube, recorder=rec, **kw)
-    best = {k: min(v) for k, v in times.items()}
-    return dict(vertices=d.rest.n_vertices, ipams=d.n_ipams, cells=d.n_cells, control_steps=steps, repeats=repeats,
-                wall_s_no_recorder=best["none"], wall_s_every1=best["every1"], wall_s_every5=best["every5"],
-                ratio_every1=best["every1"] / best["none"], ratio_every5=best["every5"] / best["none"],
-                ms_per_logged_step_every1=1e3 * (best["every1"] - best["none"]) / steps,
-                rrd_bytes_every1=sizes.get("every1"), rrd_bytes_every5=sizes.get("every5"),
-                launches_without_recorder=n_without, launches_with_recorder=n_with)
 
 
 # ---------------------------------------------------------------------- reading back

@@ -1,5 +1,6 @@
-"""Atomic file writes: a temporary file in the target directory, then a rename. A crash or an error
-never leaves a half-written output (nor the temporary file)."""
+"""Atomic file writes: a temporary file in the target directory, then a rename.
+
+A crash or an error never leaves a half-written output (nor the temporary file)."""
 
 from __future__ import annotations
 

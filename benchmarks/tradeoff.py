@@ -1,4 +1,4 @@
-"""Speed/accuracy trade-off and design-time benchmarks.
+"""Speed/accuracy trade-off benchmark: the error of the Fig. 6 shape against wall time, per numerical setting.
 
 ``bench_tradeoff``: record the Fig. 6 control sequence once (air, IPAM pressures and jam steps per
 control step), replay it open loop under every integrator x internal step x precision x bending
@@ -6,9 +6,6 @@ variant x mesh resolution, and measure the achieved shape's error against a refe
 RK4, an eighth of the automatic step, same mesh; for the resolution axis, the finest mesh sampled
 radially) beside the wall time. The Pareto front (least error for the time) is taken per mesh;
 the default is marked.
-
-``bench_design``: wall time of the default design problem (oval + heart, 4 IPAMs) and of the
-four-target 5-actuator problem.
 """
 
 from __future__ import annotations
@@ -18,7 +15,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ControlSequence", "record_sequence", "replay", "bench_tradeoff", "pareto_front", "bench_design"]
+from warp_shape.controller import control
+from warp_shape.sampling import radial_sample
+from warp_shape.scenarios import cube_fig6_design
+from warp_shape.simulator import Simulator
+from warp_shape.targets import target
+
+from .common import jammed_fig6
+
+__all__ = ["ControlSequence", "record_sequence", "replay", "bench_tradeoff", "pareto_front"]
 
 
 @dataclass
@@ -39,8 +44,6 @@ class ControlSequence:
 
 def record_sequence(design, target, **control_overrides) -> ControlSequence:
     """Run the controller once and keep what it commanded."""
-    from .controller import control
-
     res = control(design, target, **control_overrides)
     h = res.history
     n0 = h["air_mol"][0]
@@ -55,8 +58,6 @@ def record_sequence(design, target, **control_overrides) -> ControlSequence:
 def replay(design, seq: ControlSequence, *, integrator="rk4", precision="float32", substeps=None, bending="exact",
            device="cpu", internal_dt=None):
     """Apply a sequence open loop; returns (final positions (V, 3), wall seconds, substeps used)."""
-    from .simulator import Simulator
-
     if internal_dt is not None:
         substeps = max(1, int(round(seq.dt / internal_dt)))
     sim = Simulator(design, device=device, integrator=integrator, dt=seq.dt, precision=precision, substeps=substeps,
@@ -86,10 +87,6 @@ def pareto_front(rows: list[dict], x: str = "wall_s", y: str = "error_mm") -> li
 def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdivisions: int = 4,
                    step_fractions=(1.0, 0.5, 0.25)) -> dict:
     """Error of the achieved Fig. 6 shape versus wall time over the numerical settings."""
-    from .bench import _jammed_fig6
-    from .scenarios import cube_fig6_design
-    from .targets import target
-
     cube = target("cube")
     base_design = cube_fig6_design(subdivisions=3)
     seq = record_sequence(base_design, cube)
@@ -97,7 +94,7 @@ def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdiv
 
     def worst_case_step(d, integrator):
         # the smallest stable step of the run: every cell jammed at the highest air amount
-        probe = _jammed_fig6(d, device, integrator, "float64", dt=seq.dt, air_scale=seq.air_relative.max())
+        probe = jammed_fig6(d, device, integrator, "float64", dt=seq.dt, air_scale=seq.air_relative.max())
         return seq.dt / probe.substeps
 
     references = {}
@@ -131,8 +128,6 @@ def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdiv
                                          default=(s == 3 and integrator == "rk4" and frac == 1.0
                                                   and precision == "float32" and bending == "exact")))
     # resolution axis: each mesh's reference against the finest, radially sampled
-    from .sampling import radial_sample
-
     fine = designs[max(designs)].rest.copy_with(references[max(designs)])
     resolution = []
     for s, d in designs.items():
@@ -145,23 +140,3 @@ def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdiv
     for v in sorted({r["vertices"] for r in finite}):
         pareto += pareto_front([r for r in finite if r["vertices"] == v])
     return dict(rows=rows, pareto=pareto, resolution=resolution, control_steps=seq.steps)
-
-
-def bench_design(device: str = "cpu", four_targets: bool = True) -> list[dict]:
-    """Wall time of the default design problem and of the four-target 5-actuator problem."""
-    from .designer import design
-    from .scene import load_scene
-
-    rows = []
-    names = ["oval_heart"] + (["four_targets_5"] if four_targets else [])
-    for name in names:
-        sc = load_scene(name)
-        opts = sc.settings["designer"]
-        t0 = time.perf_counter()
-        res = design(sc.design.rest, sc.targets, actuators=opts["actuators"], target_names=sc.target_names,
-                     cell_radius=opts["cell_radius"], device=device)
-        wall = time.perf_counter() - t0
-        rows.append(dict(problem=name, targets=" ".join(sc.target_names), actuators=opts["actuators"],
-                         wall_s=round(wall, 2), final_pcc=" ".join(f"{v:.3f}" for v in res.pcc_by_round[-1]),
-                         control_steps=sum(r.control_steps for rs in res.rounds for r in rs)))
-    return rows

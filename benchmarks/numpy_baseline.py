@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .design import Design
-from .errors import DesignError
-from .material import GAS_CONSTANT
-from .model import host_model
+from warp_shape.design import Design
+from warp_shape.errors import DesignError
+from warp_shape.material import GAS_CONSTANT
+from warp_shape.model import host_model
 
 __all__ = ["NumpyMembrane"]
 

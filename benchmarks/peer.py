@@ -9,32 +9,16 @@ viscous damping, so the comparison is conservative for warp_shape.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
+from warp_shape.design import Design
+from warp_shape.material import Material
+from warp_shape.mesh import icosphere
+from warp_shape.simulator import Simulator
+
+from .common import min_time_per_call
+
 __all__ = ["bench_peer"]
-
-
-def _time_replay(step, device, seconds: float, repeats: int) -> float:
-    """Minimum wall time of one call of ``step`` (a graph replay), over repeats."""
-    import warp as wp
-
-    step()
-    wp.synchronize_device(device)
-    t0 = time.perf_counter()
-    for _ in range(5):
-        step()
-    wp.synchronize_device(device)
-    n = max(10, int(seconds / max((time.perf_counter() - t0) / 5, 1e-7)))
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            step()
-        wp.synchronize_device(device)
-        best = min(best, (time.perf_counter() - t0) / n)
-    return best
 
 
 def bench_peer(subdivisions=(3, 4, 5), device: str = "cpu", seconds: float = 0.3, repeats: int = 3) -> list[dict]:
@@ -45,11 +29,6 @@ def bench_peer(subdivisions=(3, 4, 5), device: str = "cpu", seconds: float = 0.3
         return [dict(note="Newton is not installed here (pip install newton) - peer bench skipped")]
     import warp as wp
 
-    from .design import Design
-    from .material import Material
-    from .mesh import icosphere
-    from .simulator import Simulator
-
     rows = []
     mat = Material()
     for sub in subdivisions:
@@ -59,7 +38,7 @@ def bench_peer(subdivisions=(3, 4, 5), device: str = "cpu", seconds: float = 0.3
         ours = Simulator(design, device=device, integrator="semi_implicit", dt=h, substeps=1)
         ours.positions = rest.vertices * 1.02  # a little stretch so there is work to do
         ours.step(1)  # builds and captures the step
-        t_ours = _time_replay(lambda: ours._run_internal(1), device, seconds, repeats)
+        t_ours = min_time_per_call(lambda: ours._run_internal(1), device, seconds, repeats)
 
         host = ours.model.host
         builder = newton.ModelBuilder(gravity=(0.0, 0.0, 0.0))
@@ -88,7 +67,7 @@ def bench_peer(subdivisions=(3, 4, 5), device: str = "cpu", seconds: float = 0.3
         two_steps()  # compile before capture
         with wp.ScopedCapture(device=device, force_module_load=False) as capture:
             two_steps()
-        t_newton = _time_replay(lambda: wp.capture_launch(capture.graph), device, seconds, repeats) / 2
+        t_newton = min_time_per_call(lambda: wp.capture_launch(capture.graph), device, seconds, repeats) / 2
         moved = float(np.abs(s0.particle_q.numpy() - rest.vertices * 1.02).max())
         if not np.isfinite(moved) or moved > 0.01:
             raise RuntimeError(f"Newton's membrane moved {moved} m: the peer setup is wrong")

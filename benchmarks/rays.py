@@ -10,17 +10,21 @@ box-overlap index with the same interface (``bounds``, ``intersection``). A seco
 were free: its best case. trimesh is timed on at most ``trimesh_max_rays`` rays per count, which
 the row states.
 
-Run ``python -m warp_shape.bench_shapes [--device cuda:0] [--json out.json]``.
+Run ``python -m warp_shape.benchmarks.rays [--device cuda:0] [--json out.json]`` or ``warp-shape bench rays``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
 
 import numpy as np
 import warp as wp
+
+from warp_shape.sampling import RadialSampler
+from warp_shape.targets import target
+
+from .common import min_time
 
 __all__ = ["bench_rays", "format_table"]
 
@@ -55,30 +59,14 @@ class _ReplayIndex:
 
 
 def _target_with(triangles: int):
-    from .targets import target
-
     # radial targets have 20 * 4**r faces: take the resolution nearest to the request
     res = int(np.clip(np.round(np.log(max(triangles, 20) / 20.0) / np.log(4.0)), 1, 6))
     return target("heart", resolution=res)
 
 
-def _time(fn, repeats: int, enough: float = 5.0) -> float:
-    """Minimum wall time of ``repeats`` calls; stops repeating once one call takes ``enough`` s."""
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-        if best > enough:
-            break
-    return best
-
-
 def bench_rays(device="cpu", counts=(10**4, 10**6), triangles: int = 20000, repeats: int = 3,
                trimesh_max_rays: int = 10**4, seed: int = 0) -> list[dict]:
     """Rays per second of Warp radial sampling and of trimesh, one row per (engine, ray count)."""
-    from .sampling import RadialSampler
-
     device = wp.get_device(device)
     mesh = _target_with(triangles)
     sampler = RadialSampler(mesh, device=device, check=False)
@@ -107,7 +95,7 @@ def bench_rays(device="cpu", counts=(10**4, 10**6), triangles: int = 20000, repe
             sampler.launch(pts, ids, hits_out=hits, radii_out=radii, faces_out=faces, check=False)
             wp.synchronize_device(device)
 
-        secs = _time(warp_run, repeats)
+        secs = min_time(warp_run, repeats)
         sampler.raise_failures(pts, faces, ids)  # every ray must have hit
         rows.append(dict(engine="warp", device=str(device), triangles=mesh.n_faces, rays=n,
                          rays_timed=n, seconds=secs, rays_per_s=n / secs, note=""))
@@ -121,7 +109,7 @@ def bench_rays(device="cpu", counts=(10**4, 10**6), triangles: int = 20000, repe
             if len(np.unique(idx_ray)) != m:
                 raise RuntimeError("trimesh missed rays in the benchmark")
 
-        secs_t = _time(lambda: trimesh_run(index), repeats)
+        secs_t = min_time(lambda: trimesh_run(index), repeats)
         rows.append(dict(engine="trimesh", device="cpu (numpy)", triangles=mesh.n_faces, rays=n,
                          rays_timed=m, seconds=secs_t * n / m, rays_per_s=m / secs_t,
                          note=subset + "broad phase: numpy box index standing in for rtree"))
@@ -129,7 +117,7 @@ def bench_rays(device="cpu", counts=(10**4, 10**6), triangles: int = 20000, repe
         # the same query with the broad phase precomputed (untimed): trimesh's best case
         bounds = ray_bounds(origins, dirs[:m], index.bounds)
         cands = [index.intersection(b) for b in bounds]
-        secs_n = _time(lambda: trimesh_run(_ReplayIndex(index.bounds, cands)), repeats)
+        secs_n = min_time(lambda: trimesh_run(_ReplayIndex(index.bounds, cands)), repeats)
         rows.append(dict(engine="trimesh narrow", device="cpu (numpy)", triangles=mesh.n_faces, rays=n,
                          rays_timed=m, seconds=secs_n * n / m, rays_per_s=m / secs_n,
                          note=subset + "broad phase excluded (trimesh's best case with a free rtree)"))

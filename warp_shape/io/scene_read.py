@@ -1,0 +1,353 @@
+"""Read a USD scene file (or an open stage) back into a ``Scene``, validating every attribute.
+
+Everything ``docs/scene_format.md`` describes is checked; a problem raises ``SceneError`` naming
+the file, the prim path and the attribute. The attribute names and types come from the table in
+``scene_schema``, the same one the writer uses.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..design import Design
+from ..errors import DesignError, MeshError, SceneError
+from ..material import Material
+from ..mesh import TriMesh
+from .scene_registry import resolve_scene
+from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, IPAM_ATTRIBUTES, IPAMS, MATERIAL_ATTRIBUTES,
+                           MEMBRANE, NS, REST_POINTS, ROOT_NAME, SCENE_FORMAT_VERSION, SETTINGS, TARGET_POINTS,
+                           TARGETS, Scene, SceneAttribute, ipam_arguments, material_attribute_for)
+from .usd_common import load_pxr
+
+__all__ = ["read_stage", "load_scene", "validate_usd"]
+
+#: USD type names of settings attributes -> the Python type they read back as
+SETTING_READERS = {"bool": bool, "int": int, "int64": int, "uint": int, "uint64": int, "uchar": int,
+                   "double": float, "float": float, "half": float, "string": str, "token": str}
+
+
+class _Reader:
+    """Reads typed attributes and raises ``SceneError`` naming the file, prim path and attribute."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def error(self, prim, attr: str | None, message: str) -> SceneError:
+        p = str(prim.GetPath()) if hasattr(prim, "GetPath") else str(prim)
+        where = f"<{p}>" + (f".{attr}" if attr else "")
+        return SceneError(f"{self.source}: {where}: {message}", prim=p, attribute=attr)
+
+    def attr(self, prim, name: str, required: bool = True):
+        a = prim.GetAttribute(name)
+        if not a or not a.HasAuthoredValue():
+            if required:
+                raise self.error(prim, name, "required attribute is missing (see docs/scene_format.md)")
+            return None
+        return a
+
+    def _typed(self, prim, name, required, accept, what):
+        a = self.attr(prim, name, required)
+        if a is None:
+            return None, None
+        tn = a.GetTypeName()
+        if not accept(tn):
+            raise self.error(prim, name, f"has type {tn}, expected {what}")
+        value = a.Get()
+        if value is None:
+            raise self.error(prim, name, "has no value")
+        return a, value
+
+    def scalar(self, prim, name, required=True):
+        numeric = {"double", "float", "half", "int", "int64", "uint", "uint64", "uchar"}
+        _, v = self._typed(prim, name, required, lambda t: not t.isArray and str(t) in numeric, "a number (double)")
+        if v is None:
+            return None
+        v = float(v)
+        if not math.isfinite(v):
+            raise self.error(prim, name, f"must be finite, got {v}")
+        return v
+
+    def int_array(self, prim, name, required=True, width=1):
+        kinds = {1: {"int", "int64", "uint", "uint64"}, 2: {"int2"}}[width]
+        what = "int[]" if width == 1 else "int2[]"
+        _, v = self._typed(prim, name, required, lambda t: t.isArray and str(t.scalarType) in kinds, what)
+        if v is None:
+            return None
+        a = np.array(v, dtype=np.int64)
+        return a.reshape(-1) if width == 1 else a.reshape(-1, width)
+
+    def float_array(self, prim, name, required=True, width=1):
+        kinds = {1: {"double", "float", "half"}, 2: {"double2", "float2", "half2"},
+                 3: {"double3", "float3", "half3", "point3d", "point3f", "point3h", "vector3d", "vector3f",
+                     "normal3d", "normal3f"}}[width]
+        what = {1: "double[]", 2: "double2[]", 3: "point3d[] or point3f[]"}[width]
+        _, v = self._typed(prim, name, required, lambda t: t.isArray and str(t.scalarType) in kinds, what)
+        if v is None:
+            return None
+        a = np.array(v, dtype=np.float64)
+        a = a.reshape(-1) if width == 1 else a.reshape(-1, width)
+        if not np.all(np.isfinite(a)):
+            i = int(np.flatnonzero(~np.isfinite(a.reshape(a.shape[0], -1)).any(axis=1))[0])
+            raise self.error(prim, name, f"element {i} is not finite: {a[i]}")
+        return a
+
+    def table_value(self, prim, attr: SceneAttribute):
+        """The value of an attribute of the table: a float scalar, or an (n,) / (n, width) array."""
+        if not attr.is_array:
+            return self.scalar(prim, attr.name, attr.required)
+        read = self.int_array if attr.is_integer else self.float_array
+        return read(prim, attr.name, attr.required, width=attr.width)
+
+    def token(self, prim, name, required=True):
+        _, v = self._typed(prim, name, required, lambda t: not t.isArray and str(t) in ("token", "string"),
+                           "a token")
+        return None if v is None else str(v)
+
+    def triangles(self, prim, points_attr: str, fallback: str | None = None):
+        """Vertices (float64) and triangle faces of a Mesh prim."""
+        counts = self.int_array(prim, "faceVertexCounts")
+        idx = self.int_array(prim, "faceVertexIndices")
+        if counts.size == 0 or np.any(counts != 3):
+            bad = int(np.flatnonzero(counts != 3)[0]) if counts.size else 0
+            raise self.error(prim, "faceVertexCounts", f"every face must be a triangle (count 3); face {bad} has "
+                             f"{int(counts[bad]) if counts.size else 'none'}; triangulate the mesh first")
+        if idx.size != 3 * counts.size:
+            raise self.error(prim, "faceVertexIndices", f"has {idx.size} indices, expected {3 * counts.size} "
+                             f"(3 per face of faceVertexCounts)")
+        verts = self.float_array(prim, points_attr, required=fallback is None, width=3)
+        used = points_attr
+        if verts is None:
+            verts = self.float_array(prim, fallback, width=3)
+            used = fallback
+        if idx.min() < 0 or idx.max() >= verts.shape[0]:
+            bad = int(np.flatnonzero((idx < 0) | (idx >= verts.shape[0]))[0])
+            raise self.error(prim, "faceVertexIndices", f"index {int(idx[bad])} (face {bad // 3}) is out of range: "
+                             f"{used} has {verts.shape[0]} points")
+        faces = idx.reshape(-1, 3)
+        try:
+            mesh = TriMesh(verts, faces)
+        except MeshError as exc:
+            raise self.error(prim, f"faceVertexIndices/{used}", f"not a valid closed membrane mesh: {exc}") from None
+        return mesh, used
+
+
+def _open_stage(path: Path):
+    """Open a scene file as a stage; unreadable files and composition errors raise ``SceneError``."""
+    pxr = load_pxr()
+    Sdf, Usd, Tf = pxr.Sdf, pxr.Usd, pxr.Tf
+    # a layer still open elsewhere under this identifier would be served stale: reload it
+    existing = Sdf.Layer.Find(str(path))
+    if existing:
+        existing.Reload(force=True)
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Tf.ErrorException as exc:
+        msg = " ".join(str(exc).split())
+        raise SceneError(f"{path}: not a readable USD file (truncated or corrupt?): {msg}") from None
+    if stage is None:
+        raise SceneError(f"{path}: USD could not open the file")
+    errors = stage.GetCompositionErrors() if hasattr(stage, "GetCompositionErrors") else []
+    if errors:
+        first = " ".join(str(errors[0]).split())
+        raise SceneError(f"{path}: {len(errors)} composition error(s), first: {first} (a referenced file is "
+                         f"missing? shipped problem scenes reference the target_<name>.usda files next to them)")
+    return stage
+
+
+def read_stage(stage, source: str = "<stage>") -> Scene:
+    """Read a warp_shape scene from an open USD stage (see ``load_scene``)."""
+    r = _Reader(source)
+    root = _scene_root(stage, r)
+    design = _read_design(r, root)
+    targets, names = _read_targets(r, root)
+    settings = _read_settings(r, root)
+    try:
+        return Scene(design=design, targets=targets, target_names=names, settings=settings)
+    except SceneError as exc:
+        raise SceneError(f"{source}: {exc}") from None
+
+
+def _scene_root(stage, r: _Reader):
+    """The default prim, once the format version, up axis and unit are checked."""
+    UsdGeom = load_pxr().UsdGeom
+    source = r.source
+    root = stage.GetDefaultPrim()
+    if not root:
+        raise SceneError(f"{source}: the stage has no defaultPrim; a warp_shape scene sets defaultPrim = "
+                         f"\"{ROOT_NAME}\"", attribute="defaultPrim")
+    version = r.scalar(root, FORMAT_VERSION_ATTRIBUTE)
+    if version != SCENE_FORMAT_VERSION:
+        raise r.error(root, FORMAT_VERSION_ATTRIBUTE, f"format version {version:g} is not supported "
+                      f"(this build reads version {SCENE_FORMAT_VERSION})")
+    up = UsdGeom.GetStageUpAxis(stage)
+    if up != UsdGeom.Tokens.z:
+        raise SceneError(f"{source}: upAxis is {up!r}; warp_shape scenes are Z-up", attribute="upAxis")
+    mpu = UsdGeom.GetStageMetersPerUnit(stage)
+    if mpu != 1.0:
+        raise SceneError(f"{source}: metersPerUnit is {mpu}; warp_shape scenes are in metres (metersPerUnit = 1)",
+                         attribute="metersPerUnit")
+    return root
+
+
+def _read_design(r: _Reader, root) -> Design | None:
+    """The design under the default prim, or None when the scene has no Membrane."""
+    UsdGeom = load_pxr().UsdGeom
+    membrane = root.GetChild(MEMBRANE)
+    if not membrane:
+        if root.GetChild(IPAMS):
+            raise r.error(root.GetChild(IPAMS), None, "IPAMs need a Membrane prim next to them")
+        return None
+    if not membrane.IsA(UsdGeom.Mesh):
+        raise r.error(membrane, None, f"must be a Mesh, is a {membrane.GetTypeName() or 'typeless prim'}")
+    design = Design(_read_rest(r, membrane), _read_material(r, membrane))
+    _read_ipams(r, root, design)
+    _read_cells(r, membrane, design)
+    return design
+
+
+def _read_rest(r: _Reader, membrane) -> TriMesh:
+    """The rest mesh: exact rest points (or the viewer points), which must agree with each other."""
+    rest, used = r.triangles(membrane, REST_POINTS, fallback="points")
+    if used != "points":  # the viewer points must agree with the exact rest points
+        shown = r.float_array(membrane, "points", required=False, width=3)
+        if shown is not None:
+            tol = 1e-6 * float(np.abs(rest.vertices).max()) + 1e-9
+            if shown.shape != rest.vertices.shape or np.abs(shown - rest.vertices).max() > tol:
+                raise r.error(membrane, "points", f"disagrees with {REST_POINTS} (edited in another tool?); "
+                              f"remove {REST_POINTS} to use the edited points")
+    return rest
+
+
+def _read_material(r: _Reader, membrane) -> Material:
+    """Every Material field from its attribute; ``Material``'s own checks name the attribute."""
+    values = {attr.field: r.table_value(membrane, attr) for attr in MATERIAL_ATTRIBUTES}
+    try:
+        return Material.from_dict(values)
+    except DesignError as exc:
+        msg = str(exc)
+        raise r.error(membrane, material_attribute_for(msg), msg) from None
+
+
+def _read_ipams(r: _Reader, root, design: Design) -> None:
+    """Add every IPAM of the Ipams prim to ``design`` (derived attributes are recomputed, not read)."""
+    prim = root.GetChild(IPAMS)
+    if not prim:
+        return
+    faces_name = IPAM_ATTRIBUTES[0].name
+    values = {}
+    for attr in IPAM_ATTRIBUTES:
+        if not attr.required:
+            continue
+        a = r.table_value(prim, attr)
+        n = values["faces"].shape[0] if values else a.shape[0]
+        if a.shape[0] != n:
+            raise r.error(prim, attr.name, f"has {a.shape[0]} entries for {n} IPAMs ({faces_name})")
+        values[attr.field] = a
+    faces, nf = values["faces"], design.rest.n_faces
+    bad = np.flatnonzero(((faces < 0) | (faces >= nf)).any(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        raise r.error(prim, faces_name, f"IPAM {i} joins faces {faces[i].tolist()}, out of range: the "
+                      f"membrane has {nf} faces")
+    for i in range(faces.shape[0]):
+        (a, b), kwargs = ipam_arguments(values, i)
+        try:
+            design.add_ipam(a, b, **kwargs)
+        except DesignError as exc:
+            raise r.error(prim, faces_name, f"IPAM {i}: {exc}") from None
+
+
+def _read_cells(r: _Reader, membrane, design: Design) -> None:
+    """Add every jamming-cell subset of the membrane to ``design``, in prim order (no overlaps)."""
+    UsdGeom = load_pxr().UsdGeom
+    nf = design.rest.n_faces
+    owner = np.full(nf, -1, dtype=np.int64)
+    owner_path: list[str] = []
+    for child in membrane.GetChildren():
+        if not child.IsA(UsdGeom.Subset):
+            continue
+        fam = child.GetAttribute("familyName")
+        if not fam or fam.Get() != CELL_FAMILY:
+            continue
+        et = r.token(child, "elementType", required=False)
+        if et is not None and et != "face":
+            raise r.error(child, "elementType", f"is {et!r}; a jamming cell is a set of faces (elementType face)")
+        idx = r.int_array(child, "indices")
+        if idx.size == 0:
+            raise r.error(child, "indices", "a jamming cell needs at least one face")
+        bad = idx[(idx < 0) | (idx >= nf)]
+        if bad.size:
+            raise r.error(child, "indices", f"face {int(bad[0])} is out of range: the membrane has {nf} faces")
+        u = np.unique(idx)
+        taken = owner[u] >= 0
+        if np.any(taken):
+            j = int(np.flatnonzero(taken)[0])
+            raise r.error(child, "indices", f"face {int(u[j])} is already in cell <{owner_path[owner[u[j]]]}>; "
+                          f"jamming cells may not overlap")
+        try:
+            c = design.add_cell(u)
+        except DesignError as exc:
+            raise r.error(child, "indices", str(exc)) from None
+        owner[u] = c
+        owner_path.append(str(child.GetPath()))
+
+
+def _read_targets(r: _Reader, root) -> tuple[list, list]:
+    """Every Mesh under Targets, in order, with its prim name."""
+    UsdGeom = load_pxr().UsdGeom
+    targets, names = [], []
+    scope = root.GetChild(TARGETS)
+    if scope:
+        for child in scope.GetChildren():
+            if not child.IsA(UsdGeom.Mesh):
+                continue
+            mesh, _ = r.triangles(child, TARGET_POINTS, fallback="points")
+            targets.append(mesh)
+            names.append(child.GetName())
+    return targets, names
+
+
+def _read_settings(r: _Reader, root) -> dict:
+    """``{group: {key: value}}`` from the ``warpShape:<group>:<key>`` attributes of Settings."""
+    settings: dict = {}
+    prim = root.GetChild(SETTINGS)
+    if not prim:
+        return settings
+    for a in prim.GetAuthoredAttributes():
+        name = a.GetName()
+        if not name.startswith(f"{NS}:"):
+            continue
+        parts = name.split(":")
+        if len(parts) != 3:
+            raise r.error(prim, name, f"settings attributes are named {NS}:<group>:<key>")
+        tn = str(a.GetTypeName())
+        if tn not in SETTING_READERS:
+            raise r.error(prim, name, f"has type {tn}; settings are bool, int64, double or string")
+        settings.setdefault(parts[1], {})[parts[2]] = SETTING_READERS[tn](a.Get())
+    return settings
+
+
+def load_scene(path_or_name) -> Scene:
+    """Load a scene file, or a shipped scene by name (``list_scenes()``), validating everything.
+
+    Errors are ``SceneError`` naming the file, the prim path and the attribute.
+    """
+    path = resolve_scene(path_or_name)
+    stage = _open_stage(path)
+    return read_stage(stage, str(path))
+
+
+def validate_usd(path_or_stage) -> list[str]:
+    """Run every registered ``pxr.UsdValidation`` validator; return the error messages (empty = valid)."""
+    load_pxr()
+    from pxr import UsdValidation
+
+    stage = path_or_stage
+    if not hasattr(stage, "GetRootLayer"):
+        stage = _open_stage(resolve_scene(path_or_stage))
+    reg = UsdValidation.ValidationRegistry()
+    ctx = UsdValidation.ValidationContext(reg.GetOrLoadAllValidators())
+    return [e.GetErrorAsString() for e in ctx.Validate(stage) if not e.HasNoError()]

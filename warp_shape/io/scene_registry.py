@@ -1,0 +1,67 @@
+"""Find scenes and targets by name: the shipped scene files, scene paths, shipped target shapes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import SceneError
+from ..mesh import TriMesh
+from ..targets import target
+from .scene_schema import SCENE_EXTENSIONS
+
+__all__ = ["scene_dirs", "list_scenes", "resolve_scene", "resolve_targets"]
+
+
+def scene_dirs() -> list[Path]:
+    """Directories searched for scenes by name: the repository's ``scenes/`` and ``warp_shape/scenes``."""
+    package = Path(__file__).resolve().parents[1]
+    return [d for d in (package.parent / "scenes", package / "scenes") if d.is_dir()]
+
+
+def list_scenes() -> list[str]:
+    """Names of the shipped scenes (loadable with ``load_scene(name)``)."""
+    names = set()
+    for d in scene_dirs():
+        for p in d.iterdir():
+            if p.suffix.lower() in SCENE_EXTENSIONS and not p.name.startswith("."):
+                names.add(p.stem)
+    return sorted(names)
+
+
+def resolve_scene(path_or_name) -> Path:
+    """The file of a scene given as a path, or by the name of a shipped scene (``list_scenes()``)."""
+    if isinstance(path_or_name, Path) or any(s in str(path_or_name) for s in ("/", "\\")) or \
+            str(path_or_name).lower().endswith(SCENE_EXTENSIONS):
+        p = Path(path_or_name)
+        if not p.exists():
+            raise SceneError(f"scene file not found: {p}")
+        return p
+    name = str(path_or_name)
+    for d in scene_dirs():
+        for ext in SCENE_EXTENSIONS:
+            cand = d / f"{name}{ext}"
+            if cand.exists():
+                return cand
+    p = Path(name)
+    if p.exists():
+        return p
+    raise SceneError(f"unknown scene {name!r}; shipped scenes: {', '.join(list_scenes()) or '(none found)'}")
+
+
+def resolve_targets(targets) -> tuple[list[TriMesh], list[str]]:
+    """Meshes and names for ``Scene(targets=..., target_names=...)`` from ``TriMesh`` objects or
+    shipped target names (``"oval"``, resolved by ``ws.target``). A name keeps its own name
+    (lower case); the i-th mesh is called ``target<i>``."""
+    if isinstance(targets, (TriMesh, str)):
+        targets = [targets]
+    meshes, names = [], []
+    for i, t in enumerate(targets):
+        if isinstance(t, str):
+            meshes.append(target(t))
+            names.append(t.strip().lower())
+        elif isinstance(t, TriMesh):
+            meshes.append(t)
+            names.append(f"target{i}")
+        else:
+            raise SceneError(f"targets[{i}] must be a TriMesh or a target name, got {type(t).__name__}")
+    return meshes, names

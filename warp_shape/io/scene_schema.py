@@ -1,0 +1,223 @@
+"""The scene as plain data: ``Scene``, its field checks and the one table of its USD attributes.
+
+A scene is a design (or none), target meshes and free-form settings; ``docs/scene_format.md``
+describes the file. This module knows no USD library: ``scene_write`` and ``scene_read`` author
+and read the attributes listed here (``MATERIAL_ATTRIBUTES``, ``IPAM_ATTRIBUTES``), so the writer
+and the reader cannot disagree on a name, a type or a field.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from ..design import Design
+from ..errors import SceneError
+from ..material import Material
+from ..mesh import TriMesh
+from ..settings import SimulationSettings
+
+__all__ = ["Scene", "SceneAttribute", "MATERIAL_ATTRIBUTES", "IPAM_ATTRIBUTES", "SCENE_FORMAT_VERSION",
+           "SCENE_EXTENSIONS", "NS", "ROOT_NAME", "MEMBRANE", "IPAMS", "TARGETS", "SETTINGS", "CELL_FAMILY",
+           "REST_POINTS", "TARGET_POINTS", "FORMAT_VERSION_ATTRIBUTE", "is_identifier", "check_settings",
+           "ipam_attribute_values", "ipam_arguments", "material_attribute_for"]
+
+SCENE_FORMAT_VERSION = 1
+SCENE_EXTENSIONS = (".usda", ".usdc", ".usd")
+NS = "warpShape"  # namespace of every warp_shape attribute
+ROOT_NAME = "Scene"  # the default prim
+MEMBRANE, IPAMS, TARGETS, SETTINGS = "Membrane", "Ipams", "Targets", "Settings"  # children of the default prim
+CELL_FAMILY = "jammingCell"  # GeomSubset family of the jamming cells
+FORMAT_VERSION_ATTRIBUTE = f"{NS}:formatVersion"
+REST_POINTS = f"{NS}:restPoints"  # exact (float64) rest positions of the membrane
+TARGET_POINTS = f"{NS}:points"  # exact (float64) vertices of a target
+
+_IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def is_identifier(name) -> bool:
+    """True for a name that can be a USD prim name or part of an attribute name."""
+    return isinstance(name, str) and bool(_IDENT.match(name))
+
+
+def _camel(name: str) -> str:
+    head, *rest = name.split("_")
+    return head + "".join(w[:1].upper() + w[1:] for w in rest)
+
+
+# ---------------------------------------------------------------------------------------------- attribute table
+@dataclass(frozen=True)
+class SceneAttribute:
+    """One row of the attribute table: a USD attribute and the field it holds.
+
+    ``name``: the attribute name. ``usd_type``: its Sdf value type name (``double``,
+    ``double[]``, ``double2[]``, ``int2[]``). ``field``: the ``Material`` or ``Ipam`` field
+    (``faces`` is the pair (face_a, face_b)). ``width``: numbers per array element (1 for scalars
+    and plain arrays). ``required``: read on loading; False for derived values, written for other
+    tools and recomputed on loading.
+    """
+
+    name: str
+    usd_type: str
+    field: str
+    width: int
+    required: bool
+
+    @property
+    def is_array(self) -> bool:
+        """True for an array attribute (one or more elements per IPAM)."""
+        return self.usd_type.endswith("[]")
+
+    @property
+    def is_integer(self) -> bool:
+        """True for integer attributes (face and vertex indices)."""
+        return self.usd_type.startswith("int")
+
+
+#: The Membrane prim: every ``Material`` field as ``custom double warpShape:<camelCaseName>`` (SI).
+MATERIAL_ATTRIBUTES = tuple(SceneAttribute(f"{NS}:{_camel(f.name)}", "double", f.name, 1, True)
+                            for f in fields(Material))
+
+#: The Ipams prim: per-IPAM attributes, one element per IPAM (``pairs`` / ``offsets``: three).
+IPAM_ATTRIBUTES = (
+    SceneAttribute(f"{NS}:faces", "int2[]", "faces", 2, True),
+    SceneAttribute(f"{NS}:stiffness", "double[]", "stiffness", 1, True),
+    SceneAttribute(f"{NS}:area", "double[]", "area", 1, True),
+    SceneAttribute(f"{NS}:areaOverStiffness", "double[]", "area_over_stiffness", 1, False),
+    SceneAttribute(f"{NS}:freeLength", "double[]", "free_length", 1, True),
+    SceneAttribute(f"{NS}:restLength", "double[]", "rest_length", 1, False),
+    SceneAttribute(f"{NS}:pressureLimits", "double2[]", "pressure_limits", 2, True),
+    SceneAttribute(f"{NS}:damping", "double[]", "damping", 1, True),
+    SceneAttribute(f"{NS}:pairs", "int2[]", "pairs", 2, False),
+    SceneAttribute(f"{NS}:offsets", "double[]", "offsets", 1, False),
+)
+
+
+def material_attribute_for(message: str) -> str | None:
+    """The attribute of the Material field that a ``Material`` error message names, if any."""
+    return next((a.name for a in MATERIAL_ATTRIBUTES if f"Material.{a.field} " in message), None)
+
+
+def ipam_attribute_values(design: Design, attr: SceneAttribute) -> np.ndarray:
+    """Values of ``attr`` over every IPAM of ``design``, in IPAM order: (n,) or (n, width) arrays
+    (int32 for indices, float64 otherwise)."""
+    def value(ip):
+        return (ip.face_a, ip.face_b) if attr.field == "faces" else getattr(ip, attr.field)
+
+    flat = np.concatenate([np.asarray(value(ip)).reshape(-1) for ip in design.ipams])
+    flat = flat.astype(np.int32 if attr.is_integer else np.float64)
+    return flat if attr.width == 1 else flat.reshape(-1, attr.width)
+
+
+def ipam_arguments(values: dict, i: int) -> tuple[tuple, dict]:
+    """``Design.add_ipam`` arguments of IPAM ``i`` from the required attributes' arrays
+    (``{field: array}``, as read): ((face_a, face_b), keyword arguments)."""
+    faces = (int(values["faces"][i, 0]), int(values["faces"][i, 1]))
+    kwargs = {}
+    for attr in IPAM_ATTRIBUTES:
+        if not attr.required or attr.field == "faces":
+            continue
+        v = values[attr.field][i]
+        kwargs[attr.field] = tuple(float(p) for p in v) if attr.width > 1 else float(v)
+    return faces, kwargs
+
+
+# ---------------------------------------------------------------------------------------------- Scene
+@dataclass(eq=False)
+class Scene:
+    """A design problem or a design: membrane + IPAMs + cells (``design``), targets and settings.
+
+    ``design``: a ``ws.Design`` or None (a scene that only holds targets).
+    ``targets``: list of ``TriMesh`` (shipped targets by name: ``scene_registry.resolve_targets``).
+    ``target_names``: one identifier per target (default ``target0``, ``target1``, ...); they
+    become the prim names under ``Targets``.
+    ``settings``: ``{group: {key: value}}`` with identifier groups and keys and bool / int / float /
+    str values, e.g. ``{"simulation": {"dt": 1e-3}, "designer": {"actuators": 4}}``.
+    """
+
+    design: Design | None = None
+    targets: list = field(default_factory=list)
+    settings: dict | None = None
+    target_names: list | None = None
+
+    def __post_init__(self):
+        if self.design is not None and not isinstance(self.design, Design):
+            raise SceneError(f"Scene.design must be a ws.Design or None, got {type(self.design).__name__}")
+        if isinstance(self.targets, TriMesh):
+            self.targets = [self.targets]
+        meshes = list(self.targets or [])
+        for i, t in enumerate(meshes):
+            if isinstance(t, str):
+                raise SceneError(f"Scene.targets[{i}] is the name {t!r}: a Scene holds meshes; resolve target "
+                                 f"names with warp_shape.io.scene_registry.resolve_targets (or ws.target)")
+            if not isinstance(t, TriMesh):
+                raise SceneError(f"Scene.targets[{i}] must be a TriMesh, got {type(t).__name__}")
+        names = [f"target{i}" for i in range(len(meshes))] if self.target_names is None \
+            else [str(n) for n in self.target_names]
+        if len(names) != len(meshes):
+            raise SceneError(f"Scene.target_names has {len(names)} names for {len(meshes)} targets")
+        for n in names:
+            if not is_identifier(n):
+                raise SceneError(f"target name {n!r} is not an identifier (letters, digits, _; not starting "
+                                 f"with a digit); it becomes a USD prim name")
+        if len(set(names)) != len(names):
+            raise SceneError(f"target names must be unique, got {names}")
+        self.targets = meshes
+        self.target_names = names
+        self.settings = check_settings(self.settings)
+
+    def target(self, name: str) -> TriMesh:
+        """The target called ``name``."""
+        try:
+            return self.targets[self.target_names.index(name)]
+        except ValueError:
+            raise SceneError(f"scene has no target {name!r}; it has {self.target_names}") from None
+
+    @property
+    def simulation_settings(self) -> SimulationSettings:
+        """The defaults of ``SimulationSettings`` updated by the scene's ``settings["simulation"]``."""
+        return SimulationSettings.from_dict(self.settings.get("simulation", {}))
+
+    def __repr__(self) -> str:
+        return (f"Scene(design={self.design!r}, targets={self.target_names}, "
+                f"settings={sorted(self.settings)})")
+
+
+def _setting_value(group: str, key: str, value):
+    """``value`` as the Python type it is stored as (bool, int, float or str)."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        value = int(value)
+        if not -(2**63) <= value < 2**63:
+            raise SceneError(f"settings[{group!r}][{key!r}] = {value} does not fit in 64 bits")
+        return value
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, str):
+        return value
+    raise SceneError(f"settings[{group!r}][{key!r}] must be a bool, int, float or str, got {type(value).__name__}")
+
+
+def check_settings(settings) -> dict:
+    """Scene settings checked and normalised: ``{group: {key: bool | int | float | str}}``."""
+    if settings is None:
+        return {}
+    if not isinstance(settings, dict):
+        raise SceneError(f"Scene.settings must be a dict {{group: {{key: value}}}}, got {type(settings).__name__}")
+    out = {}
+    for group, entries in settings.items():
+        if not is_identifier(group):
+            raise SceneError(f"settings group {group!r} must be an identifier (it becomes part of an attribute name)")
+        if not isinstance(entries, dict):
+            raise SceneError(f"settings[{group!r}] must be a dict of key -> bool/int/float/str, "
+                             f"got {type(entries).__name__}")
+        g = {}
+        for key, value in entries.items():
+            if not is_identifier(key):
+                raise SceneError(f"settings[{group!r}] key {key!r} must be an identifier")
+            g[key] = _setting_value(group, key, value)
+        out[group] = g
+    return out
