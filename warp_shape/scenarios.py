@@ -19,7 +19,10 @@ def corner_directions() -> np.ndarray:
 
 def _face_towards(centroids: np.ndarray, direction: np.ndarray, taken: set) -> int:
     unit = centroids / np.linalg.norm(centroids, axis=1, keepdims=True)
-    order = np.argsort(-(unit @ direction))
+    # a symmetric mesh has faces exactly as close to a direction as others: rounding the score and
+    # breaking ties by index makes the choice independent of floating-point summation order
+    score = np.round(unit @ direction, 9)
+    order = np.lexsort((np.arange(score.size), -score))
     for f in order:
         if int(f) not in taken:
             return int(f)

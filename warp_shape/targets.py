@@ -142,7 +142,11 @@ def _build(name: str, volume: float, resolution: int) -> TriMesh:
     base = _cube_mesh(resolution) if name == "cube" else _radial_mesh(name, resolution)
     base = base.centered()
     mesh = base.scaled((volume / base.volume()) ** (1.0 / 3.0))
-    return mesh.copy_with(mesh.vertices - mesh.centroid())  # remove rounding residue
+    v = mesh.vertices - mesh.centroid()  # remove rounding residue
+    # coordinates that are zero by symmetry come out as +-1e-20 noise whose sign depends on the
+    # summation order of the machine's numpy; make them exactly zero so shipped files reproduce
+    v[np.abs(v) < 1e-12 * np.abs(v).max()] = 0.0
+    return mesh.copy_with(v)
 
 
 def target(name: str, volume: float | None = None, resolution: int = DEFAULT_RESOLUTION) -> TriMesh:
