@@ -44,6 +44,7 @@ from .errors import DesignError
 from .material import GAS_CONSTANT
 from .mesh import TriMesh
 from .model import volumes_np
+from .sampling import pcc
 
 __all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces"]
 
@@ -205,16 +206,6 @@ def cell_anchor_faces(design: Design) -> np.ndarray:
     return anchors
 
 
-def _safe_pcc(r: np.ndarray, R: np.ndarray) -> float:
-    """PCC (eq. 10); a membrane of constant radius (a perfect sphere) has no shape to correlate and
-    is reported as 0."""
-    dr, dR = r - r.mean(), R - R.mean()
-    den = math.sqrt(float(dr @ dr) * float(dR @ dR))
-    if den <= 1e-24 * max(1.0, float(r @ r)) * max(1.0, float(R @ R)) or np.std(r) <= 1e-12 * np.mean(r):
-        return 0.0
-    return float(dr @ dR) / den
-
-
 def _passive_mask(spec, W: int, n: int, what: str) -> np.ndarray:
     """(W, n) bool from indices shared by all worlds, or one index list per world."""
     mask = np.zeros((W, n), dtype=bool)
@@ -336,7 +327,7 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
                 row[f"cell{j}_kappa_m"] = kappa[w, j]
                 row[f"cell{j}_kappa_target_m"] = kappa_t[w, j]
                 row[f"cell{j}_jammed"] = int(jammed_now[w, j])
-            row["pcc"] = _safe_pcc(r_v[w], r_vt[w])
+            row["pcc"] = pcc(r_v[w], r_vt[w])
             row["mare_m"] = float(np.mean(np.abs(r_v[w] - r_vt[w])))
             row["mpre_pct"] = float(100.0 * np.mean(np.abs(r_v[w] - r_vt[w]) / r_vt[w]))
             rows[w].append(row)
@@ -422,7 +413,7 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
         r, R = np.linalg.norm(xw, axis=1), np.linalg.norm(sw, axis=1)
         results.append(ControlResult(
             achieved=design.rest.copy_with(xw), sampled_target=design.rest.copy_with(sw),
-            pcc=_safe_pcc(r, R), mare=float(np.mean(np.abs(r - R))), mpre=float(100 * np.mean(np.abs(r - R) / R)),
+            pcc=pcc(r, R), mare=float(np.mean(np.abs(r - R))), mpre=float(100 * np.mean(np.abs(r - R) / R)),
             volume_error=float((vw - vtw) / vtw), ipam_forces=fw, ipam_pressures=pw, air_moles=float(aw),
             jammed=jw.astype(bool), jam_steps=jam_steps[w].copy(), converged=reason[w].startswith("converged"),
             reason=reason[w], control_steps=int(steps), history=hist, settings=settings,
