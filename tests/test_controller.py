@@ -11,6 +11,7 @@ import pytest
 import warp_shape as ws
 from warp_shape.controller import ControlSettings, control, control_many
 from warp_shape.scenarios import cube_fig6_design
+from warp_shape.settings import SimulationSettings
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +27,7 @@ def fig6():
 def test_inflation_only_reaches_target_volume_without_overshoot(precision):
     design = ws.Design(ws.icosphere(3, 0.035))
     oval = ws.target("oval")
-    res = control(design, oval, precision=precision)
+    res = control(design, oval, simulation=SimulationSettings(precision=precision))
     h = res.history
     assert res.converged, res.reason
     assert abs(res.volume_error) < 0.01

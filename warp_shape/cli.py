@@ -185,10 +185,11 @@ def _selection(args, scene_settings, names) -> dict:
 def cmd_control(args) -> int:
     _quiet_warp(args.verbose)
     from .controller import ControlSettings, control_many
+    from .settings import SimulationSettings
 
     design, targets, scene_settings = _resolve_design_and_targets(args.scene, args.target)
-    settings = ControlSettings(integrator=args.integrator, precision=args.precision, max_steps=args.max_steps,
-                               jamming=not args.no_jamming)
+    settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming,
+                               simulation=SimulationSettings(integrator=args.integrator, precision=args.precision))
 
     with _recorder(args) as rec:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
@@ -205,7 +206,7 @@ def cmd_control(args) -> int:
         print(json.dumps(report, indent=2))
         return 0
     print(f"design: {design.rest.n_vertices} vertices, {design.n_ipams} IPAMs, {design.n_cells} cells; "
-          f"{settings.integrator} {settings.precision} on {args.device}")
+          f"{settings.simulation.integrator} {settings.simulation.precision} on {args.device}")
     print(f"{'target':<10}{'PCC':>8}{'MARE mm':>9}{'MPRE %':>8}{'vol err %':>10}{'steps':>7}  result")
     for (name, _), res in zip(targets, results):
         print(f"{name:<10}{res.pcc:8.4f}{res.mare * 1e3:9.3f}{res.mpre:8.2f}{100 * res.volume_error:10.3f}"

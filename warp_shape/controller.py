@@ -44,19 +44,10 @@ from .errors import DesignError
 from .material import GAS_CONSTANT
 from .mesh import TriMesh
 from .model import volumes_np
+from .settings import SimulationSettings, replace_settings
 from .sampling import pcc
 
 __all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces"]
-
-
-def replace_settings(settings, changes: dict, what: str):
-    """A copy of a settings dataclass with ``changes`` applied; unknown names are an error."""
-    d = asdict(settings)
-    unknown = sorted(set(changes) - set(d))
-    if unknown:
-        raise DesignError(f"unknown {what} setting(s) {unknown}; known: {sorted(d)}")
-    d.update(changes)
-    return type(settings)(**d)
 
 
 @dataclass(frozen=True)
@@ -64,8 +55,7 @@ class ControlSettings:
     """Controller parameters (SI). Defaults were chosen by measurement on the Fig. 6 problem and the
     oval/heart design problem (see docs/controller.md)."""
 
-    dt: float = 1e-3  # simulation output step, s (the solver substeps for stability)
-    control_period: int = 10  # simulation steps per control step
+    control_period: int = 10  # simulation steps (of simulation.dt) per control step
     max_steps: int = 300  # control-step limit
     volume_deadband: float = 0.005  # |V - V_t| / V_t
     length_deadband: float = 1e-3  # |L_t - L|, m
@@ -78,17 +68,18 @@ class ControlSettings:
     jamming: bool = True  # False: never jam (for path-dependence studies)
     curvature_tolerance: float = 1e-6  # m; a move away from the target smaller than this is noise
     max_stretch: float = 4.0  # mean edge stretch beyond which the target is deemed unreachable
-    integrator: str = "rk4"
-    precision: str = "float32"
-    substeps: int | None = None  # None: automatic from the stable-step estimate
+    simulation: SimulationSettings = field(default_factory=SimulationSettings)  # integrator, dt, precision, ...
 
     def __post_init__(self):
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):
                 raise DesignError(f"ControlSettings.{f.name} must be finite, got {v}")
-        if self.dt <= 0 or self.control_period < 1 or self.max_steps < 1:
-            raise DesignError("ControlSettings needs dt > 0, control_period >= 1 and max_steps >= 1")
+        if self.control_period < 1 or self.max_steps < 1:
+            raise DesignError("ControlSettings needs control_period >= 1 and max_steps >= 1")
+        if not isinstance(self.simulation, SimulationSettings):
+            raise DesignError(f"ControlSettings.simulation must be a SimulationSettings (warp_shape.settings), "
+                              f"got {type(self.simulation).__name__}")
         for name in ("volume_deadband", "length_deadband", "air_rate", "pressure_rate", "air_gain", "pressure_gain",
                      "gain_backoff", "min_gain"):
             if getattr(self, name) <= 0:
@@ -139,7 +130,9 @@ class ControlResult:
             jammed=per("cell{}_jammed", n_cell).astype(bool) if n_cell else None,
             targets=[self.target] if self.target is not None else None,
             target_names=[target_name] if self.target is not None else None,
-            settings={"controller": {k: v for k, v in asdict(self.settings).items() if v is not None}})
+            settings={"controller": {k: v for k, v in asdict(self.settings).items()
+                                     if v is not None and k != "simulation"},
+                      "simulation": self.settings.simulation.to_dict()})
 
     @property
     def actuator_summary(self) -> list[dict]:
@@ -249,8 +242,10 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     targets = [t.centered() for t in targets]
     W = len(targets)
     sampler = RadialSampler(targets, device=device)  # checks star-shape; raises ShapeError naming directions
-    sim = Simulator(design, device=device, integrator=settings.integrator, dt=settings.dt,
-                    precision=settings.precision, substeps=settings.substeps, worlds=W)
+    ss = settings.simulation
+    sim = Simulator(design, device=device, integrator=ss.integrator, dt=ss.dt, precision=ss.precision,
+                    bending=ss.bending, substeps=ss.substeps, worlds=W, launch_mode=ss.launch_mode,
+                    reestimate_every=ss.reestimate_every)
     m = sim.model
     h = m.host
     faces = h.faces

@@ -29,12 +29,13 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .controller import ControlResult, ControlSettings, control_many, replace_settings
+from .controller import ControlResult, ControlSettings, control_many
 from .design import (DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS,
                      Design)
 from .errors import DesignError
 from .material import Material
 from .mesh import TriMesh
+from .settings import replace_settings
 
 __all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "selection_to_settings",
            "selection_from_settings"]
