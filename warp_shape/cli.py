@@ -12,14 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
+from .io.outputs import write_json
 
-__all__ = ["main", "write_json_atomic"]
-
-
-def write_json_atomic(path, data) -> Path:
-    """Write JSON through a temporary file and a rename, so a crash never leaves half a file."""
-    return atomic_write(path, json.dumps(data, indent=2) + "\n")
+__all__ = ["main", "build_parser"]
 
 
 def _quiet_warp(verbose: bool = False):
@@ -67,16 +62,6 @@ def _recorder(args):
     from .recorder import Recorder
 
     return Recorder(args.rerun, spawn=args.rerun_spawn, every=args.rerun_every)
-
-
-def _figures(result, out, target_names=None) -> list:
-    try:
-        from .figures import write_figures
-
-        return write_figures(result, out, target_names=target_names)
-    except ImportError as exc:
-        print(f"figures skipped: {exc}", file=sys.stderr)
-        return []
 
 
 # --------------------------------------------------------------------------- simulate
@@ -136,7 +121,7 @@ def cmd_simulate(args) -> int:
     result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
                   device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
                   substeps=sim.substeps, stable_dt=sim.stable_dt(), wall_seconds=wall, frames=rows)
-    out = write_json_atomic(Path(args.out) / "simulate.json", result)
+    out = write_json(Path(args.out) / "simulate.json", result)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -195,13 +180,13 @@ def cmd_control(args) -> int:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
                                progress=_control_progress, recorder=rec, target_names=[n for n, _ in targets],
                                **_selection(args, scene_settings, [n for n, _ in targets]))
+    from .io.outputs import write_control_outputs, write_figures_or_skip
+
     out = Path(args.out)
-    _figures(results, out, [n for n, _ in targets])
-    report = {}
-    for (name, _), res in zip(targets, results):
-        res.to_csv(out / f"control_{name}.csv")
-        res.to_json(out / f"control_{name}.json")
-        report[name] = res.summary()
+    names = [n for n, _ in targets]
+    write_figures_or_skip(results, out, names)
+    write_control_outputs(results, names, out)
+    report = {name: res.summary() for name, res in zip(names, results)}
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -238,8 +223,10 @@ def cmd_design(args) -> int:
     _quiet_warp(args.verbose)
     from .designer import DesignSettings, design
     from .errors import DesignError
+    from .io.outputs import write_design_outputs, write_round_outputs
+    from .io.report import design_markdown
     from .mesh import icosphere
-    from .scene import Scene, load_scene, save_scene
+    from .scene import load_scene
 
     # ---- everything is validated before anything is written
     scene = load_scene(args.scene or "oval_heart")
@@ -260,22 +247,13 @@ def cmd_design(args) -> int:
     out = Path(args.out)
     written: list[Path] = []
 
-    def keep(path):
-        written.append(Path(path))
-        return path
-
     def progress(i, p, step, total, done, worlds):
         _control_progress(step, total, done, worlds, prefix=f"round {i}/{p}: ")
 
     def on_round(i, d_i, results):
         # finished rounds are written as they complete, so an interrupted run keeps them
-        report = dict(complete=False, rounds_done=i + 1, targets=names,
-                      pcc_by_round=[[r.pcc for r in rs] for rs in rounds_seen + [results]])
         rounds_seen.append(results)
-        keep(write_json_atomic(out / "report.json", report))
-        for name, r in zip(names, results):
-            keep(r.to_csv(out / f"control_{name}.csv"))
-            keep(r.to_json(out / f"control_{name}.json"))
+        written.extend(write_round_outputs(out, i, names, rounds_seen))
 
     rounds_seen: list = []
     t0 = time.perf_counter()
@@ -289,27 +267,13 @@ def cmd_design(args) -> int:
                 path.unlink(missing_ok=True)
         raise
     wall = time.perf_counter() - t0
-    report = res.report()
-    report.update(complete=True, wall_seconds=wall, device=args.device)
-    keep(save_scene(Scene(design=res.design, targets=res.targets, target_names=names,
-                          settings={"designer": {"actuators": actuators, "cell_radius": settings.cell_radius},
-                                    "controller": res.selection_settings()}),
-                    out / "design.usda"))
-    for name, r in zip(names, res.results):
-        keep(r.export_usd(out / f"actuation_{name}.usdc", target_name=name))
-    from .molds import inner_mold, outer_mold, write_stl
-
-    keep(write_stl(inner_mold(res.design, args.marker_height), out / "mold_inner.stl"))
-    keep(write_stl(outer_mold(res.design, args.layer_thickness), out / "mold_outer.stl"))
-    for path in _figures(res, out):
-        keep(path)
-    report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"})
-    atomic_write(out / "report.md", res.markdown())
-    write_json_atomic(out / "report.json", report)
+    write_design_outputs(res, out, marker_height=args.marker_height, layer_thickness=args.layer_thickness,
+                         extra_report=dict(complete=True, wall_seconds=wall, device=args.device))
+    report = json.loads((out / "report.json").read_text())
     if args.json:
         print(json.dumps(report, indent=2))
     else:
-        print(res.markdown())
+        print(design_markdown(res))
         print(f"wall time {wall:.1f} s; outputs in {out}/: {', '.join(report['outputs'])}")
     return 0
 
@@ -321,7 +285,7 @@ def cmd_export(args) -> int:
     _quiet_warp(args.verbose)
     from .controller import ControlSettings, control_many
     from .errors import DesignError
-    from .molds import inner_mold, outer_mold, write_stl
+    from .io.outputs import write_control_outputs, write_figures_or_skip, write_molds
     from .scene import load_scene, save_scene
 
     scene = load_scene(args.scene)
@@ -334,8 +298,8 @@ def cmd_export(args) -> int:
     out = Path(args.out)
     written = []
     if "molds" in args.what:
-        written.append(write_stl(inner_mold(scene.design, args.marker_height), out / "mold_inner.stl"))
-        written.append(write_stl(outer_mold(scene.design, args.layer_thickness), out / "mold_outer.stl"))
+        written += write_molds(scene.design, out, marker_height=args.marker_height,
+                               layer_thickness=args.layer_thickness)
     if "usd" in args.what:
         written.append(save_scene(scene, out / "design.usda"))
     if "control" in args.what and named:
@@ -345,12 +309,8 @@ def cmd_export(args) -> int:
             results = control_many(scene.design, [t for _, t in named], device=args.device,
                                    settings=ControlSettings(), progress=_control_progress, recorder=rec, target_names=names,
                                    **_selection(args, scene.settings, names))
-        for name, res in zip(names, results):
-            written.append(res.to_csv(out / f"control_{name}.csv"))
-            written.append(res.to_json(out / f"control_{name}.json"))
-            if "usd" in args.what:
-                written.append(res.export_usd(out / f"actuation_{name}.usdc", target_name=name))
-        written += _figures(results, out, names)
+        written += write_control_outputs(results, names, out, usd="usd" in args.what)
+        written += write_figures_or_skip(results, out, names)
     if args.json:
         print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))
     else:
@@ -413,7 +373,7 @@ def cmd_bench(args) -> int:
             print(format_table(rows))
     results["meta"] = dict(date=time.strftime("%Y-%m-%d %H:%M:%S"), device=args.device, machine=os.uname().nodename,
                            cpu_count=os.cpu_count(), warp=wp.config.version)
-    out = write_json_atomic(Path(args.out) / "bench.json", results)
+    out = write_json(Path(args.out) / "bench.json", results)
     print(f"written {out}")
     return 0
 

@@ -29,16 +29,11 @@ History columns (one row per control step: the state measured at that step, befo
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 from dataclasses import asdict, dataclass, field, fields
-from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
@@ -116,24 +111,6 @@ class ControlResult:
     passive_ipams: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # left out of this run
     passive_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
-    def export_usd(self, path, target_name: str = "target") -> Path:
-        """The controlled run as an animated USD stage: membrane points, IPAM curves, pressures,
-        forces and jam state time-sampled once per control step (``.usda`` or ``.usdc``)."""
-        from .usd_export import export_animation
-
-        h = self.history
-        n_ipam, n_cell = len(self.ipam_forces), len(self.jammed)
-        per = lambda key, n: np.stack([h[key.format(i)] for i in range(n)], axis=1) if n else None  # noqa: E731
-        return export_animation(
-            path, self.design, self.frames, h["time"],
-            ipam_pressures=per("ipam{}_pressure_pa", n_ipam), ipam_forces=per("ipam{}_force_n", n_ipam),
-            jammed=per("cell{}_jammed", n_cell).astype(bool) if n_cell else None,
-            targets=[self.target] if self.target is not None else None,
-            target_names=[target_name] if self.target is not None else None,
-            settings={"controller": {k: v for k, v in asdict(self.settings).items()
-                                     if v is not None and k != "simulation"},
-                      "simulation": self.settings.simulation.to_dict()})
-
     @property
     def actuator_summary(self) -> list[dict]:
         """Per IPAM what a builder needs to size it (section IV-C): peak push and pull force (N),
@@ -148,20 +125,6 @@ class ControlResult:
                             pressure_max_pa=float(p.max())))
         return out
 
-    def history_csv(self) -> str:
-        """The control record as CSV text, one row per control step (columns in the module docstring)."""
-        buf = io.StringIO()
-        w = csv.writer(buf)
-        cols = list(self.history)
-        w.writerow(cols)
-        for row in zip(*(self.history[c] for c in cols)):
-            w.writerow([f"{v:.9g}" if isinstance(v, (float, np.floating)) else int(v) for v in row])
-        return buf.getvalue()
-
-    def to_csv(self, path) -> Path:
-        """Control sequence, one row per control step (atomic write)."""
-        return atomic_write(path, self.history_csv())
-
     def summary(self) -> dict:
         """Fit, final actuator state, convergence and settings as a JSON-ready dict (SI units)."""
         return dict(pcc=self.pcc, mare_m=self.mare, mpre_pct=self.mpre, volume_error=self.volume_error,
@@ -171,13 +134,6 @@ class ControlResult:
                     jam_steps=self.jam_steps.tolist(), actuators=self.actuator_summary,
                     passive_ipams=self.passive_ipams.tolist(), passive_cells=self.passive_cells.tolist(),
                     settings=asdict(self.settings))
-
-    def to_json(self, path) -> Path:
-        """Summary plus the full control sequence (columns) as JSON (atomic write)."""
-        data = self.summary()
-        data["columns"] = list(self.history)
-        data["rows"] = [list(map(float, r)) for r in zip(*(self.history[c] for c in self.history))]
-        return atomic_write(path, json.dumps(data, indent=1) + "\n")
 
 
 def cell_anchor_faces(design: Design) -> np.ndarray:

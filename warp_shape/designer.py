@@ -104,39 +104,6 @@ class DesignResult:
             settings=dict(designer=asdict(self.settings), controller=asdict(self.control_settings)),
         )
 
-    def markdown(self) -> str:
-        """A short Markdown report: PCC table by round, actuators added, final fit, actuator needs."""
-        names = self.target_names
-        lines = [f"# Design report: {', '.join(names)}", "",
-                 f"{self.design.n_ipams} IPAMs, {self.design.n_cells} jamming cells, "
-                 f"{self.design.rest.n_vertices}-vertex membrane (rest volume {self.design.rest.volume() * 1e6:.1f} cm^3).",
-                 "", "## PCC by round (round i: design with i IPAMs)", "",
-                 "| round | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
-        for i, row in enumerate(self.pcc_by_round):
-            lines.append(f"| {i} | " + " | ".join(f"{v:.4f}" for v in row) + " |")
-        lines += ["", "## Actuators added", "", "| # | placed for | face a | face b | max scaled error |",
-                  "|---|---|---|---|---|"]
-        for k, a in enumerate(self.added):
-            lines.append(f"| {k} | {names[a['target']]} | {a['face_a']} | {a['face_b']} | {a['error']:+.4f} |")
-        if self.added and len(names) > 1:
-            first = self.added[0]["target"]
-            others = [j for j in range(len(names)) if j != first]
-            gains = {names[j]: float(self.pcc_by_round[1, j] - self.pcc_by_round[0, j]) for j in others}
-            lines += ["", f"The first IPAM was placed for {names[first]}; its effect on the other target(s): "
-                      + ", ".join(f"{n} PCC {g:+.4f}" for n, g in gains.items()) + "."]
-        lines += ["", "## Final fit", "", "| target | PCC | MARE (mm) | MPRE (%) | volume error (%) | converged |",
-                  "|---|---|---|---|---|---|"]
-        for n, r in zip(names, self.results):
-            lines.append(f"| {n} | {r.pcc:.4f} | {r.mare * 1e3:.3f} | {r.mpre:.2f} | {100 * r.volume_error:.3f} | "
-                         f"{'yes' if r.converged else 'no: ' + r.reason} |")
-        lines += ["", "## Actuator requirements (final design, per target)", ""]
-        for n, r in zip(names, self.results):
-            for a in r.actuator_summary:
-                lines.append(f"- {n}, IPAM {a['ipam']}: push {a['peak_push_n']:.3f} N, pull {a['peak_pull_n']:.3f} N, "
-                             f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f} to "
-                             f"{a['pressure_max_pa'] / 1e3:.1f} kPa")
-        return "\n".join(lines) + "\n"
-
 
 def _setting_key(name: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in name)

@@ -1,0 +1,1 @@
+"""File and display adapters at the edge of warp_shape: scenes, recordings, figures and outputs."""
