@@ -319,7 +319,7 @@ def test_compare_scan_recovers_pose_of_partial_noisy_scan():
 def test_compare_scan_point_cloud_with_outliers_and_cli(tmp_path, capsys):
     import trimesh
 
-    from warp_shape.shapes_cli import register
+    from warp_shape.cli.compare import register
 
     ref = target("heart")
     cap = np.array([0.0, 0.0, -1.0])
