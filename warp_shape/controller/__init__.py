@@ -24,11 +24,11 @@ documented there), ``loop`` (control / control_many), ``result`` (ControlResult,
 """
 
 from .history import HISTORY_COLUMNS
-from .laws import Controls, LawStep, PaperLaw
+from .laws import LAWS, Controls, LawStep, PaperLaw
 from .loop import control, control_many
 from .observe import DeviceConstants, Observation, Observer, cell_anchor_faces
 from .result import ControlResult
 from .settings import ControlSettings
 
 __all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces", "Controls",
-           "LawStep", "PaperLaw", "DeviceConstants", "Observation", "Observer", "HISTORY_COLUMNS"]
+           "LawStep", "PaperLaw", "LAWS", "DeviceConstants", "Observation", "Observer", "HISTORY_COLUMNS"]

@@ -3,7 +3,8 @@
 A law has ``phase`` ((W,) int: 1 initial inflation, 2 shape control), ``update_phase(obs, done)``
 called once per control step before the step is recorded, and ``step(obs, controls, active)``
 returning a ``LawStep`` for the worlds still running (the others keep their controls).
-``PaperLaw`` is the paper's law, eqs. (11)-(15), with the gain back-off.
+``PaperLaw`` is the paper's law, eqs. (11)-(15), with the gain back-off. ``LAWS``: the laws by name,
+each built as ``law(settings, device_constants, passive_ipams, passive_cells)``.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 from .observe import DeviceConstants, Observation, ipam_neutral_pressures
 from .settings import ControlSettings
 
-__all__ = ["Controls", "LawStep", "PaperLaw"]
+__all__ = ["Controls", "LawStep", "PaperLaw", "LAWS"]
 
 
 @dataclass(frozen=True)
@@ -123,3 +124,6 @@ class PaperLaw:
         away = (obs.kappa < lo) | (obs.kappa > hi)
         hit = away & shaping[:, None] & ~obs.jammed & ~self.passive_cells
         return [(int(w), int(j)) for w, j in zip(*np.nonzero(hit))]
+
+
+LAWS = {"paper": PaperLaw}

@@ -14,7 +14,7 @@ from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
 from ..settings import SimulationSettings
 from .history import History
-from .laws import Controls, PaperLaw
+from .laws import LAWS, Controls, PaperLaw
 from .observe import DeviceConstants, Observation, Observer
 from .result import ControlResult
 from .settings import ControlSettings
@@ -174,8 +174,8 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
         recorder.begin_run(design=design, targets=targets, target_names=names, prefix=recorder_prefix,
                            settings=settings)
     stop, history = _StopRule(settings, dev, passive_i), History(W, dev)
-    jam_steps = _run(sim, Observer(dev, sampler, W), PaperLaw(settings, dev, passive_i, passive_c), stop, history,
-                     progress=progress, recorder=recorder)
+    law = LAWS["paper"](settings, dev, passive_i, passive_c)
+    jam_steps = _run(sim, Observer(dev, sampler, W), law, stop, history, progress=progress, recorder=recorder)
     results = [_result(w, stop, history, jam_steps, design, targets[w], passive_i, passive_c) for w in range(W)]
     if recorder is not None:
         recorder.end_run(results)

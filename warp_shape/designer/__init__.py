@@ -28,10 +28,10 @@ each target's sequence leaves out), ``loop`` (design), ``result`` (DesignResult,
 
 from .initialize import copy_design, initial_rest_shape
 from .loop import design
-from .placement import PlacementContext, paper_placement
+from .placement import PLACEMENTS, PlacementContext, paper_placement
 from .result import DesignResult
 from .selection import Selection, pcc_selection, selection_from_settings, selection_to_settings
 from .settings import DesignSettings
 
 __all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "selection_to_settings",
-           "selection_from_settings", "PlacementContext", "paper_placement", "Selection", "pcc_selection"]
+           "selection_from_settings", "PlacementContext", "paper_placement", "PLACEMENTS", "Selection", "pcc_selection"]

@@ -10,7 +10,7 @@ from ..material import Material
 from ..mesh import TriMesh
 from ..sampling import RadialSampler
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
-from .placement import PlacementContext, paper_placement
+from .placement import PLACEMENTS, PlacementContext
 from .result import DesignResult
 from .selection import Selection, pcc_selection
 from .settings import DesignSettings
@@ -84,7 +84,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
             on_round(i, designs[-1], results)
         if i == actuators:
             break
-        record, new_cells = paper_placement(current, results, ctx, i)
+        record, new_cells = PLACEMENTS["paper"](current, results, ctx, i)
         added.append(record)
     return DesignResult(design=current, designs=designs, rounds=rounds, pcc_by_round=pcc, target_names=names,
                         targets=targets, added=added, settings=settings, control_settings=control_settings,

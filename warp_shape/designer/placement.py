@@ -3,7 +3,7 @@
 A placement is a function ``place(design, results, ctx, round_index) -> (record, new_cells)``: it
 adds one IPAM and its cells to ``design`` (in place) given the round's control results (one per
 target), and returns what it placed (a JSON-ready dict) and the indices of the new cells.
-``paper_placement`` is the paper's rule (Algorithm 1).
+``paper_placement`` is the paper's rule (Algorithm 1); ``PLACEMENTS``: the placements by name.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from ..errors import DesignError
 from ..sampling import RadialSampler
 from .settings import DesignSettings
 
-__all__ = ["PlacementContext", "scaled_errors", "free_faces", "paper_ends", "add_actuator_set", "paper_placement"]
+__all__ = ["PlacementContext", "scaled_errors", "free_faces", "paper_ends", "add_actuator_set", "paper_placement",
+           "PLACEMENTS"]
 
 
 @dataclass(frozen=True)
@@ -102,3 +103,6 @@ def paper_placement(design: Design, results, ctx: PlacementContext, round_index:
     record = dict(round=round_index, target=j, face_a=a, face_b=b, error=float(errors[j, a]),
                   error_b=float(errors[j, b]))
     return record, new_cells
+
+
+PLACEMENTS = {"paper": paper_placement}
