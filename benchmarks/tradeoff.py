@@ -50,7 +50,7 @@ def record_sequence(design, target, **control_overrides) -> ControlSequence:
     P = np.stack([h[f"ipam{i}_pressure_pa"] for i in range(design.n_ipams)], axis=1) if design.n_ipams \
         else np.zeros((len(h["step"]), 0))
     # the row of step k holds the state before step k's update: the update is the next row's controls
-    return ControlSequence(dt=res.settings.dt, period=res.settings.control_period,
+    return ControlSequence(dt=res.settings.simulation.dt, period=res.settings.control_period,
                            air_relative=np.append(h["air_mol"][1:], h["air_mol"][-1]) / n0,
                            pressures=np.vstack([P[1:], P[-1:]]), jam_step=res.jam_steps.copy())
 

@@ -10,7 +10,9 @@ import pytest
 
 import warp_shape as ws
 from warp_shape.controller import ControlSettings, control, control_many
+from warp_shape.io.outputs import write_control_outputs, write_control_usd
 from warp_shape.scenarios import cube_fig6_design
+from warp_shape.settings import SimulationSettings
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +28,7 @@ def fig6():
 def test_inflation_only_reaches_target_volume_without_overshoot(precision):
     design = ws.Design(ws.icosphere(3, 0.035))
     oval = ws.target("oval")
-    res = control(design, oval, precision=precision)
+    res = control(design, oval, simulation=SimulationSettings(precision=precision))
     h = res.history
     assert res.converged, res.reason
     assert abs(res.volume_error) < 0.01
@@ -77,13 +79,13 @@ def test_history_exports(fig6, tmp_path):
                 "mpre_pct", "ipam0_pressure_pa", "ipam0_length_m", "ipam0_target_length_m", "ipam0_force_n",
                 "ipam0_strain", "cell0_kappa_m", "cell0_kappa_target_m", "cell0_jammed"}
     assert expected <= set(res.history)
-    res.to_csv(tmp_path / "seq.csv")
-    res.to_json(tmp_path / "seq.json")
-    with open(tmp_path / "seq.csv") as fh:
+    paths = write_control_outputs([res], ["cube"], tmp_path)
+    assert [p.name for p in paths] == ["control_cube.csv", "control_cube.json"]
+    with open(tmp_path / "control_cube.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == n_rows
     assert float(rows[-1]["pcc"]) == pytest.approx(res.history["pcc"][-1], rel=1e-6)
-    data = json.loads((tmp_path / "seq.json").read_text())
+    data = json.loads((tmp_path / "control_cube.json").read_text())
     assert data["columns"] == list(res.history) and len(data["rows"]) == n_rows
     assert data["converged"] is True
     assert not list(tmp_path.glob(".*"))
@@ -154,7 +156,7 @@ def test_controlled_run_exports_animated_usd(fig6, tmp_path):
 
     design, _, res = fig6
     for ext in ("usda", "usdc"):
-        path = res.export_usd(tmp_path / f"run.{ext}", target_name="cube")
+        path = write_control_usd(res, tmp_path / f"run.{ext}", target_name="cube")
         stage = Usd.Stage.Open(str(path))
         animated = [UsdGeom.Mesh(p) for p in stage.Traverse()
                     if p.IsA(UsdGeom.Mesh) and UsdGeom.Mesh(p).GetPointsAttr().GetNumTimeSamples() > 0]
@@ -183,3 +185,14 @@ def test_coarse_membrane_does_not_oscillate():
     assert res.converged, res.reason
     v = res.history["volume_m3"][-3:] / res.history["target_volume_m3"][-3:] - 1
     assert np.abs(v).max() < 0.01
+
+
+def test_settings_hold_simulation_options():
+    s = ControlSettings()
+    assert s.simulation == SimulationSettings()
+    t = s.replace(max_steps=5, simulation=SimulationSettings(precision="float64", dt=5e-4))
+    assert t.max_steps == 5 and t.simulation.precision == "float64" and t.simulation.dt == 5e-4
+    with pytest.raises(ws.DesignError, match="unknown controller setting"):
+        s.replace(dt=1e-3)  # simulation options live in settings.simulation
+    with pytest.raises(ws.DesignError, match="SimulationSettings"):
+        ControlSettings(simulation={"dt": 1e-3})

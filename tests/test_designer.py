@@ -163,9 +163,9 @@ def test_four_targets_twenty_actuators_fit_at_least_as_well_as_five():
 
 def test_interrupted_design_keeps_finished_rounds(tmp_path, monkeypatch, capsys):
     """Ctrl-C during round 1 keeps round 0's report and control sequences, whole."""
-    import warp_shape.designer as designer_module
+    import warp_shape.designer.loop as designer_loop
 
-    real = designer_module.control_many
+    real = designer_loop.control_many
     calls = {"n": 0}
 
     def interrupt_second_round(*args, **kwargs):
@@ -174,7 +174,7 @@ def test_interrupted_design_keeps_finished_rounds(tmp_path, monkeypatch, capsys)
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(designer_module, "control_many", interrupt_second_round)
+    monkeypatch.setattr(designer_loop, "control_many", interrupt_second_round)
     out = tmp_path / "out"
     rc = main(["design", "--out", str(out), "--actuators", "2"])
     assert rc == 130 and "interrupted" in capsys.readouterr().err

@@ -25,6 +25,7 @@ from .mesh import TriMesh, icosphere
 from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
                        radial_sample, shape_metrics)
 from .scan import ScanComparison, compare_scan, load_scan
+from .settings import SimulationSettings
 from .simulator import Simulator
 from .solver import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target

@@ -7,16 +7,13 @@ the jamming-layer thickness. Both are single closed, outward-wound meshes (water
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
-from .io.atomic import atomic_write
 from .design import Design
 from .errors import DesignError
 from .mesh import TriMesh
 
-__all__ = ["inner_mold", "outer_mold", "write_stl"]
+__all__ = ["inner_mold", "outer_mold"]
 
 
 def inner_mold(design: Design, marker_height: float = 2e-3) -> TriMesh:
@@ -51,8 +48,3 @@ def outer_mold(design: Design, layer_thickness: float = 5e-3) -> TriMesh:
     d = rest.vertices - c
     r = np.linalg.norm(d, axis=1, keepdims=True)
     return TriMesh(c + d * (1.0 + layer_thickness / r), rest.faces)
-
-
-def write_stl(mesh: TriMesh, path) -> Path:
-    """Binary STL, written atomically."""
-    return atomic_write(path, mesh.to_trimesh().export(file_type="stl"))

@@ -301,7 +301,11 @@ def _pair(r, R, what: str):
 
 
 def pcc(r, R) -> float:
-    """Pearson correlation of design radii r and sampled target radii R, eq. (10)."""
+    """Pearson correlation of design radii r and sampled target radii R, eq. (10).
+
+    Radii without spread (all equal to rounding, e.g. a sphere centred on the origin) have no shape
+    to correlate: the PCC is then 0.0 exactly.
+    """
     r, R = _pair(r, R, "PCC")
     if r.size < 2:
         raise ShapeError("PCC needs at least two radii")
@@ -309,10 +313,8 @@ def pcc(r, R) -> float:
     sr, sR = float(np.dot(dr, dr)), float(np.dot(dR, dR))
     # relative threshold: radii equal to rounding (a sphere about the origin) have no correlation
     tiny = 1e-24 * r.size * max(float(np.max(np.abs(r))), float(np.max(np.abs(R))), 1e-300) ** 2
-    for s, nm in ((sr, "r"), (sR, "R")):
-        if s <= tiny:
-            raise ShapeError(f"PCC undefined: all radii {nm} are equal (zero variance), e.g. a sphere "
-                             f"centred on the origin; compare with MARE/MPRE instead")
+    if sr <= tiny or sR <= tiny:
+        return 0.0
     return float(np.dot(dr, dR) / np.sqrt(sr * sR))
 
 

@@ -1,7 +1,7 @@
 """``warp-shape compare``: a 3-D scan against a design or target shape (section V-D).
 
-``register(subparsers)`` adds the subcommand to the ``warp-shape`` parser; it sets
-``func=run_compare``, which returns the exit status (0 on success, 2 on a reported error).
+``register(subparsers)`` adds the subcommand to the ``warp-shape`` parser; it sets ``func=run``,
+which returns the exit status (0 on success, 2 on a reported error).
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import sys
 
 import numpy as np
 
-from .errors import WarpShapeError
+from ..errors import WarpShapeError
 
-__all__ = ["register", "run_compare", "format_comparison"]
+__all__ = ["register", "run", "format_comparison"]
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -32,7 +32,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("point_to_plane", "point_to_point"), default="point_to_plane",
                    help="ICP update (default point_to_plane)")
     p.add_argument("--max-iterations", type=int, default=200, help="ICP iteration limit (default 200)")
-    p.set_defaults(func=run_compare)
+    p.set_defaults(func=run)
     return p
 
 
@@ -68,11 +68,12 @@ def format_comparison(res, *, scan: str = "", reference: str = "") -> str:
     return "\n".join(f"{k:<{width}}  {v}" for k, v in rows if v != "")
 
 
-def run_compare(args) -> int:
+def run(args) -> int:
+    """Compare the scan with the reference; print the table (or JSON)."""
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING  # the output is the table (or JSON) alone, no Warp banner
-    from .scan import compare_scan
+    from ..scan import compare_scan
 
     try:
         res = compare_scan(args.scan, args.reference, device=args.device, method=args.method,

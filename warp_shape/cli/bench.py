@@ -1,0 +1,97 @@
+"""``warp-shape bench``: speed and accuracy benchmarks, printed as tables and written to bench.json."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from .options import quiet_warp
+
+__all__ = ["register", "run"]
+
+TRADEOFF_COLUMNS = ["vertices", "integrator", "step", "substeps", "precision", "bending", "wall_s", "error_mm",
+                    "default", "note"]
+
+
+def register(subparsers) -> None:
+    """Add the ``bench`` subcommand."""
+    b = subparsers.add_parser("bench", help="speed benchmarks (tables + JSON)")
+    b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "peer", "rays", "all"])
+    b.add_argument("--device", default="cpu")
+    b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5, 6],
+                   help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
+    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--out", default="out")
+    b.set_defaults(func=run)
+
+
+def _tradeoff(args, format_rows) -> dict:
+    from ..benchmarks.tradeoff import bench_tradeoff
+
+    out = bench_tradeoff(device=args.device)
+    cols = TRADEOFF_COLUMNS
+    fmt = [dict(r, error_mm=f"{r['error_mm']:.2e}", default="*" if r["default"] else "") for r in out["rows"]]
+    print(f"trade-off: Fig. 6 control sequence ({out['control_steps']} control steps) replayed open loop; "
+          f"error = RMS vertex distance to float64 RK4 at 1/8 of the automatic step, same mesh")
+    print(format_rows(fmt, cols))
+    print("\nPareto front per mesh (least error for the wall time):")
+    print(format_rows([dict(r, error_mm=f"{r['error_mm']:.2e}", default="*" if r["default"] else "")
+                       for r in out["pareto"]], cols))
+    print("\nresolution (each mesh's reference vs the finest, mean radial distance):")
+    print(format_rows([dict(r, error_vs_finest_mm=f"{r['error_vs_finest_mm']:.3f}") for r in out["resolution"]],
+                      ["vertices", "error_vs_finest_mm"]))
+    return out
+
+
+def _peer(args, format_rows) -> list:
+    from ..benchmarks.peer import bench_peer
+
+    rows = bench_peer(subdivisions=args.subdivisions, device=args.device)
+    print("peer: the same spring + bending membrane in Newton's SolverSemiImplicit (warp_shape also "
+          "evaluates pressure and viscous damping); force evaluations per second")
+    print(format_rows(rows, list(rows[0].keys())))
+    return rows
+
+
+def _rays(args, results: dict) -> None:
+    try:
+        from ..benchmarks.rays import bench_rays, format_table
+    except ImportError:
+        print("ray benchmark unavailable in this build")
+    else:
+        rows = bench_rays(device=args.device)
+        results["rays"] = rows
+        print(format_table(rows))
+
+
+def run(args) -> int:
+    """Run the chosen benchmarks; print their tables; write ``bench.json``."""
+    import warp as wp
+
+    quiet_warp()
+    from ..benchmarks.sim import BENCH_COLUMNS, bench_sim, format_rows
+    from ..io.outputs import write_json
+
+    results = {}
+    if args.which in ("sim", "all"):
+        rows = bench_sim(device=args.device, subdivisions=args.subdivisions, repeats=args.repeats)
+        results["sim"] = rows
+        print(format_rows(rows, BENCH_COLUMNS + ["estimate_ms"]))
+    if args.which in ("tradeoff", "all"):
+        results["tradeoff"] = _tradeoff(args, format_rows)
+    if args.which in ("design", "all"):
+        from ..benchmarks.design import bench_design
+
+        rows = bench_design(device=args.device)
+        results["design"] = rows
+        print(format_rows(rows, ["problem", "targets", "actuators", "wall_s", "final_pcc", "control_steps"]))
+    if args.which in ("peer", "all"):
+        results["peer"] = _peer(args, format_rows)
+    if args.which in ("rays", "all"):
+        _rays(args, results)
+    results["meta"] = dict(date=time.strftime("%Y-%m-%d %H:%M:%S"), device=args.device, machine=os.uname().nodename,
+                           cpu_count=os.cpu_count(), warp=wp.config.version)
+    out = write_json(Path(args.out) / "bench.json", results)
+    print(f"written {out}")
+    return 0

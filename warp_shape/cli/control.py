@@ -1,0 +1,65 @@
+"""``warp-shape control``: drive a design to target shapes and write the control sequences."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .options import (actuator_selection, add_common_args, control_progress, open_recorder, quiet_warp,
+                      resolve_design_and_targets)
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers) -> None:
+    """Add the ``control`` subcommand."""
+    c = subparsers.add_parser("control", help="drive a design to target shapes; writes the control sequences")
+    c.add_argument("scene", nargs="?", default=None, help="problem: cube_fig6 (default) or a scene file/name")
+    c.add_argument("--target", nargs="+", help="target names (oval pear heart cube) or mesh files")
+    c.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
+    c.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    c.add_argument("--max-steps", type=int, default=300, help="control-step limit")
+    c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
+    c.add_argument("--all-actuators", action="store_true",
+                   help="use every actuator for every target, ignoring the design's per-target selection")
+    add_common_args(c)
+    c.set_defaults(func=run)
+
+
+def _print_table(design, settings, names, results, args, out: Path) -> None:
+    print(f"design: {design.rest.n_vertices} vertices, {design.n_ipams} IPAMs, {design.n_cells} cells; "
+          f"{settings.simulation.integrator} {settings.simulation.precision} on {args.device}")
+    print(f"{'target':<10}{'PCC':>8}{'MARE mm':>9}{'MPRE %':>8}{'vol err %':>10}{'steps':>7}  result")
+    for name, res in zip(names, results):
+        print(f"{name:<10}{res.pcc:8.4f}{res.mare * 1e3:9.3f}{res.mpre:8.2f}{100 * res.volume_error:10.3f}"
+              f"{res.control_steps:7d}  {res.reason}")
+        for a in res.actuator_summary:
+            print(f"    IPAM {a['ipam']}: push {a['peak_push_n']:.3f} N, pull {a['peak_pull_n']:.3f} N, "
+                  f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f}.."
+                  f"{a['pressure_max_pa'] / 1e3:.1f} kPa")
+    print(f"control sequences written to {out}/control_<target>.csv|json")
+
+
+def run(args) -> int:
+    """Control the design to every chosen target; write figures and ``control_<target>.csv|json``."""
+    quiet_warp(args.verbose)
+    from ..controller import ControlSettings, control_many
+    from ..io.outputs import write_control_outputs, write_figures_or_skip
+    from ..settings import SimulationSettings
+
+    design, targets, scene_settings = resolve_design_and_targets(args.scene, args.target)
+    names = [n for n, _ in targets]
+    settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming,
+                               simulation=SimulationSettings(integrator=args.integrator, precision=args.precision))
+    with open_recorder(args) as rec:
+        results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
+                               progress=control_progress, recorder=rec, target_names=names,
+                               **actuator_selection(args, scene_settings, names))
+    out = Path(args.out)
+    write_figures_or_skip(results, out, names)
+    write_control_outputs(results, names, out)
+    if args.json:
+        print(json.dumps({name: res.summary() for name, res in zip(names, results)}, indent=2))
+        return 0
+    _print_table(design, settings, names, results, args, out)
+    return 0

@@ -1,0 +1,62 @@
+"""``warp-shape export``: fabrication and content outputs of a design scene (molds, control sequences, USD)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .options import actuator_selection, add_common_args, control_progress, load_targets, open_recorder, quiet_warp
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers) -> None:
+    """Add the ``export`` subcommand."""
+    e = subparsers.add_parser("export", help="molds (STL), control sequences (CSV/JSON) and USD of a design scene")
+    e.add_argument("scene", help="a design scene: a .usda/.usdc file (e.g. out/design.usda) or a shipped name")
+    e.add_argument("--what", nargs="+", default=["molds", "control", "usd"], choices=["molds", "control", "usd"])
+    e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
+    e.add_argument("--all-actuators", action="store_true",
+                   help="use every actuator for every target, ignoring the design's per-target selection")
+    e.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
+    e.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
+    add_common_args(e)
+    e.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
+    quiet_warp(args.verbose)
+    from ..controller import ControlSettings, control_many
+    from ..errors import DesignError
+    from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
+    from ..io.scene_read import load_scene
+    from ..io.scene_write import save_scene
+
+    scene = load_scene(args.scene)
+    if scene.design is None:
+        raise DesignError(f"{args.scene} holds no design (only targets); export needs a design scene, "
+                          f"e.g. out/design.usda from warp-shape design or the shipped cube_fig6")
+    named = list(zip(scene.target_names, scene.targets))
+    if args.targets:
+        named = load_targets(args.targets)
+    out = Path(args.out)
+    written = []
+    if "molds" in args.what:
+        written += write_molds(scene.design, out, marker_height=args.marker_height,
+                               layer_thickness=args.layer_thickness)
+    if "usd" in args.what:
+        written.append(save_scene(scene, out / "design.usda"))
+    if "control" in args.what and named:
+        names = [n for n, _ in named]
+        with open_recorder(args) as rec:
+            results = control_many(scene.design, [t for _, t in named], device=args.device, settings=ControlSettings(),
+                                   progress=control_progress, recorder=rec, target_names=names,
+                                   **actuator_selection(args, scene.settings, names))
+        written += write_control_outputs(results, names, out, usd="usd" in args.what)
+        written += write_figures_or_skip(results, out, names)
+    if args.json:
+        print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))
+    else:
+        print(f"exported {len(written)} files to {out}/: " + ", ".join(Path(p).name for p in written))
+    return 0

@@ -1,0 +1,71 @@
+"""The control record: one row per control step and world (columns below) and the membrane frames.
+
+History columns (one row per control step: the state measured at that step, before its update;
+``phase`` is the control law applied at that step; ``{i}`` IPAM index, ``{j}`` cell index):
+  step, time (s), phase (1 inflation / 2 shape control), air_mol, pressure_pa (gauge), volume_m3,
+  target_volume_m3, ipam{i}_pressure_pa, ipam{i}_length_m, ipam{i}_target_length_m, ipam{i}_force_n
+  (axial, + = tension), ipam{i}_strain ((L - L0) / L0), cell{j}_kappa_m, cell{j}_kappa_target_m,
+  cell{j}_jammed (0/1), pcc, mare_m, mpre_pct.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .laws import Controls
+from .observe import DeviceConstants, Observation
+
+__all__ = ["HISTORY_COLUMNS", "history_row", "History"]
+
+HISTORY_COLUMNS = ("step", "time", "phase", "air_mol", "pressure_pa", "volume_m3", "target_volume_m3",
+                   "ipam{i}_pressure_pa", "ipam{i}_length_m", "ipam{i}_target_length_m", "ipam{i}_force_n",
+                   "ipam{i}_strain", "cell{j}_kappa_m", "cell{j}_kappa_target_m", "cell{j}_jammed",
+                   "pcc", "mare_m", "mpre_pct")
+
+
+def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: DeviceConstants) -> dict:
+    """World ``w``'s row of the record at this observation (columns in the module docstring)."""
+    row = dict(step=obs.step, time=obs.time, phase=int(phase), air_mol=controls.air[w],
+               pressure_pa=obs.pressure_abs[w] - dev.atmospheric_pressure, volume_m3=obs.volume[w],
+               target_volume_m3=obs.target_volume[w])
+    free = dev.ipam_free_length
+    for i in range(dev.n_ipam):
+        row[f"ipam{i}_pressure_pa"] = controls.pressures[w, i]
+        row[f"ipam{i}_length_m"] = obs.ipam_lengths[w, i]
+        row[f"ipam{i}_target_length_m"] = obs.ipam_target_lengths[w, i]
+        row[f"ipam{i}_force_n"] = obs.ipam_forces[w, i]
+        row[f"ipam{i}_strain"] = (obs.ipam_lengths[w, i] - free[i]) / free[i]
+    for j in range(dev.n_cell):
+        row[f"cell{j}_kappa_m"] = obs.kappa[w, j]
+        row[f"cell{j}_kappa_target_m"] = obs.kappa_target[w, j]
+        row[f"cell{j}_jammed"] = int(obs.jammed[w, j])
+    row["pcc"] = obs.pcc[w]
+    row["mare_m"] = obs.mare[w]
+    row["mpre_pct"] = obs.mpre[w]
+    return row
+
+
+class History:
+    """Rows and float32 membrane frames of every world, recorded while the world runs."""
+
+    def __init__(self, worlds: int, dev: DeviceConstants):
+        self.dev = dev
+        self.rows: list[list[dict]] = [[] for _ in range(worlds)]
+        self.frames: list[list[np.ndarray]] = [[] for _ in range(worlds)]
+
+    def record(self, obs: Observation, phase: np.ndarray, controls: Controls, done: np.ndarray) -> None:
+        """Append this observation's row and frame for every world not yet done."""
+        for w in range(len(self.rows)):
+            if done[w]:
+                continue
+            self.rows[w].append(history_row(obs, w, phase[w], controls, self.dev))
+            self.frames[w].append(obs.positions[w].astype(np.float32))
+
+    def columns(self, w: int) -> dict:
+        """World ``w``'s record: column name -> (n_steps,) array."""
+        rows = self.rows[w]
+        return {k: np.array([r[k] for r in rows]) for k in rows[0]}
+
+    def frame_stack(self, w: int) -> np.ndarray:
+        """(n_steps, V, 3) float32 membrane of world ``w`` at every recorded control step."""
+        return np.stack(self.frames[w])

@@ -1,0 +1,174 @@
+"""One observation of every simulated world per control step: what the control laws and the record see.
+
+An observation holds, per world: the membrane and the target sampled radially through its vertices,
+the enclosed and target volumes and the absolute chamber pressure, each IPAM's length, target length
+and axial force, each cell's curvature and target curvature and jam state, the mean edge stretch and
+the fit (PCC, MARE, MPRE).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..design import Design
+from ..material import GAS_CONSTANT
+from ..model import volumes_np
+from ..sampling import RadialSampler, pcc
+
+__all__ = ["DeviceConstants", "Observation", "Observer", "cell_anchor_faces", "ipam_lengths_and_forces",
+           "ipam_neutral_pressures"]
+
+
+def cell_anchor_faces(design: Design) -> np.ndarray:
+    """(n_cell,) the face of each cell whose radius is the curvature reference r_IPAM: the IPAM end
+    inside the cell, else the face whose centroid direction is closest to the cell's mean direction."""
+    ends = {}
+    for ip in design.ipams:
+        for f in (ip.face_a, ip.face_b):
+            ends.setdefault(int(f), True)
+    c = design.rest.face_centroids()
+    anchors = np.empty(design.n_cells, dtype=np.int64)
+    for j, cell in enumerate(design.cells):
+        inside = [f for f in cell.faces.tolist() if f in ends]
+        if inside:
+            anchors[j] = inside[0]
+        else:
+            u = c[cell.faces] / np.linalg.norm(c[cell.faces], axis=1, keepdims=True)
+            anchors[j] = cell.faces[int(np.argmax(u @ u.mean(axis=0)))]
+    return anchors
+
+
+@dataclass(frozen=True)
+class DeviceConstants:
+    """What the controller knows of the simulated device (host arrays, SI units)."""
+
+    faces: np.ndarray  # (F, 3) membrane triangles
+    hinges: np.ndarray  # (E, 4) edge endpoints first (stretch guard)
+    rest_length: np.ndarray  # (E,) rest edge lengths, m
+    ipam_faces: np.ndarray  # (n_ipam, 2) end faces
+    ipam_stiffness: np.ndarray  # (n_ipam,) N/m
+    ipam_area_over_k: np.ndarray  # (n_ipam,) A / k, m/Pa
+    ipam_free_length: np.ndarray  # (n_ipam,) m
+    ipam_limits: np.ndarray  # (n_ipam, 2) gauge pressure limits, Pa
+    cell_faces: list  # per cell: (n,) face indices
+    anchors: np.ndarray  # (n_cell,) curvature reference face of each cell
+    rt: float  # R T, J/mol
+    atmospheric_pressure: float  # Pa
+    rest_air: float  # air amount at rest, mol
+
+    @property
+    def n_ipam(self) -> int:
+        return len(self.ipam_faces)
+
+    @property
+    def n_cell(self) -> int:
+        return len(self.cell_faces)
+
+    @classmethod
+    def of(cls, sim, design: Design) -> "DeviceConstants":
+        """The constants of ``sim`` (a Simulator of ``design``)."""
+        m, h = sim.model, sim.model.host
+        return cls(faces=h.faces, hinges=h.hinges, rest_length=h.rest_length, ipam_faces=h.ipam_faces,
+                   ipam_stiffness=h.ipam_stiffness, ipam_area_over_k=h.ipam_area_over_k,
+                   ipam_free_length=h.ipam_free_length, ipam_limits=h.ipam_limits,
+                   cell_faces=[c.faces for c in design.cells], anchors=cell_anchor_faces(design),
+                   rt=GAS_CONSTANT * m.temperature, atmospheric_pressure=m.atmospheric_pressure,
+                   rest_air=float(np.atleast_1d(sim.air_moles)[0]))
+
+
+def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray, dev: DeviceConstants,
+                            pressures: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The IPAM law on the host: (W, n_ipam) length L (distance between the end-face centroids),
+    target length L_t (the same on the sampled target) and axial force k (L - L_n), L_n = L0 + (A/k) P
+    (N, + = tension). ``centroids``: (W, F, 3) face centroids; ``pressures``: (W, n_ipam) gauge Pa."""
+    W = centroids.shape[0]
+    if not dev.n_ipam:
+        return np.zeros((W, 0)), np.zeros((W, 0)), np.zeros((W, 0))
+    a, b = dev.ipam_faces[:, 0], dev.ipam_faces[:, 1]
+    length = np.linalg.norm(centroids[:, b] - centroids[:, a], axis=2)
+    target = np.linalg.norm(target_centroids[:, b] - target_centroids[:, a], axis=2)
+    force = dev.ipam_stiffness * (length - (dev.ipam_free_length + dev.ipam_area_over_k * pressures))
+    return length, target, force
+
+
+def ipam_neutral_pressures(lengths: np.ndarray, dev: DeviceConstants) -> np.ndarray:
+    """(W, n_ipam) the gauge pressures (within limits) whose natural length is the current length:
+    an IPAM held at such a pressure exerts no force."""
+    lim = dev.ipam_limits
+    return np.clip((lengths - dev.ipam_free_length) / dev.ipam_area_over_k, lim[:, 0], lim[:, 1])
+
+
+@dataclass
+class Observation:
+    """Every world's state at one control step (``W`` worlds, SI units)."""
+
+    step: int
+    time: float  # s
+    positions: np.ndarray  # (W, V, 3) m
+    sampled: np.ndarray  # (W, V, 3) target hits through the vertices, m
+    volume: np.ndarray  # (W,) m^3
+    target_volume: np.ndarray  # (W,) volume of the sampled target, m^3
+    pressure_abs: np.ndarray  # (W,) absolute chamber pressure, Pa
+    ipam_lengths: np.ndarray  # (W, n_ipam) m
+    ipam_target_lengths: np.ndarray  # (W, n_ipam) m
+    ipam_forces: np.ndarray  # (W, n_ipam) axial, N (+ = tension)
+    kappa: np.ndarray  # (W, n_cell) cell curvature, m
+    kappa_target: np.ndarray  # (W, n_cell) m
+    jammed: np.ndarray  # (W, n_cell) bool
+    mean_stretch: np.ndarray  # (W,) mean edge length / rest length
+    pcc: np.ndarray  # (W,) eq. (10) on vertex radii
+    mare: np.ndarray  # (W,) m
+    mpre: np.ndarray  # (W,) %
+
+    def volume_within(self, deadband: float) -> np.ndarray:
+        """(W,) bool: |V - V_t| / V_t below ``deadband``."""
+        return np.abs(self.volume - self.target_volume) / self.target_volume < deadband
+
+
+def _curvatures(radii: np.ndarray, dev: DeviceConstants) -> np.ndarray:
+    """(W, n_cell) kappa = r_anchor - mean r over the cell's faces (eq. 13), from (W, F) face radii."""
+    if not dev.n_cell:
+        return np.zeros((radii.shape[0], 0))
+    return np.stack([radii[:, dev.anchors[j]] - radii[:, dev.cell_faces[j]].mean(axis=1)
+                     for j in range(dev.n_cell)], 1)
+
+
+def _fit(r: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per world PCC, MARE (m) and MPRE (%) of (W, V) design radii r and target radii R."""
+    W = r.shape[0]
+    return (np.array([pcc(r[w], R[w]) for w in range(W)]),
+            np.array([float(np.mean(np.abs(r[w] - R[w]))) for w in range(W)]),
+            np.array([float(100.0 * np.mean(np.abs(r[w] - R[w]) / R[w])) for w in range(W)]))
+
+
+class Observer:
+    """Takes one observation of every world of a simulator (one target per world)."""
+
+    def __init__(self, dev: DeviceConstants, sampler: RadialSampler, worlds: int):
+        self.dev = dev
+        self.sampler = sampler
+        self.world_index = np.arange(worlds)
+
+    def observe(self, sim, step: int, air: np.ndarray, pressures: np.ndarray) -> Observation:
+        """The state of every world of ``sim`` now; ``air`` (W,) mol and ``pressures`` (W, n_ipam) Pa
+        are the controls in force."""
+        dev, W = self.dev, len(self.world_index)
+        x = np.asarray(sim.positions, dtype=np.float64).reshape(W, -1, 3)
+        sampled = self.sampler.sample_worlds(x, self.world_index)
+        vol = volumes_np(x, dev.faces)
+        vol_t = volumes_np(sampled, dev.faces)
+        cen = x[:, dev.faces].mean(axis=2)  # (W, F, 3)
+        cen_t = sampled[:, dev.faces].mean(axis=2)
+        length, target_length, force = ipam_lengths_and_forces(cen, cen_t, dev, pressures)
+        stretch = np.linalg.norm(x[:, dev.hinges[:, 1]] - x[:, dev.hinges[:, 0]], axis=2) / dev.rest_length
+        r_v, r_vt = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
+        fit_pcc, fit_mare, fit_mpre = _fit(r_v, r_vt)
+        return Observation(
+            step=step, time=sim.time, positions=x, sampled=sampled, volume=vol, target_volume=vol_t,
+            pressure_abs=air * dev.rt / vol, ipam_lengths=length, ipam_target_lengths=target_length,
+            ipam_forces=force, kappa=_curvatures(np.linalg.norm(cen, axis=2), dev),
+            kappa_target=_curvatures(np.linalg.norm(cen_t, axis=2), dev),
+            jammed=np.asarray(sim.jammed).reshape(W, dev.n_cell),
+            mean_stretch=np.array([s.mean() for s in stretch]), pcc=fit_pcc, mare=fit_mare, mpre=fit_mpre)

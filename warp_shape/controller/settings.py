@@ -1,0 +1,52 @@
+"""Controller parameters: ControlSettings (rates, gains, deadbands, limits and simulation options)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+from ..errors import DesignError
+from ..settings import SimulationSettings, replace_settings
+
+__all__ = ["ControlSettings"]
+
+
+@dataclass(frozen=True)
+class ControlSettings:
+    """Controller parameters (SI). Defaults were chosen by measurement on the Fig. 6 problem and the
+    oval/heart design problem (see docs/controller.md). ``simulation``: how the controlled design is
+    simulated (integrator, output step dt, precision, substeps, ...)."""
+
+    control_period: int = 10  # simulation steps (of simulation.dt) per control step
+    max_steps: int = 300  # control-step limit
+    volume_deadband: float = 0.005  # |V - V_t| / V_t
+    length_deadband: float = 1e-3  # |L_t - L|, m
+    air_rate: float = 0.04  # max |dn| per control step, as a fraction of the rest air amount
+    pressure_rate: float = 40e3  # max |dP| per control step, Pa
+    air_gain: float = 1.0  # multiplies eq. (11)
+    pressure_gain: float = 1.0  # multiplies eq. (12)
+    gain_backoff: float = 0.5  # an error that flips sign without halving scales that actuator's gain by this
+    min_gain: float = 0.05  # floor of the backed-off gains, relative to air_gain / pressure_gain
+    jamming: bool = True  # False: never jam (for path-dependence studies)
+    curvature_tolerance: float = 1e-6  # m; a move away from the target smaller than this is noise
+    max_stretch: float = 4.0  # mean edge stretch beyond which the target is deemed unreachable
+    simulation: SimulationSettings = field(default_factory=SimulationSettings)
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise DesignError(f"ControlSettings.{f.name} must be finite, got {v}")
+        if self.control_period < 1 or self.max_steps < 1:
+            raise DesignError("ControlSettings needs control_period >= 1 and max_steps >= 1")
+        if not isinstance(self.simulation, SimulationSettings):
+            raise DesignError(f"ControlSettings.simulation must be a SimulationSettings (warp_shape.settings), "
+                              f"got {type(self.simulation).__name__}")
+        for name in ("volume_deadband", "length_deadband", "air_rate", "pressure_rate", "air_gain", "pressure_gain",
+                     "gain_backoff", "min_gain"):
+            if getattr(self, name) <= 0:
+                raise DesignError(f"ControlSettings.{name} must be > 0, got {getattr(self, name)}")
+
+    def replace(self, **changes) -> "ControlSettings":
+        """A copy with some settings changed; unknown names raise ``DesignError``."""
+        return replace_settings(self, changes, "controller")

@@ -1,0 +1,85 @@
+"""The start of a design run: checked inputs, the initial rest shape, room for cells, and design copies."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..design import Design
+from ..errors import DesignError
+from ..mesh import TriMesh
+from ..sampling import RadialSampler
+
+__all__ = ["check_request", "check_targets", "initial_rest_shape", "check_cell_room", "copy_design"]
+
+
+def check_request(base, actuators) -> None:
+    """A clear error unless ``base`` is a TriMesh and ``actuators`` a whole number >= 1."""
+    if not isinstance(base, TriMesh):
+        raise DesignError(f"base must be a ws.TriMesh (e.g. ws.icosphere(3, 0.035)), got {type(base).__name__}")
+    if isinstance(actuators, bool) or not isinstance(actuators, (int, np.integer)) or actuators < 1:
+        raise DesignError(f"actuators must be a whole number >= 1, got {actuators!r}")
+
+
+def check_targets(targets, target_names) -> tuple[list[TriMesh], list[str]]:
+    """The targets centred on their volume centroids, and their names; errors for no target, a
+    non-mesh, a wrong number of names, a duplicate name or the same shape given twice."""
+    if isinstance(targets, TriMesh):
+        targets = [targets]
+    targets = list(targets)
+    if not targets:
+        raise DesignError("design needs at least one target shape")
+    for t in targets:
+        if not isinstance(t, TriMesh):
+            raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('heart')), got {type(t).__name__}")
+    names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(targets))]
+    if len(names) != len(targets):
+        raise DesignError(f"{len(names)} target names for {len(targets)} targets")
+    if len(set(names)) != len(names):
+        raise DesignError(f"duplicate target names {names}; give each target once")
+    centred = [t.centered() for t in targets]
+    for a in range(len(centred)):
+        for b in range(a):
+            ta, tb = centred[a], centred[b]
+            if ta.vertices.shape == tb.vertices.shape and np.array_equal(ta.faces, tb.faces) \
+                    and np.allclose(ta.vertices, tb.vertices, atol=1e-9):
+                raise DesignError(f"duplicate targets: {names[a]} and {names[b]} are the same shape; give each once")
+    return centred, names
+
+
+def initial_rest_shape(base: TriMesh, targets, volume_scale: float = 0.8, device: str = "cpu") -> TriMesh:
+    """Rest shape from the base mesh's directions: mean of volume-normalised sampled target radii,
+    scaled to ``volume_scale`` x the smallest target volume."""
+    base = base.centered()
+    dirs = base.vertices / np.linalg.norm(base.vertices, axis=1, keepdims=True)
+    sampler = RadialSampler(targets, device=device)
+    radii = []
+    for j, t in enumerate(targets):
+        hits = sampler.sample(dirs * 1e-3, j)
+        radii.append(np.linalg.norm(hits, axis=1) / t.volume() ** (1.0 / 3.0))
+    rest = base.copy_with(dirs * np.mean(radii, axis=0)[:, None])
+    rest = TriMesh(rest.vertices, rest.faces)  # validate: averaging radii keeps a star-shaped, closed membrane
+    scale = (volume_scale * min(t.volume() for t in targets) / rest.volume()) ** (1.0 / 3.0)
+    return rest.scaled(scale)
+
+
+def check_cell_room(rest: TriMesh, actuators: int, cell_radius: float) -> None:
+    """A clear error when ``actuators`` sets of two cells of ``cell_radius`` cannot fit on ``rest``."""
+    per_cell = max(1.0, math.pi * cell_radius**2 / float(np.mean(rest.face_areas())))
+    if 2 * actuators * per_cell > rest.n_faces:
+        raise DesignError(
+            f"{actuators} actuators need about {2 * actuators * per_cell:.0f} faces of jamming cells "
+            f"(radius {cell_radius * 1e3:.1f} mm) but the membrane has {rest.n_faces}; use fewer "
+            f"actuators, a smaller cell_radius or a finer base mesh")
+
+
+def copy_design(d: Design, rest: TriMesh | None = None) -> Design:
+    """A new Design with the same (or a new) rest mesh, material, IPAMs and cells."""
+    out = Design(rest if rest is not None else d.rest, d.material)
+    for ip in d.ipams:
+        out.add_ipam(ip.face_a, ip.face_b, stiffness=ip.stiffness, area=ip.area, free_length=None
+                     if rest is not None else ip.free_length, pressure_limits=ip.pressure_limits, damping=ip.damping)
+    for c in d.cells:
+        out.add_cell(c.faces)
+    return out

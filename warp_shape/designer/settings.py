@@ -1,0 +1,40 @@
+"""Designer parameters: DesignSettings (cell radius, initial volume, end separation, selection, IPAM properties)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS
+from ..errors import DesignError
+from ..settings import replace_settings
+
+__all__ = ["DesignSettings"]
+
+
+@dataclass(frozen=True)
+class DesignSettings:
+    """Designer parameters (SI)."""
+
+    cell_radius: float = 0.012  # m, jamming-cell radius around each IPAM end (rest-shape distance)
+    volume_scale: float = 0.8  # rest volume / smallest target volume (multi-target initialisation)
+    min_angle_deg: float = 120.0  # the two IPAM ends are at least this far apart seen from the origin
+    initialize: bool = True  # False: keep the given rest shape (single-target mode)
+    select_actuators: bool = True  # leave a new actuator set out of a target's sequence when it lowers that PCC
+    max_drop: float = 0.005  # PCC drop that triggers the selection above
+    ipam_stiffness: float = DEFAULT_IPAM_STIFFNESS  # N/m of every added IPAM
+    ipam_area: float = DEFAULT_IPAM_AREA  # m^2
+    ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
+    ipam_pressure_limits: tuple = DEFAULT_IPAM_PRESSURE_LIMITS  # Pa gauge
+
+    def __post_init__(self):
+        if not (self.cell_radius > 0 and math.isfinite(self.cell_radius)):
+            raise DesignError(f"cell_radius must be a positive length in m, got {self.cell_radius}")
+        if not 0 < self.volume_scale <= 1:
+            raise DesignError(f"volume_scale must be in (0, 1], got {self.volume_scale}")
+        if not 0 < self.min_angle_deg < 180:
+            raise DesignError(f"min_angle_deg must be in (0, 180), got {self.min_angle_deg}")
+
+    def replace(self, **changes) -> "DesignSettings":
+        """A copy with some settings changed; unknown names raise ``DesignError``."""
+        return replace_settings(self, changes, "designer")

@@ -1,0 +1,141 @@
+"""Output files of controlled runs and designs: control sequences, molds, reports and round records.
+
+Every file is written atomically (a temporary file, then a rename), so an interrupted run never
+leaves half a file. Units: control sequences in SI (s, Pa, m, N) as in the controller's history
+columns; molds as binary STL in metres as the rest shape is given.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_write
+
+__all__ = ["write_json", "control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
+           "write_stl", "write_molds", "write_round_outputs", "write_figures_or_skip", "write_design_outputs"]
+
+
+def write_json(path, data) -> Path:
+    """Write JSON (indented by 2) through a temporary file and a rename."""
+    return atomic_write(path, json.dumps(data, indent=2) + "\n")
+
+
+def control_csv_text(result) -> str:
+    """A control result's history as CSV text, one row per control step (columns as in the history)."""
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    cols = list(result.history)
+    w.writerow(cols)
+    for row in zip(*(result.history[c] for c in cols)):
+        w.writerow([f"{v:.9g}" if isinstance(v, (float, np.floating)) else int(v) for v in row])
+    return buf.getvalue()
+
+
+def control_json_data(result) -> dict:
+    """A control result's summary plus its full history (``columns`` and ``rows``) as a JSON-ready dict."""
+    data = result.summary()
+    data["columns"] = list(result.history)
+    data["rows"] = [list(map(float, r)) for r in zip(*(result.history[c] for c in result.history))]
+    return data
+
+
+def write_control_usd(result, path, target_name: str = "target") -> Path:
+    """The controlled run as an animated USD stage (``.usda`` or ``.usdc``): membrane points, IPAM
+    curves, pressures, forces and jam state time-sampled once per control step, the target as a ghost,
+    and the controller and simulation settings."""
+    from .usd_animation import export_animation
+
+    h = result.history
+    n_ipam, n_cell = len(result.ipam_forces), len(result.jammed)
+    per = lambda key, n: np.stack([h[key.format(i)] for i in range(n)], axis=1) if n else None  # noqa: E731
+    controller = {k: v for k, v in asdict(result.settings).items() if v is not None and k != "simulation"}
+    return export_animation(
+        path, result.design, result.frames, h["time"],
+        ipam_pressures=per("ipam{}_pressure_pa", n_ipam), ipam_forces=per("ipam{}_force_n", n_ipam),
+        jammed=per("cell{}_jammed", n_cell).astype(bool) if n_cell else None,
+        targets=[result.target] if result.target is not None else None,
+        target_names=[target_name] if result.target is not None else None,
+        settings={"controller": controller, "simulation": result.settings.simulation.to_dict()})
+
+
+def write_control_outputs(results, names, out_dir, *, usd: bool = False) -> list[Path]:
+    """Per target: ``control_<name>.csv`` and ``control_<name>.json`` (indented by 1), and
+    ``actuation_<name>.usdc`` when ``usd``."""
+    out = Path(out_dir)
+    written = []
+    for name, res in zip(names, results):
+        written.append(atomic_write(out / f"control_{name}.csv", control_csv_text(res)))
+        written.append(atomic_write(out / f"control_{name}.json", json.dumps(control_json_data(res), indent=1) + "\n"))
+        if usd:
+            written.append(write_control_usd(res, out / f"actuation_{name}.usdc", target_name=name))
+    return written
+
+
+def write_stl(mesh, path) -> Path:
+    """A TriMesh as binary STL."""
+    return atomic_write(path, mesh.to_trimesh().export(file_type="stl"))
+
+
+def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float) -> list[Path]:
+    """``mold_inner.stl`` (rest shape with IPAM markers) and ``mold_outer.stl`` (rest shape offset by
+    the jamming layer)."""
+    from ..molds import inner_mold, outer_mold
+
+    out = Path(out_dir)
+    return [write_stl(inner_mold(design, marker_height), out / "mold_inner.stl"),
+            write_stl(outer_mold(design, layer_thickness), out / "mold_outer.stl")]
+
+
+def write_round_outputs(out_dir, round_index: int, names, rounds) -> list[Path]:
+    """What a finished design round leaves behind, so an interrupted run keeps its rounds: a partial
+    ``report.json`` (``complete`` false, PCC by round so far) and the round's control sequences.
+    ``rounds``: every finished round's control results, this round last."""
+    out = Path(out_dir)
+    report = dict(complete=False, rounds_done=round_index + 1, targets=list(names),
+                  pcc_by_round=[[r.pcc for r in rs] for rs in rounds])
+    return [write_json(out / "report.json", report)] + write_control_outputs(rounds[-1], names, out)
+
+
+def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
+    """The report figures (PNG); skipped, with a note on stderr, where matplotlib is missing."""
+    try:
+        from .figures import write_figures
+
+        return write_figures(result, out_dir, target_names=target_names)
+    except ImportError as exc:
+        print(f"figures skipped: {exc}", file=sys.stderr)
+        return []
+
+
+def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
+                         extra_report: dict | None = None) -> list[Path]:
+    """Every output of a finished design: ``design.usda`` (the design, its targets, its settings and
+    each target's actuator selection), per target the control sequence (CSV, JSON) and
+    ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
+    result's report, ``extra_report`` entries and the list of outputs), written last."""
+    from .scene_schema import Scene
+    from .scene_write import save_scene
+    from .report import design_markdown
+
+    out = Path(out_dir)
+    names = result.target_names
+    settings = {"designer": {"actuators": result.design.n_ipams, "cell_radius": result.settings.cell_radius},
+                "controller": result.selection_settings()}
+    written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
+                                settings=settings), out / "design.usda")]
+    written += write_control_outputs(result.results, names, out, usd=True)
+    written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
+    written += write_figures_or_skip(result, out)
+    report = result.report()
+    report.update(extra_report or {})
+    report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"})
+    written.append(atomic_write(out / "report.md", design_markdown(result)))
+    written.append(write_json(out / "report.json", report))
+    return written

@@ -1,0 +1,59 @@
+"""The Markdown design report: PCC by round, actuators added, final fit and actuator needs."""
+
+from __future__ import annotations
+
+__all__ = ["design_markdown"]
+
+
+def _pcc_table(result) -> list[str]:
+    names = result.target_names
+    lines = ["## PCC by round (round i: design with i IPAMs)", "",
+             "| round | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    for i, row in enumerate(result.pcc_by_round):
+        lines.append(f"| {i} | " + " | ".join(f"{v:.4f}" for v in row) + " |")
+    return lines
+
+
+def _added_table(result) -> list[str]:
+    names = result.target_names
+    lines = ["## Actuators added", "", "| # | placed for | face a | face b | max scaled error |", "|---|---|---|---|---|"]
+    for k, a in enumerate(result.added):
+        lines.append(f"| {k} | {names[a['target']]} | {a['face_a']} | {a['face_b']} | {a['error']:+.4f} |")
+    if result.added and len(names) > 1:
+        first = result.added[0]["target"]
+        others = [j for j in range(len(names)) if j != first]
+        gains = {names[j]: float(result.pcc_by_round[1, j] - result.pcc_by_round[0, j]) for j in others}
+        lines += ["", f"The first IPAM was placed for {names[first]}; its effect on the other target(s): "
+                  + ", ".join(f"{n} PCC {g:+.4f}" for n, g in gains.items()) + "."]
+    return lines
+
+
+def _fit_table(result) -> list[str]:
+    lines = ["## Final fit", "", "| target | PCC | MARE (mm) | MPRE (%) | volume error (%) | converged |",
+             "|---|---|---|---|---|---|"]
+    for n, r in zip(result.target_names, result.results):
+        lines.append(f"| {n} | {r.pcc:.4f} | {r.mare * 1e3:.3f} | {r.mpre:.2f} | {100 * r.volume_error:.3f} | "
+                     f"{'yes' if r.converged else 'no: ' + r.reason} |")
+    return lines
+
+
+def _actuator_needs(result) -> list[str]:
+    lines = ["## Actuator requirements (final design, per target)", ""]
+    for n, r in zip(result.target_names, result.results):
+        for a in r.actuator_summary:
+            lines.append(f"- {n}, IPAM {a['ipam']}: push {a['peak_push_n']:.3f} N, pull {a['peak_pull_n']:.3f} N, "
+                         f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f} to "
+                         f"{a['pressure_max_pa'] / 1e3:.1f} kPa")
+    return lines
+
+
+def design_markdown(result) -> str:
+    """A short Markdown report of a ``DesignResult``: PCC table by round, actuators added, final fit,
+    actuator needs."""
+    d = result.design
+    lines = [f"# Design report: {', '.join(result.target_names)}", "",
+             f"{d.n_ipams} IPAMs, {d.n_cells} jamming cells, "
+             f"{d.rest.n_vertices}-vertex membrane (rest volume {d.rest.volume() * 1e6:.1f} cm^3).", ""]
+    lines += _pcc_table(result) + [""] + _added_table(result) + [""] + _fit_table(result) + [""] \
+        + _actuator_needs(result)
+    return "\n".join(lines) + "\n"
