@@ -16,8 +16,9 @@ import math
 import numpy as np
 import warp as wp
 
-from warp_shape.kernels import integrate as ki
-from warp_shape.kernels import membrane as km
+from warp_shape.kernels import common as kc
+from warp_shape.kernels import jamming as kj
+from warp_shape.kernels import pressure as kp
 
 from .design import Design
 from .errors import DesignError, SimulationError, StabilityError
@@ -206,7 +207,7 @@ class Simulator:
             return
         edges = m.cell_edges[cell]
         st = self.state
-        wp.launch(ki.jam_edges_kernel, (self.worlds, edges.shape[0]),
+        wp.launch(kj.jam_edges_kernel, (self.worlds, edges.shape[0]),
                   [m.hinges, edges, wp.array(mask, dtype=wp.int32, device=self.device),
                    m.scalar(m.jam_stretch_factor), m.scalar(m.jam_bend_factor), st.x, st.edge, st.jammed],
                   device=self.device)
@@ -237,7 +238,7 @@ class Simulator:
 
     def _volumes(self) -> np.ndarray:
         self._vol_probe.zero_()
-        self._direct(km.eval_volume_kernel, (self.worlds, self.model.n_faces),
+        self._direct(kp.eval_volume_kernel, (self.worlds, self.model.n_faces),
                      [self.model.faces, self.state.x, self._vol_probe])
         return self._vol_probe.numpy().copy()
 
@@ -276,7 +277,7 @@ class Simulator:
 
     def edge_state(self):
         """Current (lengths, dihedral angles) of every edge, each (E,) (or (W, E))."""
-        self._direct(km.edge_state_kernel, (self.worlds, self.model.n_edges),
+        self._direct(kc.edge_state_kernel, (self.worlds, self.model.n_edges),
                      [self.model.hinges, self.state.x, self._edge_len, self._edge_ang])
         return self._out(self._edge_len.numpy().astype(np.float64)), self._out(self._edge_ang.numpy().astype(np.float64))
 

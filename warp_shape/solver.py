@@ -13,8 +13,13 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
+from warp_shape.kernels import bending as kb
+from warp_shape.kernels import common as kc
+from warp_shape.kernels import hinge as kh
 from warp_shape.kernels import integrate as ki
-from warp_shape.kernels import membrane as km
+from warp_shape.kernels import ipam as kip
+from warp_shape.kernels import pressure as kp
+from warp_shape.kernels import springs as ks
 
 from .errors import DesignError
 from .model import Control, Model, State, volumes_np
@@ -33,17 +38,17 @@ FORCE_TERMS = ("spring", "bending", "pressure", "ipam", "viscous")
 def eval_init_viscous(model: Model, v, f, volume, launch: Launch, enabled: bool = True):
     """Start a force evaluation: f = -c_v v (or 0 without the viscous term), volume zeroed."""
     c_v = model.viscous_damping if enabled else 0.0
-    launch(km.init_forces_viscous, f.shape, [model.scalar(c_v), v, f, volume])
+    launch(kc.init_forces_viscous, f.shape, [model.scalar(c_v), v, f, volume])
 
 
 def eval_volume(model: Model, x, volume, launch: Launch):
     """Accumulate each world's enclosed volume (m^3, float64)."""
-    launch(km.eval_volume_kernel, (x.shape[0], model.n_faces), [model.faces, x, volume])
+    launch(kp.eval_volume_kernel, (x.shape[0], model.n_faces), [model.faces, x, volume])
 
 
 def eval_pressure(model: Model, x, volume, control: Control, f, launch: Launch):
     """Add the pressure force p A / 3 n_hat of every face (p gauge, from air and volume)."""
-    launch(km.eval_pressure_kernel, (x.shape[0], model.n_faces),
+    launch(kp.eval_pressure_kernel, (x.shape[0], model.n_faces),
            [model.faces, wp.float64(model.gas_rt), wp.float64(model.atmospheric_pressure), x, volume,
             control.air, f])
 
@@ -51,7 +56,7 @@ def eval_pressure(model: Model, x, volume, control: Control, f, launch: Launch):
 def eval_springs(model: Model, state: State, x, v, f, launch: Launch):
     """Add edge spring and damper forces (jammed edges stiffened)."""
     s = model.scalar
-    launch(km.eval_spring_kernel, (x.shape[0], model.n_edges),
+    launch(ks.eval_spring_kernel, (x.shape[0], model.n_edges),
            [model.hinges, model.edge_stiffness, s(model.spring_damping), s(model.jam_stretch_factor), x, v,
             state.rest_length, state.jammed, f])
 
@@ -61,7 +66,7 @@ def eval_bending(model: Model, state: State, x, f, launch: Launch, paper: bool =
     if not model.has_bending:
         return
     s = model.scalar
-    launch(km.eval_bending_kernel, (x.shape[0], model.n_edges),
+    launch(kb.eval_bending_kernel, (x.shape[0], model.n_edges),
            [model.hinges, s(model.bending_stiffness), s(model.jam_bend_factor), int(paper), x,
             state.rest_angle, state.jammed, f])
 
@@ -70,7 +75,7 @@ def eval_ipams(model: Model, x, v, control: Control, f, launch: Launch):
     """Add IPAM sub-spring forces; launches nothing without IPAMs."""
     if not model.has_ipams:
         return
-    launch(km.eval_ipam_kernel, (x.shape[0], 3 * model.n_ipams),
+    launch(kip.eval_ipam_kernel, (x.shape[0], 3 * model.n_ipams),
            [model.ipam_sub_pairs, model.ipam_sub_offsets, model.ipam_stiffness, model.ipam_area_over_k,
             model.ipam_free_length, model.ipam_damping, x, v, control.ipam_pressure, f])
 
@@ -95,7 +100,7 @@ def eval_init_step(model: Model, xv, fg, volume2d, launch: Launch):
     """Forces = -c_v v, dV/dx = 0 and every volume slot zeroed (start of a fused evaluation).
     xv and fg are packed (2, W, V) buffers: (positions, velocities) and (forces, dV/dx)."""
     _, W, V = fg.shape
-    launch(km.init_step_forces, (W * V,), [model.scalar(model.viscous_damping), W, V, xv, fg, volume2d])
+    launch(kc.init_step_forces, (W * V,), [model.scalar(model.viscous_damping), W, V, xv, fg, volume2d])
 
 
 def eval_hinges(model: Model, state: State, xv, fg, volume2d, slot: int, launch: Launch, paper: bool = False):
@@ -104,7 +109,7 @@ def eval_hinges(model: Model, state: State, xv, fg, volume2d, slot: int, launch:
     Accumulates."""
     _, W, _ = xv.shape
     E = model.n_edges
-    kernel = km.eval_hinge_bending_kernel if model.has_bending else km.eval_hinge_kernel
+    kernel = kh.eval_hinge_bending_kernel if model.has_bending else kh.eval_hinge_kernel
     launch(kernel, (W * E,),
            [model.hinges, model.hinge_owns, model.scalar(model.spring_damping), int(paper), W, E, state.edge, xv, slot,
             fg, volume2d])
@@ -118,8 +123,8 @@ def eval_forces_fused(model: Model, state: State, control: Control, fg, volume2d
     eval_init_step(model, state.xv, fg, volume2d, launch)
     eval_hinges(model, state, state.xv, fg, volume2d, 0, launch, paper_bending)
     eval_ipams(model, state.x, state.v, control, fg[0], launch)
-    launch(km.finish_forces_kernel, (W * V,),
-           [wp.float64(model.gas_rt), wp.float64(model.atmospheric_pressure), W, V, control.air, volume2d, 0, fg])
+    launch(kp.finish_forces_kernel, (W * V,),
+           [wp.float64(model.gas_rt), wp.float64(model.atmospheric_pressure), W, V, volume2d, 0, control.air, fg])
 
 
 # --------------------------------------------------------------------------- integrators
@@ -211,7 +216,7 @@ class RK4Solver(Solver):
                 self.forces(self.stage_xv, self.xs, self.vs, stage, launch)
             launch(ki.rk4_stage_fused, (W * V,),
                    [m.inv_mass, m.scalar(m.viscous_damping), *self._pressure_args(), hs, stage, W, V,
-                    *self._check_args(h), self.control.air, self.fg, self.volume, st.xv, self.stage_xv, self.acc,
+                    *self._check_args(h), self.control.air, self.volume, self.fg, st.xv, self.stage_xv, self.acc,
                     self.status])
 
 
