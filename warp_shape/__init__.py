@@ -23,7 +23,7 @@ from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, m
 from .scan import ScanComparison, compare_scan, load_scan
 from .scene import Scene, list_scenes, load_scene, save_scene, validate_usd
 from .simulator import Simulator
-from .solver import FORCE_TERMS
+from .physics import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
 from .usd_export import bench_usd_export, export_animation
 
