@@ -21,7 +21,7 @@ from .physics.pressure import pressure_rows_np
 from .physics.springs import spring_operator_terms, spring_rows_np
 
 __all__ = ["stable_dt_estimate", "elastic_omega2_bound", "lanczos_upper_bound", "ElasticOperator", "substeps_for",
-           "gershgorin_rows", "check_fixed_step", "LANCZOS_SAFETY", "LANCZOS_STEPS"]
+           "jammed_stiffness", "gershgorin_rows", "check_fixed_step", "LANCZOS_SAFETY", "LANCZOS_STEPS"]
 
 #: Lanczos bound safety factor on omega^2. Over meshes of 162-10242 vertices, jammed or not, the
 #: 12-step bound was 0.95-1.04 of a 100-step one and, where a dense eigensolve is affordable (162
