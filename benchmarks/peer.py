@@ -38,7 +38,7 @@ def bench_peer(subdivisions=(3, 4, 5), device: str = "cpu", seconds: float = 0.3
         ours = Simulator(design, device=device, integrator="semi_implicit", dt=h, substeps=1)
         ours.positions = rest.vertices * 1.02  # a little stretch so there is work to do
         ours.step(1)  # builds and captures the step
-        t_ours = min_time_per_call(lambda: ours._run_internal(1), device, seconds, repeats)
+        t_ours = min_time_per_call(lambda: ours.plan.run(1), device, seconds, repeats)
 
         host = ours.model.host
         builder = newton.ModelBuilder(gravity=(0.0, 0.0, 0.0))

@@ -145,7 +145,7 @@ def test_float32_atan2_polynomial_within_float32_resolution():
     the exact angle in every quadrant, on the axes and at the origin (a library atan2f is good to
     about one spacing); float64 uses the library function itself."""
     import warp as wp
-    from warp_shape.kernels.membrane import hinge_atan2
+    from warp_shape.kernels.bending import hinge_atan2
 
     @wp.kernel
     def angles(y: wp.array(dtype=Any), x: wp.array(dtype=Any), out: wp.array(dtype=Any)):

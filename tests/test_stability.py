@@ -138,10 +138,7 @@ def test_far_beyond_estimate_is_reported_not_nan():
     """Forcing an internal step 10x the estimate blows up; the simulator raises instead of returning NaN."""
     d = _design(2)
     sim, est = _prepared(d)
-    sim._fixed_substeps = None
-    sim._build_plan(10 * est)  # bypass the refusal on purpose
-    sim._h = 10 * est
-    sim._update_plan = lambda: None
+    sim.plan.build(sim.solver, 10 * est)  # bypass the refusal on purpose (no re-plan within 200 steps)
     with pytest.raises(ws.SimulationError, match="blew up") as info:
         sim.step(200)
     assert info.value.safe_dt > 0 and info.value.step is not None
@@ -257,7 +254,7 @@ def test_ipam_between_nearby_faces():
 def test_refined_estimate_is_within_gershgorin_and_above_the_true_limit():
     """The refined estimate is never below the Gershgorin one (it is capped by it) and, on a small
     mesh where the dense eigenproblem is affordable, its frequency bound is above the true one."""
-    from warp_shape.solver import _ElasticOperator, elastic_omega2_bound, stable_dt_estimate
+    from warp_shape.stability import ElasticOperator, elastic_omega2_bound, stable_dt_estimate
 
     d = _design(1)
     sim, est = _prepared(d)
@@ -269,7 +266,7 @@ def test_refined_estimate_is_within_gershgorin_and_above_the_true_limit():
     assert est >= gersh.min() * (1 - 1e-12)
     k_edge = m.host.edge_stiffness * np.where(jam[0], m.jam_stretch_factor, 1.0)
     kt = m.bending_stiffness * np.where(jam[0], m.jam_bend_factor, 1.0)
-    op = _ElasticOperator(m, x[0], k_edge, rest[0], kt)
+    op = ElasticOperator(m, x[0], k_edge, rest[0], kt)
     n = 3 * m.n_vertices
     eye = np.eye(n)
     A = np.stack([op(eye[i]) for i in range(n)])

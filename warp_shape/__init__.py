@@ -27,7 +27,7 @@ from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, m
 from .scan import ScanComparison, compare_scan, load_scan
 from .settings import SimulationSettings
 from .simulator import Simulator
-from .solver import FORCE_TERMS
+from .physics import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
 
 __version__ = "0.1.0"

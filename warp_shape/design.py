@@ -11,6 +11,7 @@ import numpy as np
 from .errors import DesignError
 from .material import Material
 from .mesh import TriMesh
+from .physics.ipam import natural_length_np, pressure_for_length_np
 
 __all__ = ["Design", "Ipam", "Cell"]
 
@@ -49,11 +50,11 @@ class Ipam:
 
     def natural_length(self, pressure: float) -> float:
         """Natural length L_n = L0 + (A/k) P in m at gauge pressure ``pressure`` (Pa)."""
-        return self.free_length + self.area_over_stiffness * pressure
+        return natural_length_np(self.free_length, self.area_over_stiffness, pressure)
 
     def pressure_for_length(self, length: float) -> float:
         """Gauge pressure at which the natural length equals ``length``."""
-        return (length - self.free_length) / self.area_over_stiffness
+        return pressure_for_length_np(self.free_length, self.area_over_stiffness, length)
 
 
 @dataclass(frozen=True)

@@ -14,31 +14,14 @@ import warp as wp
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
+from .physics.bending import dihedral_angles_np
 
-__all__ = ["Model", "State", "Control", "build_model", "HostModel", "host_model", "volumes_np", "PRECISIONS"]
+__all__ = ["Model", "State", "Control", "build_model", "check_device", "HostModel", "host_model", "PRECISIONS"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
     "float64": (wp.float64, wp.vec3d, np.float64),
 }
-
-
-def dihedral_angles_np(x: np.ndarray, hinges: np.ndarray) -> np.ndarray:
-    """Signed dihedral angles (float64) of hinges (v0, v1 | v2, v3); x is (..., V, 3)."""
-    x0, x1, x2, x3 = (x[..., hinges[:, k], :] for k in range(4))
-    e = x1 - x0
-    n_a = np.cross(e, x2 - x0)
-    n_b = np.cross(x0 - x1, x3 - x1)
-    len_e = np.linalg.norm(e, axis=-1)
-    sin_t = np.einsum("...i,...i->...", np.cross(n_a, n_b), e) / len_e
-    cos_t = np.einsum("...i,...i->...", n_a, n_b)
-    return np.arctan2(sin_t, cos_t)
-
-
-def volumes_np(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Enclosed volume (m^3, float64) of each world's membrane by the divergence theorem; x is (W, V, 3)."""
-    xf = x[:, faces]
-    return np.einsum("wfi,wfi->w", xf[:, :, 0], np.cross(xf[:, :, 1], xf[:, :, 2])) / 6.0
 
 
 @dataclass
@@ -164,6 +147,15 @@ def host_model(design: Design) -> HostModel:
         cell_edges=[design.cell_edges(c) for c in range(design.n_cells)],
         cell_faces=[c.faces.astype(np.int64) for c in design.cells],
     )
+
+
+def check_device(device) -> str:
+    """The Warp name of ``device``; an unavailable device raises ``DesignError`` listing those here."""
+    try:
+        return str(wp.get_device(device))
+    except Exception as exc:
+        have = ", ".join(str(d) for d in wp.get_devices())
+        raise DesignError(f"device {device!r} is not available ({exc}); devices here: {have}") from None
 
 
 def build_model(design: Design, device: str = "cpu", precision: str = "float32") -> Model:

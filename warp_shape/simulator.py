@@ -1,4 +1,4 @@
-"""The public simulation API: ``ws.Simulator(design, ...)``.
+"""The public simulation API: ``ws.Simulator(design, ...)`` holds a design's state and steps it.
 
 ``dt`` is the output (control) step. By default each output step is split into the fewest equal
 internal steps that respect the model's stable-step estimate (``sim.substeps``); the estimate is
@@ -11,93 +11,88 @@ re-evaluated when air is changed, a cell jams or positions are set, and every
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import warp as wp
 
-from warp_shape.kernels import integrate as ki
-from warp_shape.kernels import membrane as km
+from warp_shape.kernels import common as kc
 
 from .design import Design
-from .errors import DesignError, SimulationError, StabilityError
+from .errors import DesignError
+from .forces import eval_forces, eval_forces_fused
+from .integrators import blowup_error, make_solver
 from .material import GAS_CONSTANT
-from .model import Control, State, build_model, dihedral_angles_np, volumes_np
-from .solver import (FORCE_TERMS, elastic_omega2_bound, eval_forces, eval_forces_fused, make_solver,
-                     stable_dt_estimate, substeps_for)
+from .model import Control, State, build_model, check_device
+from .physics import FORCE_TERMS
+from .physics.bending import bending_energy_np
+from .physics.ipam import axial_force_np, ipam_energy_np, ipam_lengths_np, natural_length_np
+from .physics.jamming import eval_jam, jammed_factor_np
+from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, volumes_np
+from .physics.springs import spring_energy_np
+from .settings import SimulationSettings
+from .stability import check_fixed_step, elastic_omega2_bound, stable_dt_estimate, substeps_for
+from .step_plan import StepPlan
 
-__all__ = ["Simulator"]
+__all__ = ["Simulator", "FROM_SETTINGS"]
 
-_BLOWUP = {4: "positions became non-finite", 3: "velocities became non-finite",
-           2: "positions ran away (a vertex left the region around the device)",
-           1: "speeds ran away (a vertex crossed the device in one internal step)"}
-LAUNCH_MODES = ("graph", "record", "direct")
+class _FromSettings:
+    def __repr__(self) -> str:
+        return "<from settings>"
 
 
-def _check_device(device) -> str:
-    try:
-        return str(wp.get_device(device))
-    except Exception as exc:
-        have = ", ".join(str(d) for d in wp.get_devices())
-        raise DesignError(f"device {device!r} is not available ({exc}); devices here: {have}") from None
+#: default of the Simulator's simulation keywords: the value of ``settings`` (SimulationSettings' default)
+FROM_SETTINGS = _FromSettings()
 
 
 class Simulator:
     """Simulate a design: positions, velocities, air, IPAM pressures, jamming, stepping.
 
-    ``worlds`` > 1 runs that many independent copies of the design in one batch (one launch per
-    kernel); array properties then carry a leading world axis.
+    The simulation options come from ``settings`` (a ``SimulationSettings``; its defaults when None:
+    integrator "rk4", dt 1e-3 s, precision "float32", bending "exact", automatic substeps, launch mode
+    "graph", re-estimate every 1000 internal steps); each keyword given explicitly overrides the
+    matching setting. ``worlds`` > 1 runs that many independent copies of the design in one batch
+    (one launch per kernel); array properties then carry a leading world axis.
     """
 
-    def __init__(self, design: Design, device: str = "cpu", integrator: str = "rk4", dt: float = 1e-3,
-                 precision: str = "float32", bending: str = "exact", substeps: int | None = None,
-                 worlds: int = 1, launch_mode: str = "graph", reestimate_every: int = 1000):
+    def __init__(self, design: Design, device: str = "cpu", integrator: str = FROM_SETTINGS,
+                 dt: float = FROM_SETTINGS, precision: str = FROM_SETTINGS, bending: str = FROM_SETTINGS,
+                 substeps: int | None = FROM_SETTINGS, worlds: int = 1, launch_mode: str = FROM_SETTINGS,
+                 reestimate_every: int = FROM_SETTINGS, settings: SimulationSettings | None = None):
         if not isinstance(design, Design):
             raise DesignError(f"Simulator needs a ws.Design, got {type(design).__name__}")
-        if bending not in ("exact", "paper"):
-            raise DesignError(f"bending must be 'exact' or 'paper', got {bending!r}")
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-            raise DesignError(f"dt must be a positive number of seconds, got {dt!r}")
-        if substeps is not None and (not isinstance(substeps, (int, np.integer)) or substeps < 1):
-            raise DesignError(f"substeps must be None (automatic) or an integer >= 1, got {substeps!r}")
-        if not isinstance(worlds, (int, np.integer)) or worlds < 1:
+        if settings is not None and not isinstance(settings, SimulationSettings):
+            raise DesignError(f"settings must be a SimulationSettings or None, got {type(settings).__name__}")
+        given = dict(integrator=integrator, dt=dt, precision=precision, bending=bending, substeps=substeps,
+                     launch_mode=launch_mode, reestimate_every=reestimate_every)
+        self.settings = (settings or SimulationSettings()).replace(
+            **{k: v for k, v in given.items() if v is not FROM_SETTINGS})
+        if isinstance(worlds, (bool, np.bool_)) or not isinstance(worlds, (int, np.integer)) or worlds < 1:
             raise DesignError(f"worlds must be an integer >= 1, got {worlds!r}")
-        if launch_mode not in LAUNCH_MODES:
-            raise DesignError(f"launch_mode must be one of {LAUNCH_MODES}, got {launch_mode!r}")
         wp.init()
-        self.device = _check_device(device)
+        s = self.settings
+        self.device = check_device(device)
         self.design = design
-        self.dt = float(dt)
-        self.bending = bending
+        self.dt, self.bending, self.precision = s.dt, s.bending, s.precision
+        self.launch_mode, self.reestimate_every = s.launch_mode, s.reestimate_every
         self.worlds = int(worlds)
-        self.launch_mode = launch_mode
-        self.reestimate_every = int(reestimate_every)
-        self._fixed_substeps = None if substeps is None else int(substeps)
-        self.model = build_model(design, self.device, precision)
-        self.precision = precision
-        self.state = State(self.model, self.worlds)
-        m = self.model
-        self._rest_volume = design.rest.volume()
-        air0 = m.atmospheric_pressure * self._rest_volume / (GAS_CONSTANT * m.temperature)
+        self.model = m = build_model(design, self.device, s.precision)
+        self.state = State(m, self.worlds)
+        air0 = m.atmospheric_pressure * design.rest.volume() / (GAS_CONSTANT * m.temperature)
         self.control = Control(m, self.worlds, air0)
-        self.solver = make_solver(integrator, m, self.state, self.control, paper_bending=(bending == "paper"))
+        self.solver = make_solver(s.integrator, m, self.state, self.control, paper_bending=(s.bending == "paper"))
         self.integrator = self.solver.name
         # probe buffers for read-outs outside the step loop
         self._fg_probe = wp.zeros_like(self.solver.fg)  # (2, W, V) forces, dV/dx
-        self._f_probe = self._fg_probe[0]
-        self._vol_probe = wp.zeros(self.worlds, dtype=wp.float64, device=self.device)
-        self._vol2_probe = wp.zeros((self.worlds, 1), dtype=wp.float64, device=self.device)
+        self._vol_probe = wp.zeros(self.worlds, dtype=wp.float64, device=self.device)  # (W,)
+        self._vol2_probe = wp.zeros((self.worlds, 1), dtype=wp.float64, device=self.device)  # (W, 1)
+        self._edge_len = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)  # (W, E)
+        self._edge_ang = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)  # (W, E)
         # blow-up codes written by the step's last kernel; on CPU the host reads them in place
         self._status = self.solver.status
         self._status_host = self._status.numpy() if self._status.device.is_cpu else None
-        self._edge_len = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)
-        self._edge_ang = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)
-        # stepping plan
-        self._h = None
+        # stepping: the plan of one internal step, rebuilt when the stable estimate changes the step
+        self.plan = StepPlan(self.device, s.launch_mode)
         self._substeps = None
         self._dt_stable = None
-        self._plan = None  # recorded launches or a captured graph of one internal step
-        self.step_kernels: list[str] = []  # kernel names launched by one internal step
         self._dirty = True
         self._geometry_version = 0  # bumped when positions are set (invalidates the cached elastic bound)
         self._elastic_cache = None
@@ -121,6 +116,9 @@ class Simulator:
         if not np.all(np.isfinite(a)):
             raise DesignError(f"{name} must be finite; got non-finite values")
         return np.ascontiguousarray(a)
+
+    def _direct(self, kernel, dim, inputs):
+        wp.launch(kernel, dim, inputs, device=self.device)
 
     # ------------------------------------------------------------------ state access
     @property
@@ -159,11 +157,13 @@ class Simulator:
         self.control.air.assign(a)
         self._dirty = True
 
+    def _ipam_pressure(self) -> np.ndarray:
+        return self.control.ipam_pressure.numpy()[:, : self.model.n_ipams]
+
     @property
     def ipam_pressures(self) -> np.ndarray:
         """(n_ipam,) IPAM gauge pressures in Pa ((W, n_ipam) with several worlds)."""
-        a = self.control.ipam_pressure.numpy()[:, : self.model.n_ipams].copy()
-        return self._out(a)
+        return self._out(self._ipam_pressure().copy())
 
     @ipam_pressures.setter
     def ipam_pressures(self, value):
@@ -204,41 +204,29 @@ class Simulator:
                 mask[w] = 1
         if not mask.any():
             return
-        edges = m.cell_edges[cell]
-        st = self.state
-        wp.launch(ki.jam_edges_kernel, (self.worlds, edges.shape[0]),
-                  [m.hinges, edges, wp.array(mask, dtype=wp.int32, device=self.device),
-                   m.scalar(m.jam_stretch_factor), m.scalar(m.jam_bend_factor), st.x, st.edge, st.jammed],
-                  device=self.device)
-        st.cell_jammed[mask.astype(bool), cell] = True
-        st.cell_jam_time[mask.astype(bool), cell] = self.time
+        eval_jam(m, self.state, cell, wp.array(mask, dtype=wp.int32, device=self.device), self._direct)
+        self.state.cell_jammed[mask.astype(bool), cell] = True
+        self.state.cell_jam_time[mask.astype(bool), cell] = self.time
         self._dirty = True
 
     # ------------------------------------------------------------------ read-outs
-    def _direct(self, kernel, dim, inputs):
-        wp.launch(kernel, dim, inputs, device=self.device)
-
     def forces(self, term: str | None = None) -> np.ndarray:
         """Total force on every vertex (N), all terms and damping included; or one term of
         ``FORCE_TERMS`` ('spring' (with its dampers), 'bending', 'pressure', 'ipam', 'viscous')."""
-        terms = FORCE_TERMS
-        if term is not None:
-            if term not in FORCE_TERMS:
-                raise DesignError(f"unknown force term {term!r}; choose one of {FORCE_TERMS}")
-            terms = (term,)
-        st = self.state
+        if term is not None and term not in FORCE_TERMS:
+            raise DesignError(f"unknown force term {term!r}; choose one of {FORCE_TERMS}")
+        st, paper = self.state, self.bending == "paper"
         if term is None:  # the total goes through the same fused kernels as a step
             eval_forces_fused(self.model, st, self.control, self._fg_probe, self._vol2_probe, self._direct,
-                              paper_bending=(self.bending == "paper"))
+                              paper_bending=paper)
         else:
-            eval_forces(self.model, st, self.control, st.x, st.v, self._f_probe, self._vol_probe, self._direct,
-                        paper_bending=(self.bending == "paper"), terms=terms)
-        return self._out(self._f_probe.numpy().astype(np.float64))
+            eval_forces(self.model, st, self.control, st.x, st.v, self._fg_probe[0], self._vol_probe, self._direct,
+                        paper_bending=paper, terms=(term,))
+        return self._out(self._fg_probe[0].numpy().astype(np.float64))
 
     def _volumes(self) -> np.ndarray:
         self._vol_probe.zero_()
-        self._direct(km.eval_volume_kernel, (self.worlds, self.model.n_faces),
-                     [self.model.faces, self.state.x, self._vol_probe])
+        eval_volume(self.model, self.state.x, self._vol_probe, self._direct)
         return self._vol_probe.numpy().copy()
 
     def volume(self):
@@ -249,34 +237,28 @@ class Simulator:
     def pressure(self):
         """Chamber gauge pressure n R T / V - p_atm in Pa."""
         m = self.model
-        p = self.control.air.numpy() * m.gas_rt / self._volumes() - m.atmospheric_pressure
+        p = gauge_pressure_np(self.control.air.numpy(), self._volumes(), m.gas_rt, m.atmospheric_pressure)
         return float(p[0]) if self.worlds == 1 else p
-
-    def _ipam_geometry(self):
-        h = self.model.host
-        x = self.state.x.numpy().astype(np.float64)
-        fa, fb = h.faces[h.ipam_faces[:, 0]], h.faces[h.ipam_faces[:, 1]]
-        length = np.linalg.norm(x[:, fb].mean(axis=2) - x[:, fa].mean(axis=2), axis=-1)  # (W, n_ipam)
-        p = self.control.ipam_pressure.numpy()[:, : self.model.n_ipams]
-        natural = h.ipam_free_length + h.ipam_area_over_k * p
-        return length, natural
 
     def ipam_lengths(self) -> np.ndarray:
         """(n_ipam,) distance between the centroids of each IPAM's end faces (m)."""
+        h = self.model.host
         if self.model.n_ipams == 0:
             return self._out(np.zeros((self.worlds, 0)))
-        return self._out(self._ipam_geometry()[0])
+        return self._out(ipam_lengths_np(self.state.x.numpy().astype(np.float64), h.faces, h.ipam_faces))
 
     def ipam_forces(self) -> np.ndarray:
         """(n_ipam,) axial force k (L - L_n) in N, positive = tension."""
+        h = self.model.host
         if self.model.n_ipams == 0:
             return self._out(np.zeros((self.worlds, 0)))
-        length, natural = self._ipam_geometry()
-        return self._out(self.model.host.ipam_stiffness * (length - natural))
+        length = ipam_lengths_np(self.state.x.numpy().astype(np.float64), h.faces, h.ipam_faces)
+        natural = natural_length_np(h.ipam_free_length, h.ipam_area_over_k, self._ipam_pressure())
+        return self._out(axial_force_np(h.ipam_stiffness, length, natural))
 
     def edge_state(self):
         """Current (lengths, dihedral angles) of every edge, each (E,) (or (W, E))."""
-        self._direct(km.edge_state_kernel, (self.worlds, self.model.n_edges),
+        self._direct(kc.edge_state_kernel, (self.worlds, self.model.n_edges),
                      [self.model.hinges, self.state.x, self._edge_len, self._edge_ang])
         return self._out(self._edge_len.numpy().astype(np.float64)), self._out(self._edge_ang.numpy().astype(np.float64))
 
@@ -290,27 +272,16 @@ class Simulator:
         x = st.x.numpy().astype(np.float64)
         v = st.v.numpy().astype(np.float64)
         jam = st.jammed.numpy().astype(bool)
-        hinges = h.hinges
-        kinetic = 0.5 * np.einsum("v,wvi,wvi->w", h.mass, v, v)
-        length = np.linalg.norm(x[:, hinges[:, 1]] - x[:, hinges[:, 0]], axis=-1)
-        k = h.edge_stiffness * np.where(jam, m.jam_stretch_factor, 1.0)
-        spring = 0.5 * np.sum(k * (length - st.rest_length.numpy()) ** 2, axis=1)
-        bend = np.zeros(self.worlds)
+        zero = np.zeros(self.worlds)
+        k = h.edge_stiffness * jammed_factor_np(jam, m.jam_stretch_factor)
+        out = dict(kinetic=0.5 * np.einsum("v,wvi,wvi->w", h.mass, v, v),
+                   spring=spring_energy_np(x, h.hinges, st.rest_length.numpy(), k), bending=zero,
+                   gas=gas_energy_np(volumes_np(x, h.faces), self.control.air.numpy(), m.gas_rt,
+                                     m.atmospheric_pressure),
+                   ipam=ipam_energy_np(x, h, self._ipam_pressure()) if m.has_ipams else zero)
         if m.has_bending:
-            kt = m.bending_stiffness * np.where(jam, m.jam_bend_factor, 1.0)
-            theta = dihedral_angles_np(x, hinges)
-            bend = 0.5 * np.sum(kt * (theta - st.rest_angle.numpy()) ** 2, axis=1)
-        vol = volumes_np(x, h.faces)
-        air = self.control.air.numpy()
-        gas = m.atmospheric_pressure * vol - air * m.gas_rt * np.log(vol)
-        ipam = np.zeros(self.worlds)
-        if m.has_ipams:
-            pairs = h.ipam_sub_pairs
-            p = self.control.ipam_pressure.numpy()[:, : m.n_ipams]
-            natural = np.repeat(h.ipam_free_length + h.ipam_area_over_k * p, 3, axis=1) + h.ipam_sub_offsets
-            d = np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1)
-            ipam = 0.5 * np.sum(np.repeat(h.ipam_stiffness / 3.0, 3) * (d - natural) ** 2, axis=1)
-        out = dict(kinetic=kinetic, spring=spring, bending=bend, gas=gas, ipam=ipam)
+            kt = m.bending_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
+            out["bending"] = bending_energy_np(x, h.hinges, st.rest_angle.numpy(), kt)
         out["total"] = sum(out.values())
         return {key: (float(val[0]) if self.worlds == 1 else val) for key, val in out.items()}
 
@@ -318,7 +289,7 @@ class Simulator:
     def stable_dt(self) -> float:
         """Current conservative stable internal step (s), the minimum over worlds.
 
-        The elastic part of the bound (a short Lanczos run, see solver.elastic_omega2_bound) is
+        The elastic part of the bound (a short Lanczos run, see stability.elastic_omega2_bound) is
         cached until a cell jams, positions are set or ``reestimate_every`` internal steps pass; air
         changes only re-evaluate the cheap pressure and gas terms."""
         m, st = self.model, self.state
@@ -344,61 +315,22 @@ class Simulator:
         """Internal step dt / substeps in s."""
         return self.dt / self.substeps
 
+    @property
+    def step_kernels(self) -> list[str]:
+        """Kernel names launched by one internal step."""
+        return self.plan.kernel_names
+
     def _update_plan(self):
         self._dt_stable = self.stable_dt()
-        if self._fixed_substeps is None:
-            n = substeps_for(self.dt, self._dt_stable)
-        else:
-            n = self._fixed_substeps
-            h = self.dt / n
-            if h > self._dt_stable:
-                safe = self._dt_stable * n
-                raise StabilityError(
-                    f"internal step dt/substeps = {h:.4g} s is beyond the stable step estimate "
-                    f"{self._dt_stable:.4g} s of this model ({self.integrator}, current stiffness and pressure); "
-                    f"use dt <= {safe:.4g} s with substeps={n}, substeps >= {substeps_for(self.dt, self._dt_stable)}, "
-                    f"or substeps=None to choose automatically")
+        fixed = self.settings.substeps
+        n = substeps_for(self.dt, self._dt_stable) if fixed is None else fixed
         h = self.dt / n
+        if fixed is not None:
+            check_fixed_step(self.dt, n, self._dt_stable, self.integrator)
         self._substeps = n
-        if h != self._h or self._plan is None:
-            self._h = h
-            self._build_plan(h)
+        if h != self.plan.h or not self.plan.built:
+            self.plan.build(self.solver, h)
         self._dirty = False
-
-    def _build_plan(self, h: float):
-        names: list[str] = []
-        cmds: list = []
-
-        def record(kernel, dim, inputs):
-            names.append(kernel.key)
-            cmds.append(wp.launch(kernel, dim, inputs, device=self.device, record_cmd=True))
-
-        self.solver.step(h, record)
-        self.step_kernels = names
-        self._plan = ("record", cmds)
-        if self.launch_mode == "direct":
-            self._plan = ("direct", None)
-        elif self.launch_mode == "graph":
-            try:
-                with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
-                    for cmd in cmds:
-                        cmd.launch()
-                self._plan = ("graph", capture.graph)
-            except Exception:  # capture unsupported here: recorded launches are the next best
-                self._plan = ("record", cmds)
-
-    def _run_internal(self, count: int):
-        kind, plan = self._plan
-        if kind == "graph":
-            for _ in range(count):
-                wp.capture_launch(plan)
-        elif kind == "record":
-            for _ in range(count):
-                for cmd in plan:
-                    cmd.launch()
-        else:
-            for _ in range(count):
-                self.solver.step(self._h, self._direct)
 
     def _check(self):
         # the step kernels flag blow-ups; status stays zero until one (zeroed again once reported)
@@ -406,14 +338,7 @@ class Simulator:
         if status.any():
             status = status.copy()
             self._status.zero_()
-            w = int(np.argmax(status))
-            safe = 0.5 * min(self._dt_stable, self._h)
-            raise SimulationError(
-                f"simulation blew up at output step {self.step_count} (t = {self.time:.6g} s, world {w}): "
-                f"{_BLOWUP[int(status[w])]} with internal step {self._h:.4g} s; stable estimate "
-                f"{self._dt_stable:.4g} s. Try a smaller step, e.g. dt = {safe:.3g} s with substeps=1, "
-                f"or check the inputs (air, pressures, stiffness) for extreme values",
-                step=self.step_count, quantity=_BLOWUP[int(status[w])].split(" ")[0], safe_dt=safe, world=w)
+            raise blowup_error(status, self.step_count, self.time, self.plan.h, self._dt_stable)
 
     def step(self, n: int = 1) -> None:
         """Advance n output steps of dt (each ``substeps`` internal steps), checking for blow-up."""
@@ -425,7 +350,7 @@ class Simulator:
                 self._dirty = True
             if self._dirty:
                 self._update_plan()
-            self._run_internal(self._substeps)
+            self.plan.run(self._substeps)
             self._internal_steps += self._substeps
             self.step_count += 1
             self.time += self.dt

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..design import Design
 from ..material import GAS_CONSTANT
-from ..model import volumes_np
+from ..physics.ipam import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
+from ..physics.pressure import volumes_np
 from ..sampling import RadialSampler, pcc
 
 __all__ = ["DeviceConstants", "Observation", "Observer", "cell_anchor_faces", "ipam_lengths_and_forces",
@@ -86,10 +87,10 @@ def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray,
     W = centroids.shape[0]
     if not dev.n_ipam:
         return np.zeros((W, 0)), np.zeros((W, 0)), np.zeros((W, 0))
-    a, b = dev.ipam_faces[:, 0], dev.ipam_faces[:, 1]
-    length = np.linalg.norm(centroids[:, b] - centroids[:, a], axis=2)
-    target = np.linalg.norm(target_centroids[:, b] - target_centroids[:, a], axis=2)
-    force = dev.ipam_stiffness * (length - (dev.ipam_free_length + dev.ipam_area_over_k * pressures))
+    length = centroid_distances_np(centroids, dev.ipam_faces)
+    target = centroid_distances_np(target_centroids, dev.ipam_faces)
+    force = axial_force_np(dev.ipam_stiffness, length,
+                           natural_length_np(dev.ipam_free_length, dev.ipam_area_over_k, pressures))
     return length, target, force
 
 
@@ -97,7 +98,7 @@ def ipam_neutral_pressures(lengths: np.ndarray, dev: DeviceConstants) -> np.ndar
     """(W, n_ipam) the gauge pressures (within limits) whose natural length is the current length:
     an IPAM held at such a pressure exerts no force."""
     lim = dev.ipam_limits
-    return np.clip((lengths - dev.ipam_free_length) / dev.ipam_area_over_k, lim[:, 0], lim[:, 1])
+    return np.clip(pressure_for_length_np(dev.ipam_free_length, dev.ipam_area_over_k, lengths), lim[:, 0], lim[:, 1])
 
 
 @dataclass

@@ -1,0 +1,139 @@
+"""Time integrators: advance the State by one internal step with the Control held (RK4, semi-implicit)."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from warp_shape.kernels import integrate as ki
+
+from .errors import SimulationError
+from .forces import eval_hinges
+from .model import Control, Model, State
+from .physics import Launch
+from .physics.damping import eval_init_step
+from .physics.ipam import eval_ipams
+from .settings import SimulationSettings
+
+__all__ = ["Solver", "RK4Solver", "SemiImplicitSolver", "make_solver", "blowup_error", "INTEGRATORS", "BLOWUP_CODES"]
+
+#: the status codes the step kernels write (kernels/integrate.flag_blowup), worst first
+BLOWUP_CODES = {4: "positions became non-finite", 3: "velocities became non-finite",
+                2: "positions ran away (a vertex left the region around the device)",
+                1: "speeds ran away (a vertex crossed the device in one internal step)"}
+
+
+class Solver:
+    """Advances State by one internal step h with Control held constant."""
+
+    name = "base"
+    order = 0
+    # dt_stable = stability_constant / (omega_max + gamma_max)
+    stability_constant = 1.0
+
+    def __init__(self, model: Model, state: State, control: Control, paper_bending: bool = False):
+        self.model, self.state, self.control = model, state, control
+        self.paper_bending = paper_bending
+        W, V = state.x.shape
+        dev = model.device
+        self.fg = wp.zeros((2, W, V), dtype=model.vec3, device=dev)  # forces without pressure; dV/dx
+        self.f, self.gradv = self.fg[0], self.fg[1]  # (W, V) views
+        self.volume = wp.zeros((W, 4), dtype=wp.float64, device=dev)  # volume at each stage point
+        # blow-up bounds, checked by the kernel that writes the new state
+        rest = model.host.rest_vertices
+        center = rest.mean(axis=0)
+        self.size = float(2.0 * np.linalg.norm(rest - center, axis=1).max())  # m
+        self.x_bound = float(np.linalg.norm(center) + 50.0 * self.size)  # |x| beyond this (m) is a blow-up
+        self.status = wp.zeros(W, dtype=wp.int32, device=dev)  # (W,) worst blow-up code since last cleared
+
+    def check_args(self, h: float) -> list:
+        """Blow-up bounds for internal step h: |x| and |v| (one mesh size per step)."""
+        return [self.model.scalar(self.x_bound), self.model.scalar(self.size / h)]
+
+    def pressure_args(self) -> list:
+        """R T (J/mol) and p_atm (Pa) as the kernels take them."""
+        m = self.model
+        return [wp.float64(m.gas_rt), wp.float64(m.atmospheric_pressure)]
+
+    def begin(self, launch: Launch):
+        """Start the first force evaluation of a step at the current state."""
+        eval_init_step(self.model, self.state.xv, self.fg, self.volume, launch)
+
+    def forces(self, xv, x, v, slot: int, launch: Launch):
+        """Accumulate every force family but pressure (applied by the stage kernel) at xv = (x, v)."""
+        eval_hinges(self.model, self.state, xv, self.fg, self.volume, slot, launch, self.paper_bending)
+        eval_ipams(self.model, x, v, self.control, self.f, launch)
+
+    def step(self, h: float, launch: Launch):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class SemiImplicitSolver(Solver):
+    """Symplectic Euler: first order, one force evaluation per step."""
+
+    name = "semi_implicit"
+    order = 1
+    stability_constant = 1.9  # omega h < 2 for the undamped oscillator
+
+    def step(self, h: float, launch: Launch):
+        st, m = self.state, self.model
+        W, V = st.x.shape
+        self.begin(launch)
+        self.forces(st.xv, st.x, st.v, 0, launch)
+        launch(ki.integrate_semi_implicit_fused, (W * V,),
+               [m.inv_mass, *self.pressure_args(), m.scalar(h), W, V, *self.check_args(h), self.control.air,
+                self.fg, self.volume, st.xv, self.status])
+
+
+class RK4Solver(Solver):
+    """Classical explicit fourth-order Runge-Kutta (the paper's reference integrator)."""
+
+    name = "rk4"
+    order = 4
+    stability_constant = 2.5  # RK4 reaches |lambda h| ~ 2.8 on both axes
+
+    def __init__(self, model: Model, state: State, control: Control, paper_bending: bool = False):
+        super().__init__(model, state, control, paper_bending)
+        shape, dev, vec3 = state.xv.shape, model.device, model.vec3
+        self.stage_xv = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) the next stage point
+        self.xs, self.vs = self.stage_xv[0], self.stage_xv[1]
+        self.acc = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) weighted slope sums
+
+    def step(self, h: float, launch: Launch):
+        st, m = self.state, self.model
+        W, V = st.x.shape
+        hs = m.scalar(h)
+        self.begin(launch)
+        for stage in range(4):
+            if stage == 0:
+                self.forces(st.xv, st.x, st.v, stage, launch)
+            else:
+                self.forces(self.stage_xv, self.xs, self.vs, stage, launch)
+            launch(ki.rk4_stage_fused, (W * V,),
+                   [m.inv_mass, m.scalar(m.viscous_damping), *self.pressure_args(), hs, stage, W, V,
+                    *self.check_args(h), self.control.air, self.volume, self.fg, st.xv, self.stage_xv, self.acc,
+                    self.status])
+
+
+INTEGRATORS = {"rk4": RK4Solver, "semi_implicit": SemiImplicitSolver}
+
+
+def make_solver(integrator: str, model: Model, state: State, control: Control, paper_bending: bool = False) -> Solver:
+    """The solver for an integrator name ('rk4', 'semi_implicit' and the aliases SimulationSettings
+    accepts); unknown names raise ``DesignError``."""
+    key = SimulationSettings(integrator=integrator).integrator
+    return INTEGRATORS[key](model, state, control, paper_bending)
+
+
+def blowup_error(status: np.ndarray, step: int, time: float, h: float, dt_stable: float) -> SimulationError:
+    """The error for the worst blow-up code in status (W,) (see BLOWUP_CODES), found after output step
+    ``step`` at time ``time`` (s) with internal step h (s) and stable estimate dt_stable (s)."""
+    w = int(np.argmax(status))
+    safe = 0.5 * min(dt_stable, h)
+    what = BLOWUP_CODES[int(status[w])]
+    return SimulationError(
+        f"simulation blew up at output step {step} (t = {time:.6g} s, world {w}): "
+        f"{what} with internal step {h:.4g} s; stable estimate "
+        f"{dt_stable:.4g} s. Try a smaller step, e.g. dt = {safe:.3g} s with substeps=1, "
+        f"or check the inputs (air, pressures, stiffness) for extreme values",
+        step=step, quantity=what.split(" ")[0], safe_dt=safe, world=w)
