@@ -19,6 +19,7 @@ from warp_shape.design import Design
 from warp_shape.errors import DesignError
 from warp_shape.material import GAS_CONSTANT
 from warp_shape.model import host_model
+from warp_shape.physics.ipam import natural_length_np
 
 __all__ = ["NumpyMembrane"]
 
@@ -193,8 +194,8 @@ class NumpyMembrane:
             d = x[:, pb] - x[:, pa]
             dl = np.sqrt(_dot(d, d))
             dh = d / dl
-            natural = np.repeat(self.host.ipam_free_length + self.host.ipam_area_over_k * self.ipam_pressures,
-                                3) + self.sub_offsets
+            natural = natural_length_np(self.host.ipam_free_length, self.host.ipam_area_over_k, self.ipam_pressures)
+            natural = np.repeat(natural, 3) + self.sub_offsets
             fi = dh * (self.k_sub * (dl - natural) + self.c_sub * _dot(v[:, pb] - v[:, pa], dh))
             parts += [fi, -fi]
         vals = np.concatenate(parts, axis=1)
@@ -224,8 +225,8 @@ class NumpyMembrane:
         ipam = 0.0
         if self.n_ipams:
             d = x[:, self._pb] - x[:, self._pa]
-            natural = np.repeat(self.host.ipam_free_length + self.host.ipam_area_over_k * self.ipam_pressures,
-                                3) + self.sub_offsets
+            natural = natural_length_np(self.host.ipam_free_length, self.host.ipam_area_over_k, self.ipam_pressures)
+            natural = np.repeat(natural, 3) + self.sub_offsets
             ipam = 0.5 * float(np.sum(self.k_sub * (np.sqrt(_dot(d, d)) - natural) ** 2))
         out = dict(kinetic=kinetic, spring=spring, bending=bending, gas=gas, ipam=ipam)
         out["total"] = sum(out.values())

@@ -25,7 +25,7 @@ from .mesh import TriMesh
 
 __all__ = [
     "RadialSampler", "radial_sample", "check_star_shaped", "fibonacci_directions",
-    "pcc", "mare", "mpre", "shape_metrics", "radial_metrics",
+    "pcc", "mare", "mpre", "shape_metrics", "fit_objective", "radial_metrics",
 ]
 
 # Tilt (rad) of the retry rays cast when a ray slips between faces at a vertex or edge.
@@ -330,6 +330,24 @@ def mpre(r, R) -> float:
     if np.any(R <= 0):
         raise ShapeError(f"MPRE: sampled radius R[{int(np.flatnonzero(R <= 0)[0])}] is not positive")
     return float(100.0 * np.mean(np.abs(r - R) / R))
+
+
+def fit_objective(r, R, target_volume: float, weights=None) -> float:
+    """The fit objective: the weighted RMS of the scaled radial error (R - r) / V_t^(1/3) (unitless).
+
+    r: design radii, R: sampled target radii (same directions), target_volume: V_t in m^3, weights:
+    the area each sample stands for (e.g. the sampled target's vertex areas; None: equal). 0 is a
+    perfect fit; 0.01 is a radial error of about 1 % of the target's size. Used by the controller's
+    stopping rule, the designer and every report, with PCC, MARE and MPRE beside it.
+    """
+    r, R = _pair(r, R, "objective")
+    if not (np.isfinite(target_volume) and target_volume > 0):
+        raise ShapeError(f"objective: the target volume must be positive, got {target_volume} m^3")
+    w = np.ones_like(r) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != r.shape or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+        raise ShapeError(f"objective: weights must be {r.size} finite non-negative numbers, not all zero")
+    e = (R - r) / float(target_volume) ** (1.0 / 3.0)
+    return float(np.sqrt(np.sum(w * e * e) / np.sum(w)))
 
 
 def radial_metrics(r, R) -> dict:

@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ShapeError
+from .errors import DesignError, ShapeError
 from .mesh import TriMesh, icosphere
 
-__all__ = ["TARGET_NAMES", "DEFAULT_VOLUME", "DEFAULT_RESOLUTION", "target", "write_targets"]
+__all__ = ["TARGET_NAMES", "DEFAULT_VOLUME", "DEFAULT_RESOLUTION", "target", "write_targets", "centred_targets"]
 
 TARGET_NAMES = ("oval", "pear", "heart", "cube")
 DEFAULT_VOLUME = 4.0 / 3.0 * np.pi * 0.04**3  # m^3, a 4 cm radius sphere (~2.68e-4)
@@ -166,6 +166,20 @@ def target(name: str, volume: float | None = None, resolution: int = DEFAULT_RES
     if not 1 <= res <= 6:
         raise ShapeError(f"target resolution must be in 1..6, got {resolution}")
     return _build(key, vol, res)
+
+
+def centred_targets(targets, job: str) -> list[TriMesh]:
+    """One target or a list of them as a list of meshes centred on their volume centroids; a clear
+    error (naming ``job``, e.g. "control") for an empty list or anything that is not a TriMesh."""
+    if isinstance(targets, TriMesh):
+        targets = [targets]
+    targets = list(targets)
+    if not targets:
+        raise DesignError(f"{job} needs at least one target shape")
+    for t in targets:
+        if not isinstance(t, TriMesh):
+            raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('heart')), got {type(t).__name__}")
+    return [t.centered() for t in targets]
 
 
 def write_targets(directory, *, fmt: str = "ply", resolution: int = DEFAULT_RESOLUTION) -> list[Path]:

@@ -12,6 +12,7 @@ from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
+from ..targets import centred_targets
 from ..settings import SimulationSettings
 from .history import History
 from .laws import LAWS, Controls, PaperLaw
@@ -28,15 +29,7 @@ def _checked_targets(design, targets) -> list[TriMesh]:
     """The targets as a list of centred meshes; clear errors for a wrong design or target."""
     if not isinstance(design, Design):
         raise DesignError(f"control needs a ws.Design, got {type(design).__name__}")
-    if isinstance(targets, TriMesh):
-        targets = [targets]
-    targets = list(targets)
-    if not targets:
-        raise DesignError("control needs at least one target")
-    for t in targets:
-        if not isinstance(t, TriMesh):
-            raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('cube')), got {type(t).__name__}")
-    return [t.centered() for t in targets]
+    return centred_targets(targets, "control")
 
 
 def _passive_mask(spec, W: int, n: int, what: str) -> np.ndarray:

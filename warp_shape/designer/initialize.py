@@ -10,6 +10,7 @@ from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..sampling import RadialSampler
+from ..targets import centred_targets
 
 __all__ = ["check_request", "check_targets", "initial_rest_shape", "check_cell_room", "copy_design"]
 
@@ -25,20 +26,13 @@ def check_request(base, actuators) -> None:
 def check_targets(targets, target_names) -> tuple[list[TriMesh], list[str]]:
     """The targets centred on their volume centroids, and their names; errors for no target, a
     non-mesh, a wrong number of names, a duplicate name or the same shape given twice."""
-    if isinstance(targets, TriMesh):
-        targets = [targets]
-    targets = list(targets)
-    if not targets:
-        raise DesignError("design needs at least one target shape")
-    for t in targets:
-        if not isinstance(t, TriMesh):
-            raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('heart')), got {type(t).__name__}")
+    targets = centred_targets(targets, "design")
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(targets))]
     if len(names) != len(targets):
         raise DesignError(f"{len(names)} target names for {len(targets)} targets")
     if len(set(names)) != len(names):
         raise DesignError(f"duplicate target names {names}; give each target once")
-    centred = [t.centered() for t in targets]
+    centred = targets
     for a in range(len(centred)):
         for b in range(a):
             ta, tb = centred[a], centred[b]
