@@ -43,8 +43,8 @@ class ControlSequence:
 
 
 def record_sequence(design, target, **control_overrides) -> ControlSequence:
-    """Run the controller once and keep what it commanded."""
-    res = control(design, target, **control_overrides)
+    """Run the controller (the paper's law unless ``method`` is given) once and keep what it commanded."""
+    res = control(design, target, **{"method": "paper", **control_overrides})
     h = res.history
     n0 = h["air_mol"][0]
     P = np.stack([h[f"ipam{i}_pressure_pa"] for i in range(design.n_ipams)], axis=1) if design.n_ipams \

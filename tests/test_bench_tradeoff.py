@@ -13,7 +13,7 @@ from warp_shape.scenarios import cube_fig6_design
 def test_replaying_the_recorded_sequence_reproduces_the_controlled_shape():
     design = cube_fig6_design(subdivisions=2)
     cube = ws.target("cube")
-    result = control(design, cube)
+    result = control(design, cube, method="paper")
     seq = record_sequence(design, cube)
     assert seq.steps == result.control_steps + 1
     assert np.array_equal(seq.jam_step, result.jam_steps)

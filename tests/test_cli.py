@@ -43,7 +43,7 @@ def test_readme_example_runs():
 
 
 def test_control_command_writes_sequences(tmp_path, capsys):
-    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "60"])
+    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "60", "--method", "paper"])
     assert rc == 0
     data = json.loads((tmp_path / "control_cube.json").read_text())
     rows = (tmp_path / "control_cube.csv").read_text().strip().splitlines()
@@ -58,7 +58,8 @@ def test_control_command_records_rerun(tmp_path):
     from warp_shape.io.recorder import read_recording
 
     rrd = tmp_path / "run.rrd"
-    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "15", "--rerun", str(rrd)])
+    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "15", "--method", "paper",
+               "--rerun", str(rrd)])
     assert rc == 0 and rrd.stat().st_size > 1000
     rec = read_recording(rrd)
     data = json.loads((tmp_path / "control_cube.json").read_text())

@@ -21,14 +21,14 @@ def fig6():
     radial sampling does not cut the cube's corners by more than a fraction of a percent."""
     design = cube_fig6_design(subdivisions=4)
     cube = ws.target("cube")
-    return design, cube, control(design, cube)
+    return design, cube, control(design, cube, method="paper")
 
 
 @pytest.mark.parametrize("precision", ["float32", "float64"])
 def test_inflation_only_reaches_target_volume_without_overshoot(precision):
     design = ws.Design(ws.icosphere(3, 0.035))
     oval = ws.target("oval")
-    res = control(design, oval, simulation=SimulationSettings(precision=precision))
+    res = control(design, oval, method="paper", simulation=SimulationSettings(precision=precision))
     h = res.history
     assert res.converged, res.reason
     assert abs(res.volume_error) < 0.01
@@ -94,8 +94,8 @@ def test_history_exports(fig6, tmp_path):
 def test_path_dependence_jamming_matters():
     design = cube_fig6_design(subdivisions=3)
     cube = ws.target("cube")
-    with_rule = control(design, cube)
-    without = control(design, cube, jamming=False)
+    with_rule = control(design, cube, method="paper")
+    without = control(design, cube, method="paper", jamming=False)
     assert not without.jammed.any() and with_rule.jammed.any()
     diff = np.linalg.norm(with_rule.achieved.vertices - without.achieved.vertices, axis=1).max()
     assert diff > 1e-3, "jamming must change the achieved shape"
@@ -105,8 +105,8 @@ def test_path_dependence_jamming_matters():
 def test_determinism():
     design = cube_fig6_design(subdivisions=2)
     cube = ws.target("cube")
-    a = control(design, cube, max_steps=15)
-    b = control(design, cube, max_steps=15)
+    a = control(design, cube, method="paper", max_steps=15)
+    b = control(design, cube, method="paper", max_steps=15)
     assert a.history.keys() == b.history.keys()
     for k in a.history:
         np.testing.assert_array_equal(a.history[k], b.history[k], err_msg=k)
@@ -114,7 +114,7 @@ def test_determinism():
 
 def test_batch_of_targets():
     design = cube_fig6_design(subdivisions=2)
-    results = control_many(design, [ws.target("cube"), ws.target("oval")], max_steps=60)
+    results = control_many(design, [ws.target("cube"), ws.target("oval")], method="paper", max_steps=60)
     assert len(results) == 2
     for r in results:
         assert abs(r.volume_error) < 0.01 and np.all(np.isfinite(r.achieved.vertices))
@@ -134,7 +134,7 @@ def test_bad_targets_and_designs():
 def test_unreachable_target_is_reported_not_hung():
     design = ws.Design(ws.icosphere(2, 0.02))
     huge = ws.target("oval", volume=200 * design.rest.volume())
-    res = control(design, huge, max_steps=80)
+    res = control(design, huge, method="paper", max_steps=80)
     assert not res.converged
     assert "unreachable" in res.reason or "step limit" in res.reason
     assert np.all(np.isfinite(res.achieved.vertices)) and np.isfinite(res.pcc)
@@ -176,12 +176,12 @@ def test_coarse_membrane_does_not_oscillate():
     from warp_shape.designer import design as run_design
 
     d1 = run_design(ws.icosphere(2, 0.035), [ws.target("oval"), ws.target("heart")], actuators=1,
-                    target_names=["oval", "heart"]).designs[1]
+                    target_names=["oval", "heart"], control_settings=ControlSettings(method="paper")).designs[1]
     heart = ws.target("heart")
-    plain = control(d1, heart, max_steps=120, gain_backoff=1.0)  # the paper's laws as they are
+    plain = control(d1, heart, method="paper", max_steps=120, gain_backoff=1.0)  # the paper's laws as they are
     v = plain.history["volume_m3"][-10:] / plain.history["target_volume_m3"][-10:] - 1
     assert not plain.converged and np.ptp(v) > 0.05  # alternating by more than 5 % of the volume
-    res = control(d1, heart, max_steps=120)
+    res = control(d1, heart, method="paper", max_steps=120)
     assert res.converged, res.reason
     v = res.history["volume_m3"][-3:] / res.history["target_volume_m3"][-3:] - 1
     assert np.abs(v).max() < 0.01

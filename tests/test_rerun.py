@@ -69,7 +69,7 @@ def test_recording_carries_the_blueprint(recorded):
 
 def test_every_decimates_but_keeps_the_last_state(fig6, tmp_path):
     with Recorder(tmp_path / "every.rrd", every=4) as rec:
-        res = ws.control(fig6, ws.target("cube"), max_steps=10, recorder=rec, target_name="cube")
+        res = ws.control(fig6, ws.target("cube"), method="paper", max_steps=10, recorder=rec, target_name="cube")
     mem = read_recording(tmp_path / "every.rrd")["entities"]["/control/cube/membrane"]
     steps = list(mem["times"]["control_step"])
     last = int(res.history["step"][-1])
@@ -79,7 +79,7 @@ def test_every_decimates_but_keeps_the_last_state(fig6, tmp_path):
 
 
 def test_no_extra_launches_with_or_without_a_recorder(fig6, tmp_path):
-    kw = dict(max_steps=8, target_name="cube")
+    kw = dict(max_steps=8, target_name="cube", method="paper")
     without = count_control_launches(fig6, ws.target("cube"), **kw)
     with Recorder(tmp_path / "l.rrd") as rec:
         with_rec = count_control_launches(fig6, ws.target("cube"), recorder=rec, **kw)
@@ -132,9 +132,9 @@ def test_bad_every_is_refused():
 
 def test_in_memory_recording_and_two_recorders_side_by_side(fig6, tmp_path):
     mem, filed = Recorder(), Recorder(tmp_path / "f.rrd", every=2)
-    ws.control_many(fig6, [ws.target("cube"), ws.target("oval")], max_steps=3, recorder=mem,
+    ws.control_many(fig6, [ws.target("cube"), ws.target("oval")], method="paper", max_steps=3, recorder=mem,
                     target_names=["cube", "oval"])
-    ws.control(fig6, ws.target("cube"), max_steps=3, recorder=filed, target_name="cube")
+    ws.control(fig6, ws.target("cube"), method="paper", max_steps=3, recorder=filed, target_name="cube")
     mem.close()
     filed.close()
     (tmp_path / "m.rrd").write_bytes(mem.memory_bytes())

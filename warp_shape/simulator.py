@@ -154,8 +154,9 @@ class Simulator:
         a = self._per_world(value, (), "air_moles")
         if np.any(a < 0):
             raise DesignError(f"air_moles must be >= 0 mol, got {a.min()}")
-        self.control.air.assign(a)
-        self._dirty = True
+        if not np.array_equal(a, self.control.air.numpy()):  # the same air again changes no step
+            self.control.air.assign(a)
+            self._dirty = True
 
     def _ipam_pressure(self) -> np.ndarray:
         return self.control.ipam_pressure.numpy()[:, : self.model.n_ipams]

@@ -19,6 +19,9 @@ def register(subparsers) -> None:
     c.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
     c.add_argument("--precision", default="float32", choices=["float32", "float64"])
     c.add_argument("--max-steps", type=int, default=300, help="control-step limit")
+    c.add_argument("--method", default="inverse", choices=["inverse", "paper"],
+                   help="inverse: the paper's law as warm start, then model-based control (default); paper: the "
+                        "paper's law (eqs. 11-15)")
     c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
     c.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
@@ -49,7 +52,7 @@ def run(args) -> int:
 
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.target)
     names = [n for n, _ in targets]
-    settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming,
+    settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming, method=args.method,
                                simulation=SimulationSettings(integrator=args.integrator, precision=args.precision))
     with open_recorder(args) as rec:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,

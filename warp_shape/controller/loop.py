@@ -142,9 +142,10 @@ def _result(w: int, stop: _StopRule, history: History, jam_steps: np.ndarray, de
 
 def control_many(design: Design, targets, *, device: str = "cpu", settings: ControlSettings | None = None,
                  recorder=None, progress=None, passive_ipams=(), passive_cells=(), target_names=None,
-                 recorder_prefix: str = "control", **overrides) -> list[ControlResult]:
+                 recorder_prefix: str = "control", method: str | None = None, **overrides) -> list[ControlResult]:
     """Drive ``design`` to every target at once (one simulated world per target, each centred on its
-    volume centroid first) with the paper's law.
+    volume centroid first) with ``method`` (default ``settings.method``): ``"inverse"``, the paper's
+    law as warm start then model-based control (``controller.inverse``), or ``"paper"``, the paper's law.
 
     ``passive_ipams`` / ``passive_cells``: actuators left out of this control sequence (indices for
     every target, or one list per target). A passive IPAM's pressure tracks its current length
@@ -154,8 +155,16 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     """
     targets = _checked_targets(design, targets)
     settings = settings or ControlSettings()
+    if method is not None:
+        overrides["method"] = method
     if overrides:
         settings = settings.replace(**overrides)
+    if settings.method == "inverse":
+        from .inverse import control_inverse
+
+        return control_inverse(design, targets, device=device, settings=settings, progress=progress, recorder=recorder,
+                               recorder_prefix=recorder_prefix, passive_ipams=passive_ipams,
+                               passive_cells=passive_cells, target_names=target_names)
     W = len(targets)
     sampler = RadialSampler(targets, device=device)  # checks star-shape; raises ShapeError naming directions
     sim = _simulator(design, settings.simulation, device, W)
@@ -177,8 +186,9 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
 
 def control(design: Design, target: TriMesh, *, device: str = "cpu", settings: ControlSettings | None = None,
             recorder=None, progress=None, passive_ipams=(), passive_cells=(), target_name: str = "target",
-            **overrides) -> ControlResult:
-    """Drive ``design`` to one ``target`` (centred on its volume centroid first)."""
+            method: str | None = None, **overrides) -> ControlResult:
+    """Drive ``design`` to one ``target`` (centred on its volume centroid first) with ``method``
+    (``"inverse"`` or ``"paper"``, default ``settings.method``)."""
     return control_many(design, [target], device=device, settings=settings, recorder=recorder, progress=progress,
                         passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=[target_name],
-                        **overrides)[0]
+                        method=method, **overrides)[0]

@@ -38,6 +38,7 @@ class ControlResult:
     target: TriMesh | None = field(repr=False, default=None)
     passive_ipams: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # left out of this run
     passive_cells: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    refinement: dict | None = None  # method "inverse": plan, objectives, stop reason, saturation (controller.inverse)
 
     @property
     def actuator_summary(self) -> list[dict]:
@@ -61,4 +62,4 @@ class ControlResult:
                     ipam_pressures_pa=self.ipam_pressures.tolist(), jammed=self.jammed.tolist(),
                     jam_steps=self.jam_steps.tolist(), actuators=self.actuator_summary,
                     passive_ipams=self.passive_ipams.tolist(), passive_cells=self.passive_cells.tolist(),
-                    settings=asdict(self.settings))
+                    refinement=self.refinement, settings=asdict(self.settings))

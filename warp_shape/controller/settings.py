@@ -8,7 +8,9 @@ from dataclasses import dataclass, field, fields
 from ..errors import DesignError
 from ..settings import SimulationSettings, replace_settings
 
-__all__ = ["ControlSettings"]
+__all__ = ["ControlSettings", "METHODS"]
+
+METHODS = ("inverse", "paper")  # control methods: model-based (default), the paper's law
 
 
 @dataclass(frozen=True)
@@ -30,6 +32,11 @@ class ControlSettings:
     jamming: bool = True  # False: never jam (for path-dependence studies)
     curvature_tolerance: float = 1e-6  # m; a move away from the target smaller than this is noise
     max_stretch: float = 4.0  # mean edge stretch beyond which the target is deemed unreachable
+    method: str = "inverse"  # "inverse": paper's law as warm start, then model-based (controller.inverse); "paper"
+    inverse_iterations: int = 6  # Gauss-Newton iteration limit of the model-based refinement
+    inverse_tolerance: float = 0.005  # refinement stops when an iteration lowers the objective by less (relative)
+    inverse_settle_steps: int = 60  # simulation steps each explored world settles before it is measured
+    inverse_plans: str = "paper never overinflate1.3 overinflate1.5"  # jam plans tried (controller.plans)
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
 
     def __post_init__(self):
@@ -37,6 +44,11 @@ class ControlSettings:
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):
                 raise DesignError(f"ControlSettings.{f.name} must be finite, got {v}")
+        if self.method not in METHODS:
+            raise DesignError(f"unknown control method {self.method!r}; choose one of {list(METHODS)}")
+        if self.inverse_iterations < 0 or self.inverse_settle_steps < 1 or not self.inverse_tolerance >= 0:
+            raise DesignError("ControlSettings needs inverse_iterations >= 0, inverse_settle_steps >= 1 and "
+                              "inverse_tolerance >= 0")
         if self.control_period < 1 or self.max_steps < 1:
             raise DesignError("ControlSettings needs control_period >= 1 and max_steps >= 1")
         if not isinstance(self.simulation, SimulationSettings):

@@ -13,7 +13,7 @@ from .initialize import check_cell_room, check_request, check_targets, copy_desi
 from .placement import PLACEMENTS, PlacementContext
 from .result import DesignResult
 from .selection import Selection, pcc_selection
-from .settings import DesignSettings
+from .settings import DesignSettings, round_control_settings
 
 __all__ = ["design"]
 
@@ -74,8 +74,10 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     pcc = np.zeros((actuators + 1, len(targets)))
     for i in range(actuators + 1):
         designs.append(copy_design(current))
+        round_settings = control_settings if i == actuators else round_control_settings(control_settings,
+                                                                                         settings.round_control)
         results = _control_round(i, current, targets, names, selection, new_cells, pcc, added, settings,
-                                 control_settings, device=device, progress=progress, recorder=recorder)
+                                 round_settings, device=device, progress=progress, recorder=recorder)
         rounds.append(results)
         pcc[i] = [r.pcc for r in results]
         if recorder is not None:

@@ -9,7 +9,24 @@ from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESS
 from ..errors import DesignError
 from ..settings import replace_settings
 
-__all__ = ["DesignSettings"]
+__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings"]
+
+#: How the designer controls the rounds before the last (the last round always uses the control
+#: settings as given, so that re-controlling the saved design reproduces its sequences):
+#: "paper": the paper's law (Algorithm 1 as published; the placement sees its errors; fastest);
+#: "quick": model-based control with the paper's jam times only and at most two refinement steps;
+#: "full": the control settings as given, in every round.
+ROUND_CONTROLS = ("paper", "quick", "full")
+
+
+def round_control_settings(control_settings, round_control: str):
+    """The controller settings of a round before the last (see ``ROUND_CONTROLS``)."""
+    if round_control == "paper":
+        return control_settings.replace(method="paper")
+    if round_control == "quick" and control_settings.method == "inverse":
+        return control_settings.replace(inverse_plans="paper",
+                                        inverse_iterations=min(2, control_settings.inverse_iterations))
+    return control_settings
 
 
 @dataclass(frozen=True)
@@ -26,12 +43,15 @@ class DesignSettings:
     ipam_area: float = DEFAULT_IPAM_AREA  # m^2
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
     ipam_pressure_limits: tuple = DEFAULT_IPAM_PRESSURE_LIMITS  # Pa gauge
+    round_control: str = "paper"  # control of the rounds before the last: "paper", "quick" or "full" (ROUND_CONTROLS)
 
     def __post_init__(self):
         if not (self.cell_radius > 0 and math.isfinite(self.cell_radius)):
             raise DesignError(f"cell_radius must be a positive length in m, got {self.cell_radius}")
         if not 0 < self.volume_scale <= 1:
             raise DesignError(f"volume_scale must be in (0, 1], got {self.volume_scale}")
+        if self.round_control not in ROUND_CONTROLS:
+            raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
         if not 0 < self.min_angle_deg < 180:
             raise DesignError(f"min_angle_deg must be in (0, 180), got {self.min_angle_deg}")
 

@@ -1,0 +1,94 @@
+"""Scratch batches of worlds: copy states in, set controls, settle a fixed number of steps, measure.
+
+The model-based controller asks "what shape does the membrane settle to under these controls, from
+this state?" for many control vectors at once: every question is one world of one Simulator, so a
+finite-difference Jacobian or a line search is one batch (one launch per kernel for all of them).
+Passive IPAMs are held neutral while a batch settles, as in the control loop: every control period
+their pressure is set so that their natural length is their current length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..sampling import RadialSampler, fit_objective
+from .observe import DeviceConstants, ipam_neutral_pressures
+from .worlds import WorldState, max_speeds, put_worlds, take_worlds
+
+__all__ = ["Settled", "Explorer", "fit_weights"]
+
+
+def fit_weights(faces: np.ndarray, sampled: np.ndarray) -> np.ndarray:
+    """(B, V) the area share of every vertex of the sampled targets (B, V, 3): the fit objective's weights."""
+    a, b, c = (sampled[:, faces[:, k]] for k in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=2)  # (B, F)
+    out = np.zeros(sampled.shape[:2])
+    for k in range(3):
+        np.add.at(out, (slice(None), faces[:, k]), area / 3.0)
+    return out
+
+
+@dataclass
+class Settled:
+    """A batch after settling: per world the radii, the target's radii and weights, and the end state."""
+
+    r: np.ndarray  # (B, V) design radii, m
+    R: np.ndarray  # (B, V) sampled target radii through the same vertices, m
+    weights: np.ndarray  # (B, V) vertex area shares of the sampled target, m^2
+    objective: np.ndarray  # (B,) the fit objective
+    speed: np.ndarray  # (B,) largest vertex speed at the end, m/s
+    states: list  # (B,) WorldState at the end
+
+
+class Explorer:
+    """Settles batches of worlds of one design. ``target_volume``: (T,) volume of every target;
+    ``passive``: (T, n_ipam) bool, the IPAMs each target holds neutral."""
+
+    def __init__(self, design, sim_settings, device: str, sampler: RadialSampler, dev: DeviceConstants,
+                 target_volume: np.ndarray, passive: np.ndarray, settle_steps: int, control_period: int):
+        self.design, self.sim_settings, self.device = design, sim_settings, device
+        self.sampler, self.dev = sampler, dev
+        self.target_volume, self.passive = np.asarray(target_volume, float), passive
+        self.settle_steps, self.period = int(settle_steps), int(control_period)
+        self._sims: dict[int, object] = {}
+        self.world_steps = 0  # world-steps simulated so far (cost)
+
+    def _sim(self, worlds: int):
+        from ..simulator import Simulator
+
+        if worlds not in self._sims:
+            self._sims[worlds] = Simulator(self.design, device=self.device, settings=self.sim_settings, worlds=worlds)
+        return self._sims[worlds]
+
+    def settle(self, states: list[WorldState], air: np.ndarray, pressures: np.ndarray, targets: np.ndarray) -> Settled:
+        """Worlds started from ``states`` under controls ``air`` (B,) mol and ``pressures`` (B, n_ipam)
+        Pa (passive IPAMs: neutral instead), settled ``settle_steps`` steps, measured on ``targets`` (B,)."""
+        B = len(states)
+        sim = self._sim(B)
+        put_worlds(sim, states)
+        sim.air_moles = np.asarray(air, dtype=np.float64)
+        passive = self.passive[np.asarray(targets)] if self.dev.n_ipam else np.zeros((B, 0), bool)
+        p = np.array(pressures, dtype=np.float64).reshape(B, self.dev.n_ipam)
+        done = 0
+        while done < self.settle_steps:
+            if passive.any():
+                lengths = np.asarray(sim.ipam_lengths()).reshape(B, -1)
+                p = np.where(passive, ipam_neutral_pressures(lengths, self.dev), p)
+            if self.dev.n_ipam:
+                sim.ipam_pressures = p
+            n = min(self.period, self.settle_steps - done)
+            sim.step(n)
+            done += n
+        self.world_steps += B * self.settle_steps
+        return self.measure(sim, np.asarray(targets))
+
+    def measure(self, sim, targets: np.ndarray) -> Settled:
+        """The fit of every world of ``sim`` (world b measured on target ``targets[b]``)."""
+        x = np.asarray(sim.positions, dtype=np.float64).reshape(sim.worlds, -1, 3)
+        sampled = self.sampler.sample_worlds(x, targets)
+        r, R = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
+        w = fit_weights(self.dev.faces, sampled)
+        obj = np.array([fit_objective(r[b], R[b], self.target_volume[t], w[b]) for b, t in enumerate(targets)])
+        return Settled(r=r, R=R, weights=w, objective=obj, speed=max_speeds(sim), states=take_worlds(sim))

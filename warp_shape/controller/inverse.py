@@ -1,0 +1,215 @@
+"""``method="inverse"``: model-based control of the air, the IPAM pressures and the jamming plan.
+
+1. Warm start: the paper's law (``method="paper"``), as it is.
+2. Jam plans (``controller.plans``, setting ``inverse_plans``): the paper's jam times, never jamming,
+   over-inflating and jamming every cell; each plan's main trajectory runs in its own simulator
+   (one world per target) and records every control step.
+3. Refinement (``controller.refine``): from each plan's state, bounded damped Gauss-Newton on the
+   fit objective's residual with the settled shape's finite-difference Jacobian, every iteration two
+   batches of worlds (all plans and targets at once); it stops when the objective improves by less
+   than ``inverse_tolerance`` (relative), when no step improves it, or after ``inverse_iterations``.
+4. Each plan's trajectory ramps to its refined controls within the rate limits and holds them until
+   the membrane is at rest (``trajectory.SETTLE_SPEED``); the fit is measured there.
+5. Per target the plan with the lowest objective is kept, unless it does not beat the warm start:
+   then the paper law's result is returned unchanged, and the reason says so. The result never ends
+   worse than its warm start.
+Passive IPAMs are held neutral and passive cells never jam throughout, so an actuator held neutral
+leaves the controls of the others as they were. ``result.refinement`` tells what happened.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ..design import Design
+from ..sampling import RadialSampler, fit_objective, mpre, pcc
+from .explore import Explorer
+from .observe import DeviceConstants
+from .plans import parse_plans, start_plan
+from .refine import STOP_LIMIT, Refined, refine
+from .result import ControlResult
+from .settings import ControlSettings
+from .trajectory import SETTLE_SPEED
+
+__all__ = ["control_inverse", "result_objective", "PLANS_REFINED"]
+
+PLANS_REFINED = 2  # plans refined per target: those that fit best, settled, before refining
+
+
+def result_objective(result: ControlResult) -> float:
+    """The fit objective of a control result: RMS of (R - r) / V_t^(1/3) over the achieved vertices,
+    weighted by the sampled target's vertex areas, V_t the target mesh's volume."""
+    r = np.linalg.norm(result.achieved.vertices, axis=1)
+    R = np.linalg.norm(result.sampled_target.vertices, axis=1)
+    return fit_objective(r, R, result.target.volume(), result.sampled_target.vertex_areas())
+
+
+@dataclasses.dataclass
+class _Run:
+    """What every part of one inverse run shares."""
+
+    design: Design
+    settings: ControlSettings
+    device: str
+    sampler: RadialSampler
+    dev: DeviceConstants
+    passive_ipams: np.ndarray  # (W, n_ipam) bool
+    passive_cells: np.ndarray  # (W, n_cell) bool
+
+    def new_simulator(self, worlds: int):
+        from ..simulator import Simulator
+
+        return Simulator(self.design, device=self.device, settings=self.settings.simulation, worlds=worlds)
+
+
+def _masks(warm, dev) -> tuple[np.ndarray, np.ndarray]:
+    W = len(warm)
+    pi, pc = np.zeros((W, dev.n_ipam), bool), np.zeros((W, dev.n_cell), bool)
+    for w, r in enumerate(warm):
+        pi[w, np.asarray(r.passive_ipams, dtype=np.int64)] = True
+        pc[w, np.asarray(r.passive_cells, dtype=np.int64)] = True
+    return pi, pc
+
+
+def _screen(start: np.ndarray, keep: int) -> np.ndarray:
+    """(P, W) bool: per target the ``keep`` plans with the lowest objective before refining."""
+    out = np.zeros(start.shape, dtype=bool)
+    for w in range(start.shape[1]):
+        out[np.argsort(start[:, w], kind="stable")[:keep], w] = True
+    return out
+
+
+def _refine_all(ctx: _Run, trajs: list, warm) -> list[Refined]:
+    """Screen every (plan, target) pair in one batch (its start settled and measured), then refine the
+    ``PLANS_REFINED`` best plans of every target in one set of batches; one ``Refined`` per plan."""
+    W, P, s, n = len(warm), len(trajs), ctx.settings, ctx.dev.n_ipam
+    volumes = np.array([r.target.volume() for r in warm])
+    ex = Explorer(ctx.design, s.simulation, ctx.device, ctx.sampler, ctx.dev, volumes, ctx.passive_ipams,
+                  s.inverse_settle_steps, s.control_period)
+    air = np.concatenate([t.controls.air for t in trajs])
+    press = np.concatenate([t.controls.pressures for t in trajs]).reshape(P * W, n)
+    targets = np.tile(np.arange(W), P)
+    S = ex.settle([st for t in trajs for st in t.states()], air, press, targets)
+    keep = _screen(S.objective.reshape(P, W), PLANS_REFINED).reshape(-1)
+    idx = np.flatnonzero(keep)
+    ref = refine(ex, [S.states[c] for c in idx], air[idx], press[idx], targets[idx],
+                 np.tile(~ctx.passive_ipams, (P, 1))[idx], s.inverse_iterations, s.inverse_tolerance)
+    out = []
+    for p in range(P):
+        sl = slice(p * W, (p + 1) * W)
+        r = Refined(air=air[sl].copy(), pressures=press[sl].copy(), start_objective=S.objective[sl].copy(),
+                    objective=S.objective[sl].copy(), iterations=np.zeros(W, dtype=np.int64),
+                    stop=[f"not refined: {PLANS_REFINED} other plans fitted better before refining"] * W,
+                    saturated=[[] for _ in range(W)], trace=[[] for _ in range(W)])
+        for i, c in enumerate(idx):
+            if p * W <= c < (p + 1) * W:
+                w = c - p * W
+                r.air[w], r.pressures[w] = ref.air[i], ref.pressures[i]
+                r.start_objective[w], r.objective[w] = ref.start_objective[i], ref.objective[i]
+                r.iterations[w], r.stop[w] = ref.iterations[i], ref.stop[i]
+                r.saturated[w], r.trace[w] = ref.saturated[i], ref.trace[i]
+        out.append(r)
+    return out
+
+
+def _result(traj, w: int, warm: ControlResult, plan: str, ref, w_ref: int) -> ControlResult:
+    """World ``w`` of a finished trajectory as a control result (fields of ``warm`` replaced)."""
+    obs = traj.last
+    x, sampled = obs.positions[w].copy(), obs.sampled[w].copy()
+    r, R = np.linalg.norm(x, axis=1), np.linalg.norm(sampled, axis=1)
+    vol, vol_t = obs.volume[w], obs.target_volume[w]
+    at_rest = bool(traj.settled[w])
+    stop = ref.stop[w_ref]
+    converged = at_rest and stop != STOP_LIMIT
+    speed = f"largest vertex speed {traj.speed[w] * 1e3:.3g} mm/s"
+    head = (f"converged: at rest ({speed} < {SETTLE_SPEED * 1e3:g} mm/s) with the refined controls" if converged
+            else f"not at rest ({speed})" if not at_rest else f"at rest ({speed}) but not converged")
+    reason = f"{head}; refinement of plan {plan!r} stopped: {stop} after {int(ref.iterations[w_ref])} step(s)"
+    if ref.saturated[w_ref]:
+        reason += "; held back by " + ", ".join(ref.saturated[w_ref])
+    return dataclasses.replace(
+        warm, achieved=warm.achieved.copy_with(x), sampled_target=warm.achieved.copy_with(sampled), pcc=pcc(r, R),
+        mare=float(np.mean(np.abs(r - R))), mpre=mpre(r, R), volume_error=float((vol - vol_t) / vol_t), ipam_forces=obs.ipam_forces[w].copy(),
+        ipam_pressures=traj.controls.pressures[w].copy(), air_moles=float(traj.controls.air[w]),
+        jammed=obs.jammed[w].copy().astype(bool), jam_steps=traj.jam_steps[w].copy(), converged=converged,
+        reason=reason, control_steps=int(obs.step), history=traj.history.columns(w),
+        frames=traj.history.frame_stack(w))
+
+
+def _choose(trajs, plans, refined, warm, t0: float) -> list[ControlResult]:
+    """Per target the plan whose finished trajectory fits best, or the warm start if none beats it."""
+    out = []
+    for w, base in enumerate(warm):
+        names = [f"{n}{f:g}" if n == "overinflate" else n for n, f in plans]
+        cands = [_result(t, w, base, names[p], refined[p], w) for p, t in enumerate(trajs)]
+        objs = np.array([result_objective(c) for c in cands])
+        best = int(np.argmin(objs))
+        warm_obj = result_objective(base)
+        info = dict(method="inverse", plan=names[best], plans={n: float(o) for n, o in zip(names, objs)},
+                    warm_objective=warm_obj, objective=float(objs[best]),
+                    plans_before=dict(zip(names, (float(r.start_objective[w]) for r in refined))),
+                    iterations=int(refined[best].iterations[w]), stop=refined[best].stop[w],
+                    saturated=list(refined[best].saturated[w]), fell_back=False,
+                    predicted_objective=float(refined[best].objective[w]), wall_s=time.perf_counter() - t0)
+        if not objs[best] < warm_obj:
+            info.update(fell_back=True, objective=warm_obj)
+            out.append(dataclasses.replace(
+                base, refinement=info,
+                reason=f"{base.reason}; the model-based refinement did not improve on the paper's law "
+                       f"(best plan {names[best]!r}: objective {objs[best]:.5g} vs {warm_obj:.5g}), so its "
+                       f"result is kept"))
+            continue
+        out.append(dataclasses.replace(cands[best], refinement=info))
+    return out
+
+
+def _log(recorder, prefix: str, design: Design, results: list, names, settings, sampler: RadialSampler) -> None:
+    """Log the final control sequences (every recorded row of every target) to ``recorder``; the
+    targets are sampled again through each recorded frame."""
+    W = len(results)
+    recorder.begin_run(design=design, targets=[r.target for r in results], target_names=names, prefix=prefix,
+                       settings=settings)
+    for w, res in enumerate(results):
+        h, frames = res.history, res.frames
+        cols = list(h)
+        sampled = sampler.sample_worlds(frames.astype(np.float64), np.full(len(frames), w))
+        for k in range(len(frames)):
+            rows = [[{c: h[c][k] for c in cols}] if v == w else [] for v in range(W)]
+            x = np.broadcast_to(frames[k], (W,) + frames[k].shape)
+            s = np.broadcast_to(sampled[k], (W,) + frames[k].shape)
+            recorder.log_control_step(step=int(h["step"][k]), time=float(h["time"][k]), positions=x, sampled=s,
+                                      rows=rows, done=np.arange(W) != w)
+    recorder.end_run(results)
+
+
+def control_inverse(design: Design, targets, *, device: str, settings: ControlSettings, progress=None,
+                    recorder=None, recorder_prefix: str = "control", passive_ipams=(), passive_cells=(),
+                    target_names=None, warm_start=None) -> list[ControlResult]:
+    """Drive ``design`` to every target with the model-based controller (module docstring); the
+    arguments are those of ``control_many`` (the recorder logs the final sequences once they are
+    chosen). ``warm_start``: the paper law's results, if already run."""
+    from .loop import control_many
+
+    t0 = time.perf_counter()
+    plans = parse_plans(settings.inverse_plans)
+    warm = warm_start or control_many(design, targets, device=device, settings=settings.replace(method="paper"),
+                                      progress=progress, passive_ipams=passive_ipams, passive_cells=passive_cells,
+                                      target_names=target_names)
+    sampler = RadialSampler([r.target for r in warm], device=device)
+    probe = _Run(design, settings, device, sampler, None, None, None)
+    dev = DeviceConstants.of(probe.new_simulator(1), design)
+    pi, pc = _masks(warm, dev)
+    ctx = dataclasses.replace(probe, dev=dev, passive_ipams=pi, passive_cells=pc)
+    trajs = [start_plan(p, ctx, warm) for p in plans]
+    refined = _refine_all(ctx, trajs, warm)
+    for t, ref in zip(trajs, refined):
+        t.ramp(ref.air, ref.pressures)
+        t.hold()
+    results = _choose(trajs, plans, refined, warm, t0)
+    if recorder is not None:
+        names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(results))]
+        _log(recorder, recorder_prefix, design, results, names, settings, sampler)
+    return results

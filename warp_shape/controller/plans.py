@@ -1,0 +1,91 @@
+"""Jam plans: how the model-based controller reaches the state its refinement starts from.
+
+Jamming is irreversible and path dependent, so the controller tries several plans, refines the air
+and IPAM pressures of each, and keeps the best per target. A plan names the start of a sequence:
+- ``paper``: the paper's law as it ran (the warm start), its cells jammed when eqs. (13)-(15) said;
+- ``never``: from rest, ramp to the warm start's final controls and hold; no cell ever jams;
+- ``overinflate<f>`` (e.g. ``overinflate1.5``): from rest, ramp to ``f`` times the warm start's
+  final air with its final IPAM pressures, hold until at rest, jam every (non-passive) cell there,
+  ramp back to the warm start's final controls and hold. The cells keep the larger, smoother shape
+  they had when inflated; shrinking the rest pulls the free membrane in between them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import DesignError
+from .history import History
+from .laws import Controls
+from .observe import Observer
+from .replay import replay_simulator
+from .trajectory import Trajectory
+
+__all__ = ["parse_plans", "start_plan", "PLAN_HELP"]
+
+PLAN_HELP = "'paper', 'never' or 'overinflate<f>' with f >= 1 (e.g. 'overinflate1.5')"
+
+
+def parse_plans(text: str) -> list[tuple[str, float]]:
+    """``"paper never overinflate1.5"`` -> ``[("paper", 0), ("never", 0), ("overinflate", 1.5)]``."""
+    out = []
+    for token in str(text).split():
+        if token in ("paper", "never"):
+            out.append((token, 0.0))
+            continue
+        factor = None
+        if token.startswith("overinflate"):
+            try:
+                factor = float(token[len("overinflate"):])
+            except ValueError:
+                factor = None
+        if factor is None or not (1.0 <= factor <= 3.0):
+            raise DesignError(f"unknown jam plan {token!r} in inverse_plans; each plan is {PLAN_HELP} (f <= 3)")
+        out.append(("overinflate", factor))
+    if not out:
+        raise DesignError(f"inverse_plans names no plan; give one or more of {PLAN_HELP}")
+    return out
+
+
+def _history_from_results(results, dev) -> History:
+    """A History holding the warm start's rows and frames, to be continued."""
+    hist = History(len(results), dev)
+    for w, res in enumerate(results):
+        cols = list(res.history)
+        n = len(res.history[cols[0]])
+        hist.rows[w] = [{c: res.history[c][k].item() for c in cols} for k in range(n)]
+        hist.frames[w] = list(res.frames)
+    return hist
+
+
+def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
+    """The main trajectory of ``plan`` at the state its refinement starts from. ``ctx``: the run
+    (design, settings, device, sampler, device constants, passive masks); ``warm``: the warm start's
+    results (one per target)."""
+    name, factor = plan
+    W = len(warm)
+    dev = ctx.dev
+    air = np.array([r.air_moles for r in warm])
+    press = np.stack([r.ipam_pressures for r in warm]) if dev.n_ipam else np.zeros((W, 0))
+    observer = Observer(dev, ctx.sampler, W)
+    if name == "paper":
+        sim = replay_simulator(ctx.design, warm, device=ctx.device)
+        hist = _history_from_results(warm, dev)
+        step = max(int(r.history["step"][-1]) for r in warm)
+        jam_steps = np.stack([r.jam_steps for r in warm]).astype(np.int64).reshape(W, dev.n_cell)
+        traj = Trajectory(sim, observer, ctx.settings, hist, step, Controls(air.copy(), press.copy()), jam_steps,
+                          ctx.passive_ipams, ctx.passive_cells)
+        traj.observe()
+        return traj
+    sim = ctx.new_simulator(W)
+    rest = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipam)))
+    traj = Trajectory(sim, observer, ctx.settings, History(W, dev), 0, rest, np.full((W, dev.n_cell), -1, np.int64),
+                      ctx.passive_ipams, ctx.passive_cells)
+    traj.observe()
+    if name == "overinflate":
+        traj.ramp(factor * air, press)
+        traj.hold()
+        traj.jam_all()
+    traj.ramp(air, press)
+    traj.hold()
+    return traj

@@ -1,0 +1,219 @@
+"""Model-based refinement of the controls: bounded damped Gauss-Newton on the fit objective's residual.
+
+The controls of a world are its air amount and its active IPAMs' pressures (passive IPAMs are held
+neutral and left out). Scaled: air / rest air, pressure / 100 kPa. Every iteration is two batches
+of worlds (``Explorer``), each world started from the current state of its target:
+1. the settled shape's finite-difference Jacobian: the current controls and one perturbed control per
+   world (air by ``AIR_STEP`` of the rest air, a pressure by ``PRESSURE_STEP``, away from its limit);
+   the residual is sqrt(w / sum w) (R - r) / V_t^(1/3) at the vertices, so that its norm is the fit
+   objective (``sampling.fit_objective``);
+2. the bounded damped Gauss-Newton step (Levenberg-Marquardt damping, pressure limits, a trust box of
+   ``AIR_TRUST`` and ``PRESSURE_TRUST`` per iteration) tried at the step lengths ``STEP_LENGTHS``.
+The best step length is kept when it lowers the objective; a world stops when the best lowers it by
+less than the relative ``tolerance`` (still kept), when none lowers it, or at the iteration limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .explore import Explorer
+from .gauss_newton import bounded_step
+
+__all__ = ["Refined", "refine", "AIR_STEP", "PRESSURE_STEP", "PRESSURE_SCALE", "STEP_LENGTHS"]
+
+PRESSURE_SCALE = 1.0e5  # Pa per unit of a scaled pressure control
+AIR_STEP = 0.01  # finite-difference step of the air, fraction of the rest air
+PRESSURE_STEP = 1.0e4  # finite-difference step of a pressure, Pa
+AIR_TRUST = 0.15  # largest air change per iteration, fraction of the rest air
+PRESSURE_TRUST = 1.0e5  # largest pressure change per iteration, Pa
+STEP_LENGTHS = (1.0, 0.5, 0.25)  # fractions of the Gauss-Newton step tried in one batch
+DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the mean diagonal of J^T J
+
+STOP_TOLERANCE = "the objective improved by less than the tolerance"
+STOP_NO_STEP = "no step lowered the objective"
+STOP_LIMIT = "iteration limit reached"
+STOP_NOTHING = "no control to refine"
+
+
+@dataclass
+class Refined:
+    """The refined controls of every world and how the refinement went."""
+
+    air: np.ndarray  # (W,) mol
+    pressures: np.ndarray  # (W, n_ipam) Pa
+    start_objective: np.ndarray  # (W,) objective of the starting controls, settled
+    objective: np.ndarray  # (W,) objective of the refined controls, settled in the scratch batch
+    iterations: np.ndarray  # (W,) Gauss-Newton steps taken
+    stop: list  # (W,) what stopped each world (one of the STOP_* texts)
+    saturated: list  # (W,) per world: actuators at a limit whose gradient asks for more
+    trace: list = field(default_factory=list)  # (W,) objective after each iteration
+
+
+class _World:
+    """One target's refinement state (scaled controls u, bounds, damping, its current world state)."""
+
+    def __init__(self, w, state, air, pressures, active, dev):
+        self.w, self.state, self.dev = w, state, dev
+        self.rest_air = dev.rest_air
+        self.u = np.concatenate([[air / dev.rest_air], np.asarray(pressures) / PRESSURE_SCALE])
+        self.active = np.concatenate([[True], active])  # air always; IPAMs unless passive
+        lim = dev.ipam_limits / PRESSURE_SCALE
+        self.lo = np.concatenate([[0.0], lim[:, 0]])
+        self.hi = np.concatenate([[np.inf], lim[:, 1]])
+        self.trust = np.concatenate([[AIR_TRUST], np.full(dev.n_ipam, PRESSURE_TRUST / PRESSURE_SCALE)])
+        self.mu, self.objective, self.start, self.iterations = DAMPING, None, None, 0
+        self.stop, self.running, self.trace, self.J, self.e = STOP_LIMIT, True, [], None, None
+        self.fresh = False  # J is a finite-difference Jacobian at the current controls (not a Broyden update)
+        self.stale = True  # J must be rebuilt by finite differences before the next step
+        self.weights = None
+
+    def controls(self, u) -> tuple[float, np.ndarray]:
+        return float(u[0] * self.rest_air), np.clip(u[1:], self.lo[1:], self.hi[1:]) * PRESSURE_SCALE
+
+    def perturbations(self) -> list[tuple[int, float]]:
+        """(control index, scaled step) of every active control, stepping away from a near limit."""
+        out = []
+        for k in np.flatnonzero(self.active):
+            h = AIR_STEP if k == 0 else PRESSURE_STEP / PRESSURE_SCALE
+            out.append((int(k), h if self.u[k] + h <= self.hi[k] else -h))
+        return out
+
+    def step(self) -> np.ndarray:
+        """The bounded damped Gauss-Newton step (scaled, zero on passive controls)."""
+        J, e = self.J, self.e
+        a = self.active
+        lam = self.mu * max(float(np.mean(np.sum(J[:, a] ** 2, axis=0))), 1e-30)
+        lo = np.maximum(self.lo - self.u, -self.trust)[a]
+        hi = np.minimum(self.hi - self.u, self.trust)[a]
+        d = np.zeros_like(self.u)
+        d[a] = bounded_step(J[:, a], e, lam, np.minimum(lo, 0.0), np.maximum(hi, 0.0))
+        return d
+
+    def saturated(self) -> list[str]:
+        """Active IPAMs at a pressure limit whose objective gradient points past it."""
+        if self.J is None:
+            return []
+        g = self.J.T @ self.e
+        out = []
+        for i in range(self.dev.n_ipam):
+            k = i + 1
+            if not self.active[k]:
+                continue
+            if self.u[k] >= self.hi[k] - 1e-9 and g[k] < 0:
+                out.append(f"ipam{i} at its upper limit {self.hi[k] * PRESSURE_SCALE:.0f} Pa")
+            elif self.u[k] <= self.lo[k] + 1e-9 and g[k] > 0:
+                out.append(f"ipam{i} at its lower limit {self.lo[k] * PRESSURE_SCALE:.0f} Pa")
+        return out
+
+
+def _residual(r, R, weights, volume) -> np.ndarray:
+    """The residual whose norm is the fit objective: sqrt(w / sum w) (R - r) / V_t^(1/3)."""
+    return np.sqrt(weights / weights.sum()) * (R - r) / volume ** (1.0 / 3.0)
+
+
+def _jacobians(explorer: Explorer, worlds: list[_World], targets: np.ndarray) -> None:
+    """One batch: every running world's current controls and one perturbation per active control;
+    sets each world's residual ``e``, Jacobian ``J`` and settled ``objective`` (and its start)."""
+    states, air, press, tg, index = [], [], [], [], []
+    for wd in worlds:
+        pert = wd.perturbations()
+        for k, h in [(None, 0.0)] + pert:
+            u = wd.u.copy()
+            if k is not None:
+                u[k] += h
+            a, p = wd.controls(u)
+            states.append(wd.state)
+            air.append(a)
+            press.append(p)
+            tg.append(targets[wd.w])
+        index.append((len(states) - len(pert) - 1, pert))
+    S = explorer.settle(states, np.array(air), np.array(press), np.array(tg))
+    for wd, (b, pert) in zip(worlds, index):
+        vol = explorer.target_volume[targets[wd.w]]
+        wd.weights = S.weights[b]
+        wd.e = _residual(S.r[b], S.R[b], wd.weights, vol)
+        wd.J = np.zeros((wd.e.size, wd.u.size))
+        for n, (k, h) in enumerate(pert):
+            wd.J[:, k] = (_residual(S.r[b + 1 + n], S.R[b + 1 + n], wd.weights, vol) - wd.e) / h
+        wd.objective, wd.fresh, wd.stale = float(S.objective[b]), True, False
+        wd.state = S.states[b]
+        if wd.start is None:
+            wd.start = wd.objective
+
+
+def _accept(wd: _World, d: np.ndarray, alpha: float, e_new: np.ndarray, objective: float, state) -> None:
+    """Take the step ``alpha d``; after a full step the Jacobian is carried on by Broyden's update
+    (the next iteration needs no finite-difference batch), after a shorter one it is rebuilt."""
+    du = alpha * d
+    if alpha == STEP_LENGTHS[0]:
+        wd.J = wd.J + np.outer(e_new - wd.e - wd.J @ du, du) / float(du @ du)
+        wd.e, wd.fresh = e_new, False
+        wd.mu *= 0.3
+    else:
+        wd.fresh, wd.stale = False, True
+        wd.mu *= 3.0
+    wd.u = wd.u + du
+    wd.u[1:] = np.clip(wd.u[1:], wd.lo[1:], wd.hi[1:])
+    wd.state, wd.objective = state, objective
+    wd.iterations += 1
+    wd.trace.append(objective)
+
+
+def _line_search(explorer: Explorer, worlds: list[_World], targets: np.ndarray, tolerance: float) -> None:
+    """One batch: every running world's step at every step length; keep the best, or stop."""
+    states, air, press, tg, steps = [], [], [], [], []
+    for wd in worlds:
+        d = wd.step()
+        steps.append(d)
+        for alpha in STEP_LENGTHS:
+            a, p = wd.controls(wd.u + alpha * d)
+            states.append(wd.state)
+            air.append(a)
+            press.append(p)
+            tg.append(targets[wd.w])
+    S = explorer.settle(states, np.array(air), np.array(press), np.array(tg))
+    L = len(STEP_LENGTHS)
+    for n, (wd, d) in enumerate(zip(worlds, steps)):
+        obj = S.objective[n * L:(n + 1) * L]
+        best = int(np.argmin(obj))
+        if not np.any(d) or obj[best] >= wd.objective:
+            if wd.fresh:
+                wd.stop, wd.running = STOP_NO_STEP, False
+            else:  # a Broyden-updated Jacobian failed: rebuild it before giving up
+                wd.stale = True
+            continue
+        gain = (wd.objective - obj[best]) / wd.objective
+        i = n * L + best
+        e_new = _residual(S.r[i], S.R[i], wd.weights, explorer.target_volume[targets[wd.w]])
+        _accept(wd, d, STEP_LENGTHS[best], e_new, float(obj[best]), S.states[i])
+        if gain < tolerance:
+            wd.stop, wd.running = STOP_TOLERANCE, False
+
+
+def refine(explorer: Explorer, states: list, air: np.ndarray, pressures: np.ndarray, targets: np.ndarray,
+           active: np.ndarray, iterations: int, tolerance: float) -> Refined:
+    """Refine every world's controls from its ``states`` entry (W,) and its controls ``air`` (W,),
+    ``pressures`` (W, n_ipam); world w fits target ``targets[w]`` and refines the IPAMs ``active[w]``."""
+    dev = explorer.dev
+    worlds = [_World(w, states[w], air[w], pressures[w], active[w], dev) for w in range(len(states))]
+    for it in range(iterations):
+        running = [wd for wd in worlds if wd.running]
+        if not running:
+            break
+        stale = [wd for wd in running if wd.stale]
+        if stale:
+            _jacobians(explorer, stale, targets)
+        _line_search(explorer, running, targets, tolerance)
+    if iterations == 0:
+        for wd in worlds:
+            wd.stop = STOP_NOTHING
+    out_air, out_p = zip(*[wd.controls(wd.u) for wd in worlds]) if worlds else ((), ())
+    nan = float("nan")
+    return Refined(air=np.array(out_air), pressures=np.array(out_p).reshape(len(worlds), dev.n_ipam),
+                   start_objective=np.array([wd.start if wd.start is not None else nan for wd in worlds]),
+                   objective=np.array([wd.objective if wd.objective is not None else nan for wd in worlds]),
+                   iterations=np.array([wd.iterations for wd in worlds]), stop=[wd.stop for wd in worlds],
+                   saturated=[wd.saturated() for wd in worlds], trace=[wd.trace for wd in worlds])

@@ -1,0 +1,78 @@
+"""Replay recorded control sequences open loop, from rest, as a valve controller would.
+
+A control result's history holds one row per control step: the time, the controls in force since
+the previous row (``air_mol``, ``ipam{i}_pressure_pa``) and the jam state measured at the row
+(``cell{j}_jammed``). Replaying starts a simulator of the design at rest and, for every row after
+the first, jams the cells that the row shows newly jammed (they were jammed at the previous row),
+sets the row's controls and steps until the row's time. Nothing is measured or fed back.
+
+On the CPU a result of a single-target run (``control``) replays bit for bit: the same state,
+the same settings and the same calls give the same floating-point operations. The worlds of a batch
+(``control_many``) share one internal step count, the smallest stable one over the batch, so one of
+them replayed alone can take other internal steps; ``replay_many`` replays a whole batch exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..design import Design
+from ..errors import DesignError
+
+__all__ = ["replay", "replay_many", "replay_simulator"]
+
+
+def _schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(steps (n,), air (n,), pressures (n, n_ipam), jammed (n, n_cell)) of a result's rows: the
+    simulation steps from rest to each row and the controls and jam state at it."""
+    h = result.history
+    n_ipam, n_cell = len(result.ipam_pressures), len(result.jammed)
+    steps = np.rint(np.asarray(h["time"], dtype=np.float64) / dt).astype(np.int64)
+    if steps[0] != 0 or np.any(np.diff(steps) < 0):
+        raise DesignError("a replayable history starts at time 0 and never goes back in time")
+    air = np.asarray(h["air_mol"], dtype=np.float64)
+    p = np.stack([h[f"ipam{i}_pressure_pa"] for i in range(n_ipam)], 1) if n_ipam else np.zeros((len(air), 0))
+    jam = np.stack([h[f"cell{j}_jammed"] for j in range(n_cell)], 1).astype(bool) if n_cell \
+        else np.zeros((len(air), 0), bool)
+    return steps, air, p, jam
+
+
+def replay_simulator(design: Design, results, *, device: str = "cpu"):
+    """A simulator with one world per result (all of ``design``, same simulation settings) after
+    replaying every result's control sequence from rest; worlds whose sequence ends earlier hold
+    their last controls while the others run on."""
+    from ..simulator import Simulator
+
+    results = list(results)
+    if not results:
+        raise DesignError("replay needs at least one control result")
+    sim_settings = results[0].settings.simulation
+    sim = Simulator(design, device=device, settings=sim_settings, worlds=len(results))
+    sched = [_schedule(r, sim.dt) for r in results]
+    if any(s[3].shape[1] != design.n_cells or s[2].shape[1] != design.n_ipams for s in sched):
+        raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
+    marks = np.unique(np.concatenate([s[0] for s in sched]))
+    rows = [0] * len(results)
+    for a, b in zip(marks[:-1], marks[1:]):
+        for w, (steps, air, p, jam) in enumerate(sched):  # the row that ends at b (or the last row)
+            rows[w] = min(int(np.searchsorted(steps, b)), len(steps) - 1)
+        for w, (steps, air, p, jam) in enumerate(sched):
+            k = rows[w]
+            for j in np.flatnonzero(jam[k] & ~np.asarray(sim.jammed).reshape(len(results), -1)[w]):
+                sim.jam(int(j), world=w)
+        sim.air_moles = np.array([s[1][k] for s, k in zip(sched, rows)])
+        if design.n_ipams:
+            sim.ipam_pressures = np.stack([s[2][k] for s, k in zip(sched, rows)])
+        sim.step(int(b - a))
+    return sim
+
+
+def replay(design: Design, result, *, device: str = "cpu") -> np.ndarray:
+    """(V, 3) float64 positions, m, at the end of ``result``'s control sequence replayed open loop
+    from rest on ``design``."""
+    return np.asarray(replay_simulator(design, [result], device=device).positions).reshape(-1, 3)
+
+
+def replay_many(design: Design, results, *, device: str = "cpu") -> np.ndarray:
+    """(W, V, 3) float64 positions of a batch of results replayed together (one world each)."""
+    return np.asarray(replay_simulator(design, results, device=device).positions).reshape(len(results), -1, 3)
