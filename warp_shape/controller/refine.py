@@ -46,6 +46,8 @@ class Refined:
     pressures: np.ndarray  # (W, n_ipam) Pa
     start_objective: np.ndarray  # (W,) objective of the starting controls, settled
     objective: np.ndarray  # (W,) objective of the refined controls, settled in the scratch batch
+    start_mare: np.ndarray  # (W,) MARE of the starting controls, settled, m
+    mare: np.ndarray  # (W,) MARE of the refined controls, settled, m
     iterations: np.ndarray  # (W,) Gauss-Newton steps taken
     stop: list  # (W,) what stopped each world (one of the STOP_* texts)
     saturated: list  # (W,) per world: actuators at a limit whose gradient asks for more
@@ -65,6 +67,7 @@ class _World:
         self.hi = np.concatenate([[np.inf], lim[:, 1]])
         self.trust = np.concatenate([[AIR_TRUST], np.full(dev.n_ipam, PRESSURE_TRUST / PRESSURE_SCALE)])
         self.mu, self.objective, self.start, self.iterations = DAMPING, None, None, 0
+        self.mare, self.start_mare = np.nan, np.nan
         self.stop, self.running, self.trace, self.J, self.e = STOP_LIMIT, True, [], None, None
         self.fresh = False  # J is a finite-difference Jacobian at the current controls (not a Broyden update)
         self.stale = True  # J must be rebuilt by finite differences before the next step
@@ -139,9 +142,9 @@ def _jacobians(explorer: Explorer, worlds: list[_World], targets: np.ndarray) ->
         for n, (k, h) in enumerate(pert):
             wd.J[:, k] = (_residual(S.r[b + 1 + n], S.R[b + 1 + n], wd.weights, vol) - wd.e) / h
         wd.objective, wd.fresh, wd.stale = float(S.objective[b]), True, False
-        wd.state = S.states[b]
+        wd.state, wd.mare = S.states[b], float(S.mare[b])
         if wd.start is None:
-            wd.start = wd.objective
+            wd.start, wd.start_mare = wd.objective, wd.mare
 
 
 def _accept(wd: _World, d: np.ndarray, alpha: float, e_new: np.ndarray, objective: float, state) -> None:
@@ -189,6 +192,7 @@ def _line_search(explorer: Explorer, worlds: list[_World], targets: np.ndarray, 
         i = n * L + best
         e_new = _residual(S.r[i], S.R[i], wd.weights, explorer.target_volume[targets[wd.w]])
         _accept(wd, d, STEP_LENGTHS[best], e_new, float(obj[best]), S.states[i])
+        wd.mare = float(S.mare[i])
         if gain < tolerance:
             wd.stop, wd.running = STOP_TOLERANCE, False
 
@@ -215,5 +219,6 @@ def refine(explorer: Explorer, states: list, air: np.ndarray, pressures: np.ndar
     return Refined(air=np.array(out_air), pressures=np.array(out_p).reshape(len(worlds), dev.n_ipam),
                    start_objective=np.array([wd.start if wd.start is not None else nan for wd in worlds]),
                    objective=np.array([wd.objective if wd.objective is not None else nan for wd in worlds]),
+                   start_mare=np.array([wd.start_mare for wd in worlds]), mare=np.array([wd.mare for wd in worlds]),
                    iterations=np.array([wd.iterations for wd in worlds]), stop=[wd.stop for wd in worlds],
                    saturated=[wd.saturated() for wd in worlds], trace=[wd.trace for wd in worlds])

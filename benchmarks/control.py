@@ -1,0 +1,79 @@
+"""Controller benchmark: wall time and fit of the paper's law and of model-based control, side by side.
+
+Cases: the Fig. 6 device (642 vertices) driven to the cube with 1, 3 and 5 of its IPAMs (each with
+the cells around its ends), and the oval/heart design problem's final design (designed here with the
+paper's law in every round) driven to both its targets in one batch. Each case runs ``method="paper"``
+(minimum of ``repeats``) and ``method="inverse"`` (one run, it takes far longer) in the same process.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from warp_shape.controller import ControlSettings, control_many
+from warp_shape.controller.inverse import result_objective
+from warp_shape.design import Design
+from warp_shape.scenarios import cube_fig6_design
+from warp_shape.targets import target
+
+__all__ = ["bench_control", "fig6_with_ipams", "CONTROL_COLUMNS"]
+
+CONTROL_COLUMNS = ["case", "vertices", "ipams", "targets", "paper_s", "inverse_s", "ratio", "paper_objective",
+                   "inverse_objective", "paper_mare_mm", "inverse_mare_mm", "plans", "iterations", "world_steps"]
+
+
+def fig6_with_ipams(n: int, subdivisions: int = 3) -> Design:
+    """The Fig. 6 device keeping its first ``n`` IPAMs and the two cells around each one's ends."""
+    full = cube_fig6_design(subdivisions=subdivisions)
+    d = Design(full.rest, full.material)
+    for ip in full.ipams[:n]:
+        d.add_ipam(ip.face_a, ip.face_b)
+    for cell in full.cells[:2 * n]:
+        d.add_cell(cell.faces)
+    return d
+
+
+def _oval_heart_design(device: str) -> tuple[Design, list]:
+    from warp_shape.designer import design
+    from warp_shape.io.scene_read import load_scene
+
+    sc = load_scene("oval_heart")
+    opts = sc.settings["designer"]
+    res = design(sc.design.rest, sc.targets, actuators=opts["actuators"], target_names=sc.target_names,
+                 cell_radius=opts["cell_radius"], device=device, control_settings=ControlSettings(method="paper"))
+    return res.design, list(sc.targets)
+
+
+def _case(name: str, design: Design, targets: list, device: str, repeats: int) -> dict:
+    paper_s = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        paper = control_many(design, targets, device=device, method="paper")
+        paper_s = min(paper_s, time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    inverse = control_many(design, targets, device=device, method="inverse")
+    inverse_s = time.perf_counter() - t0
+    fmt = lambda vals, k=1.0: " ".join(f"{k * v:.4f}" for v in vals)  # noqa: E731
+    return dict(case=name, vertices=design.rest.n_vertices, ipams=design.n_ipams, targets=len(targets),
+                paper_s=round(paper_s, 2), inverse_s=round(inverse_s, 2), ratio=round(inverse_s / paper_s, 1),
+                paper_objective=fmt(result_objective(r) for r in paper),
+                inverse_objective=fmt(result_objective(r) for r in inverse),
+                paper_mare_mm=fmt((r.mare for r in paper), 1e3), inverse_mare_mm=fmt((r.mare for r in inverse), 1e3),
+                plans=" ".join(r.refinement["plan"] if not r.refinement["fell_back"] else "paper(kept)"
+                               for r in inverse),
+                iterations=" ".join(str(r.refinement["iterations"]) for r in inverse),
+                world_steps=sum(r.refinement.get("world_steps", 0) for r in inverse[:1]))
+
+
+def bench_control(device: str = "cpu", repeats: int = 3, ipam_counts=(1, 3, 5), oval_heart: bool = True) -> list[dict]:
+    """One row per case (``CONTROL_COLUMNS``): wall time and fit of both methods."""
+    cube = target("cube")
+    control_many(fig6_with_ipams(1, 2), [cube], device=device, method="paper")  # warm up: kernels loaded
+    rows = [_case(f"fig6 cube, {n} IPAM{'s' if n > 1 else ''}", fig6_with_ipams(n), [cube], device, repeats)
+            for n in ipam_counts]
+    if oval_heart:
+        d, targets = _oval_heart_design(device)
+        rows.append(_case("oval_heart final design", d, targets, device, repeats))
+    return rows
