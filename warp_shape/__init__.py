@@ -9,7 +9,7 @@ Quick start::
     sim.step(100)
 """
 
-from .controller import ControlResult, ControlSettings, control, control_many
+from .controller import ControlResult, ControlSettings, control, control_many, replay
 from .design import Cell, Design, Ipam
 from .designer import DesignResult, DesignSettings, design
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError

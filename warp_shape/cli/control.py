@@ -31,11 +31,17 @@ def register(subparsers) -> None:
 
 def _print_table(design, settings, names, results, args, out: Path) -> None:
     print(f"design: {design.rest.n_vertices} vertices, {design.n_ipams} IPAMs, {design.n_cells} cells; "
-          f"{settings.simulation.integrator} {settings.simulation.precision} on {args.device}")
+          f"{settings.simulation.integrator} {settings.simulation.precision} on {args.device}; "
+          f"method {settings.method}")
     print(f"{'target':<10}{'PCC':>8}{'MARE mm':>9}{'MPRE %':>8}{'vol err %':>10}{'steps':>7}  result")
     for name, res in zip(names, results):
         print(f"{name:<10}{res.pcc:8.4f}{res.mare * 1e3:9.3f}{res.mpre:8.2f}{100 * res.volume_error:10.3f}"
               f"{res.control_steps:7d}  {res.reason}")
+        info = res.refinement
+        if info:
+            kept = "kept the paper law's result" if info["fell_back"] else f"plan {info['plan']}"
+            print(f"    inverse: {kept}; objective {info['warm_objective']:.5f} (paper) -> {info['objective']:.5f}, "
+                  f"{info['iterations']} Gauss-Newton step(s), {info['wall_s']:.1f} s")
         for a in res.actuator_summary:
             print(f"    IPAM {a['ipam']}: push {a['peak_push_n']:.3f} N, pull {a['peak_pull_n']:.3f} N, "
                   f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f}.."

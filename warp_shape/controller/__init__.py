@@ -18,17 +18,27 @@ to ``min_gain`` (``gain_backoff``; not in the paper).
 
 Several targets of one design run as one batch of simulated worlds (one launch per kernel for all).
 
+``method="inverse"`` (the default) takes the paper's law above as its warm start, then controls the
+air, the IPAM pressures and the jamming plan on the fit objective with the settled shape's
+finite-difference Jacobian from batched worlds (``inverse``; docs/inverse_control.md).
+``method="paper"`` is the paper's law alone.
+
 Modules: ``settings`` (ControlSettings), ``observe`` (one observation of every world), ``laws``
 (control laws as strategies: the paper's), ``history`` (the per-step record, its columns
-documented there), ``loop`` (control / control_many), ``result`` (ControlResult, plain data).
+documented there), ``loop`` (control / control_many), ``result`` (ControlResult, plain data);
+model-based control: ``inverse`` (the driver), ``plans`` (jam plans), ``trajectory`` (the recorded
+main sequence of a plan), ``explore`` (scratch batches of worlds), ``refine`` (Gauss-Newton
+iterations), ``gauss_newton`` (the bounded damped step), ``worlds`` (world states as host data),
+``replay`` (a recorded sequence re-simulated open loop).
 """
 
 from .history import HISTORY_COLUMNS
 from .laws import LAWS, Controls, LawStep, PaperLaw
 from .loop import control, control_many
 from .observe import DeviceConstants, Observation, Observer, cell_anchor_faces
+from .replay import replay
 from .result import ControlResult
 from .settings import ControlSettings
 
 __all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces", "Controls",
-           "LawStep", "PaperLaw", "LAWS", "DeviceConstants", "Observation", "Observer", "HISTORY_COLUMNS"]
+           "LawStep", "PaperLaw", "LAWS", "DeviceConstants", "Observation", "Observer", "HISTORY_COLUMNS", "replay"]
