@@ -4,15 +4,16 @@
 2. Jam plans (``controller.plans``, setting ``inverse_plans``): the paper's jam times, never jamming,
    over-inflating and jamming every cell; each plan's main trajectory runs in its own simulator
    (one world per target) and records every control step.
-3. Refinement (``controller.refine``): from each plan's state, bounded damped Gauss-Newton on the
-   fit objective's residual with the settled shape's finite-difference Jacobian, every iteration two
-   batches of worlds (all plans and targets at once); it stops when the objective improves by less
-   than ``inverse_tolerance`` (relative), when no step improves it, or after ``inverse_iterations``.
-4. Each plan's trajectory ramps to its refined controls within the rate limits and holds them until
-   the membrane is at rest (``trajectory.SETTLE_SPEED``); the fit is measured there.
-5. Per target the plan with the lowest objective is kept, unless it does not beat the warm start:
-   then the paper law's result is returned unchanged, and the reason says so. The result never ends
-   worse than its warm start.
+3. Screening: every plan's state settled and measured (all plans and targets in one batch); the
+   ``PLANS_REFINED`` best plans of each target go on.
+4. Refinement (``controller.refine``): bounded damped Gauss-Newton on the fit objective's residual
+   with the settled shape's finite-difference Jacobian, each iteration one or two batches of worlds
+   (all plans and targets at once); it stops when the objective improves by less than
+   ``inverse_tolerance`` (relative), when no step improves it, or after ``inverse_iterations``.
+5. Per target the plan whose refined controls fit best: its trajectory ramps to them within the
+   rate limits and holds them until the membrane is at rest (``trajectory.SETTLE_SPEED``); the fit
+   is measured there. If it does not beat the warm start, the paper law's result is returned
+   unchanged and the reason says so: the result never ends worse than its warm start.
 Passive IPAMs are held neutral and passive cells never jam throughout, so an actuator held neutral
 leaves the controls of the others as they were. ``result.refinement`` tells what happened.
 """
@@ -214,6 +215,8 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     dev = DeviceConstants.of(probe.new_simulator(1), design)
     pi, pc = _masks(warm, dev)
     ctx = dataclasses.replace(probe, dev=dev, passive_ipams=pi, passive_cells=pc)
+    if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
+        plans = [p for p in plans if p[0] != "overinflate"] or plans
     trajs = [start_plan(p, ctx, warm) for p in plans]
     refined, world_steps = _refine_all(ctx, trajs, warm)
     names = [f"{n}{f:g}" if n == "overinflate" else n for n, f in plans]

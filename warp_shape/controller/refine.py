@@ -1,16 +1,19 @@
 """Model-based refinement of the controls: bounded damped Gauss-Newton on the fit objective's residual.
 
 The controls of a world are its air amount and its active IPAMs' pressures (passive IPAMs are held
-neutral and left out). Scaled: air / rest air, pressure / 100 kPa. Every iteration is two batches
-of worlds (``Explorer``), each world started from the current state of its target:
+neutral and left out). Scaled: air / rest air, pressure / 100 kPa. An iteration is at most two
+batches of worlds (``Explorer``), each world started from the current state of its target:
 1. the settled shape's finite-difference Jacobian: the current controls and one perturbed control per
    world (air by ``AIR_STEP`` of the rest air, a pressure by ``PRESSURE_STEP``, away from its limit);
    the residual is sqrt(w / sum w) (R - r) / V_t^(1/3) at the vertices, so that its norm is the fit
-   objective (``sampling.fit_objective``);
+   objective (``sampling.fit_objective``). After a full accepted step the Jacobian is carried on by
+   Broyden's rank-one update instead, and this batch is skipped; it is rebuilt after a shorter step
+   or when a Broyden-updated step fails;
 2. the bounded damped Gauss-Newton step (Levenberg-Marquardt damping, pressure limits, a trust box of
    ``AIR_TRUST`` and ``PRESSURE_TRUST`` per iteration) tried at the step lengths ``STEP_LENGTHS``.
 The best step length is kept when it lowers the objective; a world stops when the best lowers it by
-less than the relative ``tolerance`` (still kept), when none lowers it, or at the iteration limit.
+less than the relative ``tolerance`` (still kept), when none lowers it with a fresh Jacobian, or at
+the iteration limit.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the mean diag
 STOP_TOLERANCE = "the objective improved by less than the tolerance"
 STOP_NO_STEP = "no step lowered the objective"
 STOP_LIMIT = "iteration limit reached"
-STOP_NOTHING = "no control to refine"
+STOP_NOTHING = "no refinement asked (inverse_iterations = 0)"
 
 
 @dataclass
