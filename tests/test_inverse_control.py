@@ -162,3 +162,17 @@ def test_bad_method_and_plans_are_refused(fig6):
         control(fig6, ws.target("oval"), method="adjoint")
     with pytest.raises(ws.DesignError, match="overinflate"):
         control(fig6, ws.target("oval"), inverse_plans="paper squash")
+
+
+def test_designer_rounds_before_the_last_use_a_cheaper_control():
+    from warp_shape.designer import DesignSettings
+    from warp_shape.designer.settings import round_control_settings
+
+    full = ControlSettings()
+    assert round_control_settings(full, "paper").method == "paper"
+    quick = round_control_settings(full, "quick")
+    assert quick.method == "inverse" and quick.inverse_plans == "paper" and quick.inverse_iterations == 2
+    assert round_control_settings(full, "full") == full
+    assert round_control_settings(full.replace(method="paper"), "quick").method == "paper"
+    with pytest.raises(ws.DesignError, match="round_control"):
+        DesignSettings(round_control="cheap")
