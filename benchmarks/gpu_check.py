@@ -33,14 +33,15 @@ __all__ = ["PLANS", "TARGET_VERTEX_STEPS", "run_tests", "bench_steps", "bench_de
 TARGET_VERTEX_STEPS = 1e9
 TARGET_CASE = (642, 4096)
 
-CUDA_TESTS = ["tests/test_cuda.py", "tests/test_forces.py", "tests/test_launches.py",
-              "tests/test_integrators.py::test_cuda_matches_cpu"]
+#: the tests that run on a CUDA device: batch, graph, blow-up, sampling and controller against the CPU;
+#: every force term per family against the NumPy oracle (CPU and CUDA); the integrators CUDA = CPU
+CUDA_TESTS = ["tests/test_cuda.py", "tests/test_forces.py", "tests/test_integrators.py::test_cuda_matches_cpu"]
 
 PLANS = {
     "full": dict(subdivisions=(3, 4, 5, 6), worlds=(1, 64, 1024, 4096), repeats=3, seconds=0.3,
                  design="shipped", four_targets=True, tests=CUDA_TESTS, budget_s=330.0),
     "quick": dict(subdivisions=(3, 5), worlds=(1, 4096), repeats=2, seconds=0.2,
-                  design="shipped", four_targets=False, tests=CUDA_TESTS[:1] + CUDA_TESTS[3:], budget_s=80.0),
+                  design="shipped", four_targets=False, tests=CUDA_TESTS + ["-k", "cuda"], budget_s=80.0),
     "tiny": dict(subdivisions=(1,), worlds=(1, 3), repeats=1, seconds=0.02,
                  design="tiny", four_targets=False, tests=CUDA_TESTS[:1], budget_s=120.0),
 }

@@ -112,7 +112,7 @@ def test_radial_sampling_on_device_matches_the_cpu():
     world_targets = [0, 1, 2]
     on_device = RadialSampler(targets, device=DEVICE).sample_worlds(pts, world_targets)
     on_cpu = RadialSampler(targets, device="cpu").sample_worlds(pts, world_targets)
-    np.testing.assert_allclose(on_device, on_cpu, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(on_device, on_cpu, rtol=0, atol=1e-6)  # m: float32 BVHs, float64 refinement
     # device arrays in and out (the controller's path): radii agree with the hits
     sampler = RadialSampler(targets, device=DEVICE, check=False)
     points = wp.array(pts.astype(np.float32), dtype=wp.vec3, device=DEVICE)
