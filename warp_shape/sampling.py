@@ -7,7 +7,8 @@ target point; its radius R is compared with the design radius r = |q|. Rays run 
 
 Metrics on paired radii (r design, R sampled target), as in the specification:
 
-- PCC, eq. (10): sum((r - r_mean)(R - R_mean)) / sqrt(sum((r - r_mean)^2) sum((R - R_mean)^2));
+- PCC, eq. (10): sum((r - r_mean)(R - R_mean)) / sqrt(sum((r - r_mean)^2) sum((R - R_mean)^2)),
+  0.0 for radii without spread (std <= ``FLAT_SPREAD`` x mean);
 - MARE = mean |r - R| (metres);
 - MPRE = 100 * mean(|r - R| / R) (percent).
 """

@@ -3,7 +3,8 @@
 A law has ``phase`` ((W,) int: 1 initial inflation, 2 shape control), ``update_phase(obs, done)``
 called once per control step before the step is recorded, and ``step(obs, controls, active)``
 returning a ``LawStep`` for the worlds still running (the others keep their controls).
-``PaperLaw`` is the paper's law, eqs. (11)-(15), with the gain back-off. ``LAWS``: the laws by name,
+``PaperLaw`` is the paper's law, eqs. (11)-(15), with the gain back-off (see docs/controller.md for
+the readings of the paper's ambiguities, e.g. where the jam rule's last curvature starts). ``LAWS``: the laws by name,
 each built as ``law(settings, device_constants, passive_ipams, passive_cells)``.
 """
 
