@@ -77,6 +77,7 @@ class _Ending:
         self.hold_start = np.zeros(W, dtype=np.int64)
         self.law_steps = np.zeros(W, dtype=np.int64)  # control steps at which the law acted
         self.settled = np.zeros(W, dtype=bool)
+        self.final_met = np.zeros(W, dtype=bool)  # deadbands met at the final observation
         self.final: list = [None] * W  # (observation, controls) at the end of each world's run
 
     @property
@@ -125,6 +126,7 @@ class _Ending:
                 self.cause[w] = "step limit"
             if at_rest or obs.step - self.hold_start[w] >= s.max_settle_steps:
                 self.state[w], self.settled[w], self.final[w] = DONE, at_rest, (obs, controls)
+                self.final_met[w] = met[w]
 
     def saturated(self, w: int) -> list[str]:
         """World ``w``'s actuators pinned at a limit at its final observation while their target asks for
@@ -148,7 +150,9 @@ class _Ending:
                 f"not at rest: {speed} after holding the controls {obs.step - self.hold_start[w]} control steps "
                 f"(max_settle_steps {s.max_settle_steps})")
         limits = ", ".join(saturated)
-        if self.cause[w] == "deadbands" and not saturated:
+        if self.cause[w] == "deadbands" and not self.final_met[w]:
+            head = "the deadbands were met, then left while the controls were held"
+        elif self.cause[w] == "deadbands" and not saturated:
             head = ("converged" if self.settled[w] else "within the deadbands") \
                 + ": volume and every IPAM length within their deadbands"
         elif self.cause[w] == "deadbands":
@@ -218,7 +222,7 @@ def _result(w: int, ending: _Ending, history: History, jam_steps: np.ndarray, de
         volume_error=float((vol - vol_t) / vol_t), ipam_forces=obs.ipam_forces[w].copy(),
         ipam_pressures=controls.pressures[w].copy(), air_moles=float(controls.air[w]),
         jammed=obs.jammed[w].copy().astype(bool), jam_steps=jam_steps[w].copy(),
-        converged=bool(ending.cause[w] == "deadbands" and ending.settled[w] and not saturated),
+        converged=bool(ending.cause[w] == "deadbands" and ending.final_met[w] and ending.settled[w] and not saturated),
         reason=ending.reason(w, saturated), saturated=saturated, settled=bool(ending.settled[w]),
         max_speed=float(obs.max_speed[w]), control_steps=int(obs.step),
         history=history.columns(w), settings=ending.settings, frames=history.frame_stack(w), design=design,
