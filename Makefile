@@ -1,11 +1,14 @@
 # Two entry points: `make test` (installs everything into .venv, then runs the suite)
 # and `make demo` (runs the main job on the shipped default problem).
+# `make gpu-check` runs the device check (docs/gpu.md) with .venv's Python where there is one, else
+# python3 (a CUDA machine without network installs from carried wheels); pass options in ARGS,
+# e.g. `make gpu-check ARGS="--device cpu --tiny"`.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test demo install clean
+.PHONY: test demo install clean gpu-check
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +23,9 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/warp-shape design
+
+gpu-check:
+	PYTHON=$(if $(wildcard $(BIN)/python),$(BIN)/python,$(PYTHON)) bash scripts/gpu_check.sh $(ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info out

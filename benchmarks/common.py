@@ -59,10 +59,13 @@ def min_time(fn, repeats: int, enough: float = 5.0) -> float:
     return best
 
 
-def jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph", air_scale=1.3):
-    """The Fig. 6 device inflated (air x ``air_scale``), every cell jammed, IPAMs at 20 kPa: its stiffest state."""
+def jammed_fig6(design, device, integrator, precision, dt=1e-3, substeps=None, launch_mode="graph", air_scale=1.3,
+                worlds=1, reestimate_every=None):
+    """The Fig. 6 device inflated (air x ``air_scale``), every cell jammed, IPAMs at 20 kPa: its stiffest
+    state, in ``worlds`` identical worlds; ``reestimate_every`` None keeps the Simulator's default."""
+    more = {} if reestimate_every is None else dict(reestimate_every=reestimate_every)
     sim = Simulator(design, device=device, integrator=integrator, precision=precision, dt=dt, substeps=substeps,
-                    launch_mode=launch_mode)
+                    launch_mode=launch_mode, worlds=worlds, **more)
     sim.air_moles = sim.air_moles * air_scale
     for c in range(design.n_cells):
         sim.jam(c)

@@ -2,7 +2,8 @@
 
 The controller samples the cube radially through the membrane's vertices every control period, then
 sets the chamber air (eq. 11), each IPAM's pressure (eq. 12) and jams cells (eqs. 13-15). It reports
-the fit: the scaled radial error objective with PCC, MARE and MPRE beside it.
+the fit: the scaled radial error objective with PCC, MARE and MPRE beside it, and whether an
+actuator limit stopped it.
 
     python examples/control_cube.py [--subdivisions 3] [--max-steps 300]
 """
@@ -31,8 +32,10 @@ def main(argv=None) -> dict:
     r0 = np.linalg.norm(rest, axis=1)
     R0 = np.linalg.norm(ws.radial_sample(cube.centered(), rest), axis=1)
     print(f"rest sphere: MARE {ws.mare(r0, R0) * 1e3:.2f} mm, MPRE {ws.mpre(r0, R0):.1f} %")
-    print(f"controlled:  MARE {result.mare * 1e3:.2f} mm, MPRE {result.mpre:.1f} %, PCC {result.pcc:.4f} "
-          f"after {result.control_steps} control steps")
+    print(f"controlled:  objective {result.objective:.4f}, MARE {result.mare * 1e3:.2f} mm, MPRE {result.mpre:.1f} %, "
+          f"PCC {result.pcc:.4f} after {result.control_steps} control steps")
+    if result.saturated:
+        print("saturated: " + ", ".join(result.saturated))
     print(f"{result.reason}")
     print("final IPAM pressures (kPa): " + " ".join(f"{p / 1e3:.0f}" for p in result.ipam_pressures))
     print(f"cells jammed: {int(result.jammed.sum())} of {len(result.jammed)}")

@@ -2,7 +2,9 @@
 
 The fused force pass (hinge.eval_hinge*_kernel) leaves the forces but pressure, dV/dx and the
 volume; these kernels add the pressure force p dV/dx, advance the state, flag blow-ups of the new
-state (worst code per world, read by the host after each output step) and start the next force
+state (worst code per world; on a GPU ``stamp_blowup_kernel`` notes after each output step the
+first step at which a world's code became nonzero, so the host reads the codes only now and then)
+and start the next force
 evaluation (f = -c_v v at the next stage point, dV/dx = 0), so an RK4 step is
 init + 4 x (hinge pass [+ IPAM pass] + stage) launches. Generic over float32/float64.
 """
@@ -37,6 +39,24 @@ def flag_blowup(
         code = 1
     if code > 0:
         wp.atomic_max(status_out, w, code)
+
+
+@wp.kernel(enable_backward=False)
+def stamp_blowup_kernel(
+    # Control:
+    step: int,  # the output step just taken
+    # State in:
+    status_in: wp.array(dtype=wp.int32),  # (W,) worst blow-up code so far (see flag_blowup)
+    # Out:
+    first_step_out: wp.array(dtype=wp.int32),  # (W,) output step at which the code became nonzero; -1 before
+    first_code_out: wp.array(dtype=wp.int32),  # (W,) the code at that step
+):
+    """Note, per world, the first output step after which the blow-up code is nonzero."""
+    w = wp.tid()
+    code = status_in[w]
+    if code != 0 and first_step_out[w] < 0:
+        first_step_out[w] = step
+        first_code_out[w] = code
 
 
 @wp.kernel(enable_backward=False)

@@ -55,7 +55,7 @@ def test_control_command_writes_sequences(tmp_path, capsys):
 
 
 def test_control_command_records_rerun(tmp_path):
-    from warp_shape.io.recorder import read_recording
+    from warp_shape.io.recording_read import read_recording
 
     rrd = tmp_path / "run.rrd"
     rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "15", "--method", "paper",

@@ -30,9 +30,11 @@ def test_inflation_only_reaches_target_volume_without_overshoot(precision):
     oval = ws.target("oval")
     res = control(design, oval, method="paper", simulation=SimulationSettings(precision=precision))
     h = res.history
-    assert res.converged, res.reason
-    assert abs(res.volume_error) < 0.01
-    assert abs(res.achieved.volume() / oval.volume() - 1) < 0.01
+    assert res.converged and res.settled and not res.saturated, res.reason
+    # measured at rest: the volume of the sampled target (the volume eq. (11) drives to) within its deadband
+    assert abs(res.volume_error) < res.settings.volume_deadband
+    assert abs(res.achieved.volume() / res.sampled_target.volume() - 1) < res.settings.volume_deadband
+    assert abs(res.sampled_target.volume() / oval.volume() - 1) < 0.01  # 642 samples cut the oval by < 1 %
     # never more than one rate-limited air increment past the target
     overshoot = (h["volume_m3"] / h["target_volume_m3"]).max() - 1
     assert overshoot < res.settings.volume_deadband + 0.002, overshoot
@@ -43,7 +45,7 @@ def test_inflation_only_reaches_target_volume_without_overshoot(precision):
 def test_fig6_cube(fig6):
     design, cube, res = fig6
     h = res.history
-    assert res.converged, res.reason
+    assert res.converged and res.settled and res.saturated == [], res.reason
     assert abs(res.achieved.volume() / cube.volume() - 1) < 0.01
     assert abs(res.volume_error) < 0.01
     # PCC after the whole sequence clearly above the PCC after inflation alone
@@ -59,6 +61,9 @@ def test_fig6_cube(fig6):
         if res.jammed[j]:
             assert res.jam_steps[j] >= 0 and h["phase"][res.jam_steps[j]] == 2
     assert res.jammed.any()
+    # the jam rule's last curvature starts at the first shape-control step: no cell jams there
+    first_shaping = int(h["step"][np.flatnonzero(h["phase"] == 2)[0]])
+    assert np.all((res.jam_steps < 0) | (res.jam_steps > first_shaping)), res.jam_steps
 
 
 def test_fig6_actuator_summary(fig6):
@@ -76,7 +81,7 @@ def test_history_exports(fig6, tmp_path):
     n_rows = res.control_steps + 1
     assert all(len(v) == n_rows for v in res.history.values())
     expected = {"step", "time", "phase", "air_mol", "pressure_pa", "volume_m3", "target_volume_m3", "pcc", "mare_m",
-                "mpre_pct", "ipam0_pressure_pa", "ipam0_length_m", "ipam0_target_length_m", "ipam0_force_n",
+                "mpre_pct", "objective", "max_speed_m_s", "ipam0_pressure_pa", "ipam0_length_m", "ipam0_target_length_m", "ipam0_force_n",
                 "ipam0_strain", "cell0_kappa_m", "cell0_kappa_target_m", "cell0_jammed"}
     assert expected <= set(res.history)
     paths = write_control_outputs([res], ["cube"], tmp_path)
@@ -87,7 +92,8 @@ def test_history_exports(fig6, tmp_path):
     assert float(rows[-1]["pcc"]) == pytest.approx(res.history["pcc"][-1], rel=1e-6)
     data = json.loads((tmp_path / "control_cube.json").read_text())
     assert data["columns"] == list(res.history) and len(data["rows"]) == n_rows
-    assert data["converged"] is True
+    assert data["converged"] is res.converged and data["saturated"] == res.saturated
+    assert data["objective"] == pytest.approx(res.objective) and data["settled"] is True
     assert not list(tmp_path.glob(".*"))
 
 
@@ -98,8 +104,9 @@ def test_path_dependence_jamming_matters():
     without = control(design, cube, method="paper", jamming=False)
     assert not without.jammed.any() and with_rule.jammed.any()
     diff = np.linalg.norm(with_rule.achieved.vertices - without.achieved.vertices, axis=1).max()
-    assert diff > 1e-3, "jamming must change the achieved shape"
-    assert with_rule.pcc > without.pcc + 0.005, (with_rule.pcc, without.pcc)
+    assert diff > 3e-4, "jamming must change the achieved shape"
+    assert with_rule.objective < without.objective and with_rule.pcc > without.pcc + 0.005, \
+        (with_rule.objective, without.objective, with_rule.pcc, without.pcc)
 
 
 def test_determinism():
@@ -131,13 +138,16 @@ def test_bad_targets_and_designs():
         control(design, ws.target("oval"), bogus=1)
 
 
-def test_unreachable_target_is_reported_not_hung():
-    design = ws.Design(ws.icosphere(2, 0.02))
-    huge = ws.target("oval", volume=200 * design.rest.volume())
-    res = control(design, huge, method="paper", max_steps=80)
-    assert not res.converged
-    assert "unreachable" in res.reason or "step limit" in res.reason
-    assert np.all(np.isfinite(res.achieved.vertices)) and np.isfinite(res.pcc)
+def test_step_limit_is_reported_and_measured_at_rest():
+    design = ws.Design(ws.icosphere(2, 0.03))
+    res = control(design, ws.target("oval"), method="paper", max_steps=5)
+    assert not res.converged and res.reason.startswith("step limit reached (5 control steps)"), res.reason
+    h = res.history
+    assert np.count_nonzero(h["phase"] != 3) == 5  # five steps of the law, then the controls held
+    assert res.settled and res.max_speed < res.settings.settle_speed and "at rest" in res.reason
+    assert h["air_mol"][-1] == h["air_mol"][5]  # held
+    res = control(design, ws.target("oval"), method="paper", max_steps=5, max_settle_steps=0)
+    assert not res.settled and "not at rest" in res.reason and res.max_speed > res.settings.settle_speed
 
 
 def _torus(R=0.03, r=0.01, n=24, m=12):
@@ -179,7 +189,8 @@ def test_coarse_membrane_does_not_oscillate():
                     target_names=["oval", "heart"], control_settings=ControlSettings(method="paper")).designs[1]
     heart = ws.target("heart")
     plain = control(d1, heart, method="paper", max_steps=120, gain_backoff=1.0)  # the paper's laws as they are
-    v = plain.history["volume_m3"][-10:] / plain.history["target_volume_m3"][-10:] - 1
+    law = plain.history["phase"] != 3  # the steps at which the law acted
+    v = plain.history["volume_m3"][law][-10:] / plain.history["target_volume_m3"][law][-10:] - 1
     assert not plain.converged and np.ptp(v) > 0.05  # alternating by more than 5 % of the volume
     res = control(d1, heart, method="paper", max_steps=120)
     assert res.converged, res.reason

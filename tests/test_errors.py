@@ -154,6 +154,43 @@ def test_blowup_is_reported_with_step_and_quantity():
     assert info.value.step == 4 and info.value.quantity == "positions" and info.value.safe_dt > 0
 
 
+def _corrupt(sim, world, vertex):
+    x = sim.state.x.numpy()
+    x[world, vertex, 0] = np.nan  # corrupt the state behind the API's back
+    sim.state.x.assign(x)
+
+
+def test_deferred_blowup_check_names_the_first_step():
+    """The GPU path (codes noted on the device, read once per call) names the same output step as the
+    per-step check, here from the middle of a longer call, in the world that blew up first."""
+    from warp_shape.integrators import BlowupWatch
+
+    sim = ws.Simulator(ws.Design(_sphere()), worlds=3)
+    sim.blowup_watch = BlowupWatch(sim.solver.status, deferred=True)
+    sim.step(3)
+    _corrupt(sim, 2, 5)
+    with pytest.raises(ws.SimulationError, match=r"blew up at output step 4 .*world 2\).*positions became non-finite") as info:
+        sim.step(6)
+    assert info.value.step == 4 and info.value.world == 2 and info.value.quantity == "positions"
+    assert sim.step_count == 9  # the device ran on to the end of the call before the host looked
+    assert f"t = {4 * sim.dt:.6g} s" in str(info.value)
+    # reported once: the notes and codes are cleared
+    assert np.all(sim.blowup_watch.first_step.numpy() == -1) and not sim.solver.status.numpy().any()
+
+
+def test_deferred_blowup_check_reports_before_a_reestimate():
+    """A re-estimate of the stable step reads the state: a blow-up noted before it is reported first."""
+    from warp_shape.integrators import BlowupWatch
+
+    sim = ws.Simulator(ws.Design(_sphere()), dt=2e-4, substeps=1, reestimate_every=2)
+    sim.blowup_watch = BlowupWatch(sim.solver.status, deferred=True)
+    sim.step(1)
+    _corrupt(sim, 0, 3)
+    with pytest.raises(ws.SimulationError, match=r"blew up at output step 2 ") as info:
+        sim.step(10)
+    assert info.value.step == 2 and sim.step_count == 2  # found at the re-estimate before step 3, not later
+
+
 def test_runaway_speed_is_reported():
     sim = ws.Simulator(ws.Design(_sphere()))
     v = np.zeros((sim.model.n_vertices, 3))

@@ -10,7 +10,8 @@ from warp_shape.scenarios import cube_fig6_design
 
 rr = pytest.importorskip("rerun")
 from launch_counter import count_control_launches  # noqa: E402
-from warp_shape.io.recorder import Recorder, diverging_colors, read_recording  # noqa: E402
+from warp_shape.io.recorder import Recorder, diverging_colors  # noqa: E402
+from warp_shape.io.recording_read import read_recording  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -289,3 +289,19 @@ def test_stable_step_is_reestimated_every_n_internal_steps():
     sim.jam(0)
     sim.step(1)
     assert calls == [3, 6, 9, 10]
+
+
+def test_identical_worlds_share_one_estimate_and_differing_worlds_take_the_minimum():
+    d = _design(subdivisions=1)
+    airs = [1.0, 1.4, 1.1]
+    singles = []
+    for a in airs:
+        one = ws.Simulator(d, precision="float64")
+        one.air_moles = one.air_moles * a
+        singles.append(one.stable_dt())
+    batch = ws.Simulator(d, precision="float64", worlds=3)
+    batch.air_moles = batch.air_moles * airs[0]
+    assert batch.stable_dt() == singles[0]  # every world as built: one estimate
+    batch.air_moles = batch.air_moles * np.array(airs) / airs[0]
+    assert batch.stable_dt() == pytest.approx(min(singles), rel=1e-12)
+    assert min(singles) < max(singles)  # the worlds' estimates differ, so the minimum is meaningful

@@ -14,7 +14,8 @@ from .design import Cell, Design, Ipam
 from .designer import DesignResult, DesignSettings, design
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .io.figures import control_figure, pcc_by_round_figure, write_figures
-from .io.recorder import Recorder, read_recording
+from .io.recorder import Recorder
+from .io.recording_read import read_recording
 from .io.scene_read import load_scene, validate_usd
 from .io.scene_registry import list_scenes
 from .io.scene_schema import Scene

@@ -15,7 +15,8 @@ from .physics.damping import eval_init_step
 from .physics.ipam import eval_ipams
 from .settings import SimulationSettings
 
-__all__ = ["Solver", "RK4Solver", "SemiImplicitSolver", "make_solver", "blowup_error", "INTEGRATORS", "BLOWUP_CODES"]
+__all__ = ["Solver", "RK4Solver", "SemiImplicitSolver", "make_solver", "blowup_error", "BlowupWatch", "INTEGRATORS",
+           "BLOWUP_CODES"]
 
 #: the status codes the step kernels write (kernels/integrate.flag_blowup), worst first
 BLOWUP_CODES = {4: "positions became non-finite", 3: "velocities became non-finite",
@@ -137,3 +138,58 @@ def blowup_error(status: np.ndarray, step: int, time: float, h: float, dt_stable
         f"{dt_stable:.4g} s. Try a smaller step, e.g. dt = {safe:.3g} s with substeps=1, "
         f"or check the inputs (air, pressures, stiffness) for extreme values",
         step=step, quantity=what.split(" ")[0], safe_dt=safe, world=w)
+
+
+class BlowupWatch:
+    """Finds the first output step after which a world's blow-up code (``status`` (W,), written by
+    the step kernels) became nonzero, with no host copy per step where the codes live on a GPU.
+
+    Immediate (the default on CPU, where the host reads the codes in place): ``after_step`` looks at
+    the codes after every output step. Deferred (the default on a GPU): ``after_step`` replays one
+    recorded launch of ``stamp_blowup_kernel``, which notes on the device, per world, the first step
+    with a nonzero code; ``poll`` copies those notes (2 W integers) to the host, and is called where
+    the host waits for the device anyway (before a re-estimate of the stable step, at the end of
+    ``Simulator.step``). Both return None or (step, codes): the first such output step and the (W,)
+    codes at that step (zero in the worlds still sane then). Reporting clears the watch.
+    """
+
+    def __init__(self, status: wp.array, deferred: bool | None = None):
+        self.status = status
+        self.deferred = (not status.device.is_cpu) if deferred is None else bool(deferred)
+        self.pending = False  # deferred: stamps launched since the last poll
+        if self.deferred:
+            W, dev = status.shape[0], status.device
+            self.first_step = wp.full(W, -1, dtype=wp.int32, device=dev)  # (W,) -1 while sane
+            self.first_code = wp.zeros(W, dtype=wp.int32, device=dev)  # (W,)
+            self.stamp = wp.launch(ki.stamp_blowup_kernel, W, [0, status, self.first_step, self.first_code],
+                                   device=dev, record_cmd=True)
+        else:
+            self.codes = status.numpy()  # on CPU: the device array itself, read in place
+
+    def after_step(self, step: int):
+        """Note output step ``step``; immediate mode reports a blow-up now."""
+        if self.deferred:
+            self.stamp.set_param_at_index(0, int(step))
+            self.stamp.launch()
+            self.pending = True
+            return None
+        if not self.codes.any():
+            return None
+        codes = self.codes.copy()
+        self.status.zero_()
+        return int(step), codes
+
+    def poll(self):
+        """Report the first blow-up noted since the last report (deferred mode copies the notes)."""
+        if not (self.deferred and self.pending):
+            return None
+        self.pending = False
+        first = self.first_step.numpy()
+        if not (first >= 0).any():
+            return None
+        step = int(first[first >= 0].min())
+        codes = np.where(first == step, self.first_code.numpy(), 0)
+        self.status.zero_()
+        self.first_step.fill_(-1)
+        self.first_code.zero_()
+        return step, codes

@@ -7,7 +7,8 @@ target point; its radius R is compared with the design radius r = |q|. Rays run 
 
 Metrics on paired radii (r design, R sampled target), as in the specification:
 
-- PCC, eq. (10): sum((r - r_mean)(R - R_mean)) / sqrt(sum((r - r_mean)^2) sum((R - R_mean)^2));
+- PCC, eq. (10): sum((r - r_mean)(R - R_mean)) / sqrt(sum((r - r_mean)^2) sum((R - R_mean)^2)),
+  0.0 for radii without spread (std <= ``FLAT_SPREAD`` x mean);
 - MARE = mean |r - R| (metres);
 - MPRE = 100 * mean(|r - R| / R) (percent).
 """
@@ -32,6 +33,8 @@ __all__ = [
 RAY_JITTER = 1.0e-4
 # Ray directions of the star check beside the target's own vertex and face directions.
 STAR_DIRECTIONS = 20000
+# Relative spread (std / mean) of radii below which they have no shape: PCC 0 (float32 rounding is ~1e-7).
+FLAT_SPREAD = 1.0e-6
 # Crossings counted per ray by the star check (enough to tell 1 from more).
 _MAX_CROSSINGS = 8
 
@@ -303,19 +306,22 @@ def _pair(r, R, what: str):
 def pcc(r, R) -> float:
     """Pearson correlation of design radii r and sampled target radii R, eq. (10).
 
-    Radii without spread (all equal to rounding, e.g. a sphere centred on the origin) have no shape
-    to correlate: the PCC is then 0.0 exactly.
+    Radii without spread have no shape to correlate: where the standard deviation of r or of R is at
+    most ``FLAT_SPREAD`` (1e-6) times its mean (a sphere about the origin, whose float32 radii differ
+    only by rounding, ~1e-7 relative), the PCC is 0.0 exactly.
     """
     r, R = _pair(r, R, "PCC")
     if r.size < 2:
         raise ShapeError("PCC needs at least two radii")
-    dr, dR = r - r.mean(), R - R.mean()
-    sr, sR = float(np.dot(dr, dr)), float(np.dot(dR, dR))
-    # relative threshold: radii equal to rounding (a sphere about the origin) have no correlation
-    tiny = 1e-24 * r.size * max(float(np.max(np.abs(r))), float(np.max(np.abs(R))), 1e-300) ** 2
-    if sr <= tiny or sR <= tiny:
+    if _flat(r) or _flat(R):
         return 0.0
-    return float(np.dot(dr, dR) / np.sqrt(sr * sR))
+    dr, dR = r - r.mean(), R - R.mean()
+    return float(np.dot(dr, dR) / np.sqrt(float(np.dot(dr, dr)) * float(np.dot(dR, dR))))
+
+
+def _flat(x: np.ndarray) -> bool:
+    """True where radii ``x`` have no spread beyond rounding: std(x) <= FLAT_SPREAD * mean(|x|)."""
+    return float(np.std(x)) <= FLAT_SPREAD * float(np.mean(np.abs(x)))
 
 
 def mare(r, R) -> float:

@@ -19,7 +19,7 @@ from warp_shape.kernels import common as kc
 from .design import Design
 from .errors import DesignError
 from .forces import eval_forces, eval_forces_fused
-from .integrators import blowup_error, make_solver
+from .integrators import BlowupWatch, blowup_error, make_solver
 from .material import GAS_CONSTANT
 from .model import Control, State, build_model, check_device
 from .physics import FORCE_TERMS
@@ -29,7 +29,7 @@ from .physics.jamming import eval_jam, jammed_factor_np
 from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, volumes_np
 from .physics.springs import spring_energy_np
 from .settings import SimulationSettings
-from .stability import check_fixed_step, elastic_omega2_bound, stable_dt_estimate, substeps_for
+from .stability import check_fixed_step, elastic_omega2_bound, stable_dt_estimate, substeps_for, worlds_identical
 from .step_plan import StepPlan
 
 __all__ = ["Simulator", "FROM_SETTINGS"]
@@ -86,9 +86,9 @@ class Simulator:
         self._vol2_probe = wp.zeros((self.worlds, 1), dtype=wp.float64, device=self.device)  # (W, 1)
         self._edge_len = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)  # (W, E)
         self._edge_ang = wp.zeros((self.worlds, m.n_edges), dtype=m.scalar, device=self.device)  # (W, E)
-        # blow-up codes written by the step's last kernel; on CPU the host reads them in place
-        self._status = self.solver.status
-        self._status_host = self._status.numpy() if self._status.device.is_cpu else None
+        # blow-up codes written by the step's last kernel: read in place on CPU, noted on a GPU
+        # device and copied only where the host waits anyway (BlowupWatch)
+        self.blowup_watch = BlowupWatch(self.solver.status)
         # stepping: the plan of one internal step, rebuilt when the stable estimate changes the step
         self.plan = StepPlan(self.device, s.launch_mode)
         self._substeps = None
@@ -288,20 +288,23 @@ class Simulator:
 
     # ------------------------------------------------------------------ stepping
     def stable_dt(self) -> float:
-        """Current conservative stable internal step (s), the minimum over worlds.
+        """Current conservative stable internal step (s), the minimum over worlds (estimated once
+        when every world holds the same state).
 
         The elastic part of the bound (a short Lanczos run, see stability.elastic_omega2_bound) is
         cached until a cell jams, positions are set or ``reestimate_every`` internal steps pass; air
         changes only re-evaluate the cheap pressure and gas terms."""
         m, st = self.model, self.state
-        edge_jam = st.jammed.numpy().astype(bool)
-        x = st.x.numpy().astype(np.float64)
-        rest = st.rest_length.numpy().astype(np.float64)
-        key = (self._geometry_version, int(edge_jam.sum()), self._estimated_at)
+        edge_jam, x, rest = st.jammed.numpy(), st.x.numpy(), st.rest_length.numpy()
+        air = self.control.air.numpy()
+        uniform = worlds_identical(edge_jam, x, rest, air)
+        if uniform:  # identical worlds (a batch as built, before its worlds part): estimate one
+            edge_jam, x, rest, air = edge_jam[:1], x[:1], rest[:1], air[:1]
+        edge_jam, x, rest = edge_jam.astype(bool), x.astype(np.float64), rest.astype(np.float64)
+        key = (self._geometry_version, int(edge_jam.sum()), self._estimated_at, uniform)
         if self._elastic_cache is None or self._elastic_cache[0] != key:
             self._elastic_cache = (key, elastic_omega2_bound(m, edge_jam, x, rest))
-        est = stable_dt_estimate(m, type(self.solver), edge_jam, self.control.air.numpy(), x, rest,
-                                 elastic_bound=self._elastic_cache[1])
+        est = stable_dt_estimate(m, type(self.solver), edge_jam, air, x, rest, elastic_bound=self._elastic_cache[1])
         return float(est.min())
 
     @property
@@ -333,29 +336,35 @@ class Simulator:
             self.plan.build(self.solver, h)
         self._dirty = False
 
-    def _check(self):
-        # the step kernels flag blow-ups; status stays zero until one (zeroed again once reported)
-        status = self._status_host if self._status_host is not None else self._status.numpy()
-        if status.any():
-            status = status.copy()
-            self._status.zero_()
-            raise blowup_error(status, self.step_count, self.time, self.plan.h, self._dt_stable)
+    def _report(self, found):
+        # found: None or (output step, (W,) codes) from the blow-up watch
+        if found is not None:
+            step, codes = found
+            time = self.time - (self.step_count - step) * self.dt
+            raise blowup_error(codes, step, time, self.plan.h, self._dt_stable)
 
     def step(self, n: int = 1) -> None:
-        """Advance n output steps of dt (each ``substeps`` internal steps), checking for blow-up."""
+        """Advance n output steps of dt (each ``substeps`` internal steps), checking for blow-up.
+
+        The blow-up error names the first output step after which a world blew up. On a GPU the
+        codes are read at the end of the call and before each re-estimate of the stable step, so
+        the state is then a few steps past that one."""
         if not isinstance(n, (int, np.integer)) or n < 0:
             raise DesignError(f"step count must be an integer >= 0, got {n!r}")
+        watch = self.blowup_watch
         for _ in range(int(n)):
             if self.reestimate_every and self._internal_steps - self._estimated_at >= self.reestimate_every:
                 self._estimated_at = self._internal_steps
                 self._dirty = True
             if self._dirty:
+                self._report(watch.poll())  # the estimate reads the state: a blown-up one is reported first
                 self._update_plan()
             self.plan.run(self._substeps)
             self._internal_steps += self._substeps
             self.step_count += 1
             self.time += self.dt
-            self._check()
+            self._report(watch.after_step(self.step_count))
+        self._report(watch.poll())
 
     def __repr__(self) -> str:
         return (f"Simulator({self.design!r}, device={self.device!r}, integrator={self.integrator!r}, dt={self.dt}, "

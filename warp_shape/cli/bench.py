@@ -6,6 +6,7 @@ import os
 import time
 from pathlib import Path
 
+from ..errors import DesignError
 from .options import quiet_warp
 
 __all__ = ["register", "run"]
@@ -22,6 +23,8 @@ def register(subparsers) -> None:
     b.add_argument("--device", default="cpu")
     b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5, 6],
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
+    b.add_argument("--worlds", type=int, nargs="+", default=[1],
+                   help="sim bench: worlds stepped as one batch, e.g. 1 64 1024 4096 (default 1)")
     b.add_argument("--repeats", type=int, default=3)
     b.add_argument("--out", default="out")
     b.set_defaults(func=run)
@@ -86,9 +89,14 @@ def run(args) -> int:
 
     results = {}
     if args.which in ("sim", "all"):
-        rows = bench_sim(device=args.device, subdivisions=args.subdivisions, repeats=args.repeats)
+        if min(args.worlds) < 1:
+            raise DesignError(f"--worlds takes counts >= 1, got {args.worlds}")
+        rows = bench_sim(device=args.device, subdivisions=args.subdivisions, repeats=args.repeats, worlds=args.worlds)
         results["sim"] = rows
-        print(format_rows(rows, BENCH_COLUMNS + ["estimate_ms"]))
+        columns = BENCH_COLUMNS + ["estimate_ms"]
+        if max(args.worlds) > 1:
+            columns.insert(1, "worlds")
+        print(format_rows(rows, columns))
     if args.which in ("tradeoff", "all"):
         results["tradeoff"] = _tradeoff(args, format_rows)
     if args.which in ("design", "all"):

@@ -33,10 +33,14 @@ def _print_table(design, settings, names, results, args, out: Path) -> None:
     print(f"design: {design.rest.n_vertices} vertices, {design.n_ipams} IPAMs, {design.n_cells} cells; "
           f"{settings.simulation.integrator} {settings.simulation.precision} on {args.device}; "
           f"method {settings.method}")
-    print(f"{'target':<10}{'PCC':>8}{'MARE mm':>9}{'MPRE %':>8}{'vol err %':>10}{'steps':>7}  result")
+    print(f"{'target':<10}{'objective':>10}{'PCC':>8}{'MARE mm':>9}{'MPRE %':>8}{'vol err %':>10}{'steps':>7}"
+          f"  converged")
     for name, res in zip(names, results):
-        print(f"{name:<10}{res.pcc:8.4f}{res.mare * 1e3:9.3f}{res.mpre:8.2f}{100 * res.volume_error:10.3f}"
-              f"{res.control_steps:7d}  {res.reason}")
+        print(f"{name:<10}{res.objective:10.4f}{res.pcc:8.4f}{res.mare * 1e3:9.3f}{res.mpre:8.2f}"
+              f"{100 * res.volume_error:10.3f}{res.control_steps:7d}  {'yes' if res.converged else 'no'}")
+        print(f"    {res.reason}")
+        if res.saturated:
+            print(f"    saturated: {'; '.join(res.saturated)}")
         info = res.refinement
         if info:
             kept = "kept the paper law's result" if info["fell_back"] else f"plan {info['plan']}"

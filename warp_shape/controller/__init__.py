@@ -7,14 +7,21 @@ membrane's vertices, then updates
   end faces on the sampled target;
 - each jamming cell by eqs. (13)-(15): curvature kappa = r_end - mean r over the cell's faces (radius
   of a face = |centroid|); a cell jams the first control step its curvature moves away from its
-  target (it is not between the previous value and the target), once, never released.
+  target (it is not between its value at the previous shape-control step and the target), once,
+  never released; no cell jams at the first shape-control step.
 Phase 1 (initial inflation) actuates only the air until the volume is in its deadband. Increments
-are rate limited; the run stops when volume and every IPAM length are in their deadbands, or at the
-step limit (``converged`` False, with the reason). An IPAM pinned at a pressure limit while its
-target asks for more counts as settled: it cannot do better. Eqs. (11)-(12) are deadbeat laws that
-assume the membrane settles within a control period; where it does not (coarse, lightly damped
-membranes), an error that flips sign without halving halves that world's (or IPAM's) gain, down
-to ``min_gain`` (``gain_backoff``; not in the paper).
+are rate limited. A run ends when volume and every IPAM length are in their deadbands (an IPAM
+pinned at a pressure limit while its target asks for more counting as in: it cannot move), when the
+membrane stretches beyond ``max_stretch``, or at the step limit; the controls are then held until
+the membrane is at rest (largest vertex speed below ``settle_speed``, at most ``max_settle_steps``)
+and everything reported is measured there. ``converged``: at rest, within the deadbands, nothing
+saturated; ``saturated`` names the actuators pinned at a limit; ``reason`` says why it ended. The fit
+is judged by one objective (area-weighted RMS of (R - r) / V_t^(1/3)), with PCC, MARE and MPRE
+beside it. Eqs. (11)-(12) are deadbeat laws that assume the membrane settles within a control period;
+where it does not (coarse, lightly damped membranes), an error that flips sign without halving
+halves that world's (or IPAM's) gain, down to ``min_gain`` (``gain_backoff``; not in the paper).
+Targets are checked against the device before any simulation (``checks``). docs/controller.md lists
+the readings of the paper's ambiguities.
 
 Several targets of one design run as one batch of simulated worlds (one launch per kernel for all).
 
@@ -23,13 +30,13 @@ air, the IPAM pressures and the jamming plan on the fit objective with the settl
 finite-difference Jacobian from batched worlds (``inverse``; docs/inverse_control.md).
 ``method="paper"`` is the paper's law alone.
 
-Modules: ``settings`` (ControlSettings), ``observe`` (one observation of every world), ``laws``
-(control laws as strategies: the paper's), ``history`` (the per-step record, its columns
-documented there), ``loop`` (control / control_many), ``result`` (ControlResult, plain data);
-model-based control: ``inverse`` (the driver), ``plans`` (jam plans), ``trajectory`` (the recorded
-main sequence of a plan), ``explore`` (scratch batches of worlds), ``refine`` (Gauss-Newton
-iterations), ``gauss_newton`` (the bounded damped step), ``worlds`` (world states as host data),
-``replay`` (a recorded sequence re-simulated open loop).
+Modules: ``settings`` (ControlSettings), ``checks`` (targets against the device), ``observe`` (one
+observation of every world), ``laws`` (control laws as strategies: the paper's), ``history`` (the
+per-step record, its columns documented there), ``loop`` (control / control_many), ``result``
+(ControlResult, plain data); model-based control: ``inverse`` (the driver), ``plans`` (jam plans),
+``trajectory`` (the recorded main sequence of a plan), ``explore`` (scratch batches of worlds),
+``refine`` (Gauss-Newton iterations), ``gauss_newton`` (the bounded damped step), ``worlds`` (world
+states as host data), ``replay`` (a recorded sequence re-simulated open loop).
 """
 
 from .history import HISTORY_COLUMNS

@@ -13,21 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..sampling import RadialSampler, fit_objective
-from .observe import DeviceConstants, ipam_neutral_pressures
+from ..sampling import RadialSampler
+from .observe import DeviceConstants, fit_of, ipam_neutral_pressures, vertex_area_shares
 from .worlds import WorldState, max_speeds, put_worlds, take_worlds
 
-__all__ = ["Settled", "Explorer", "fit_weights"]
-
-
-def fit_weights(faces: np.ndarray, sampled: np.ndarray) -> np.ndarray:
-    """(B, V) the area share of every vertex of the sampled targets (B, V, 3): the fit objective's weights."""
-    a, b, c = (sampled[:, faces[:, k]] for k in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=2)  # (B, F)
-    out = np.zeros(sampled.shape[:2])
-    for k in range(3):
-        np.add.at(out, (slice(None), faces[:, k]), area / 3.0)
-    return out
+__all__ = ["Settled", "Explorer"]
 
 
 @dataclass
@@ -90,7 +80,6 @@ class Explorer:
         x = np.asarray(sim.positions, dtype=np.float64).reshape(sim.worlds, -1, 3)
         sampled = self.sampler.sample_worlds(x, targets)
         r, R = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
-        w = fit_weights(self.dev.faces, sampled)
-        obj = np.array([fit_objective(r[b], R[b], self.target_volume[t], w[b]) for b, t in enumerate(targets)])
-        return Settled(r=r, R=R, weights=w, objective=obj, mare=np.abs(r - R).mean(axis=1), speed=max_speeds(sim),
-                       states=take_worlds(sim))
+        fit = fit_of(x, sampled, self.dev.faces, self.target_volume[targets])
+        return Settled(r=r, R=R, weights=vertex_area_shares(sampled, self.dev.faces), objective=fit["objective"],
+                       mare=fit["mare"], speed=max_speeds(sim), states=take_worlds(sim))

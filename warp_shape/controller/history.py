@@ -2,10 +2,11 @@
 
 History columns (one row per control step: the state measured at that step, before its update;
 ``phase`` is the control law applied at that step; ``{i}`` IPAM index, ``{j}`` cell index):
-  step, time (s), phase (1 inflation / 2 shape control), air_mol, pressure_pa (gauge), volume_m3,
+  step, time (s), phase (1 inflation / 2 shape control / 3 hold: controls held while the membrane
+  comes to rest), air_mol, pressure_pa (gauge), volume_m3,
   target_volume_m3, ipam{i}_pressure_pa, ipam{i}_length_m, ipam{i}_target_length_m, ipam{i}_force_n
   (axial, + = tension), ipam{i}_strain ((L - L0) / L0), cell{j}_kappa_m, cell{j}_kappa_target_m,
-  cell{j}_jammed (0/1), pcc, mare_m, mpre_pct.
+  cell{j}_jammed (0/1), max_speed_m_s (largest vertex speed), objective, pcc, mare_m, mpre_pct.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ __all__ = ["HISTORY_COLUMNS", "history_row", "History"]
 HISTORY_COLUMNS = ("step", "time", "phase", "air_mol", "pressure_pa", "volume_m3", "target_volume_m3",
                    "ipam{i}_pressure_pa", "ipam{i}_length_m", "ipam{i}_target_length_m", "ipam{i}_force_n",
                    "ipam{i}_strain", "cell{j}_kappa_m", "cell{j}_kappa_target_m", "cell{j}_jammed",
-                   "pcc", "mare_m", "mpre_pct")
+                   "max_speed_m_s", "objective", "pcc", "mare_m", "mpre_pct")
 
 
 def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: DeviceConstants) -> dict:
@@ -39,6 +40,8 @@ def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: D
         row[f"cell{j}_kappa_m"] = obs.kappa[w, j]
         row[f"cell{j}_kappa_target_m"] = obs.kappa_target[w, j]
         row[f"cell{j}_jammed"] = int(obs.jammed[w, j])
+    row["max_speed_m_s"] = obs.max_speed[w]
+    row["objective"] = obs.objective[w]
     row["pcc"] = obs.pcc[w]
     row["mare_m"] = obs.mare[w]
     row["mpre_pct"] = obs.mpre[w]

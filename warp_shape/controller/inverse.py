@@ -11,7 +11,7 @@
    (all plans and targets at once); it stops when the objective improves by less than
    ``inverse_tolerance`` (relative), when no step improves it, or after ``inverse_iterations``.
 5. Per target the plan whose refined controls fit best: its trajectory ramps to them within the
-   rate limits and holds them until the membrane is at rest (``trajectory.SETTLE_SPEED``); the fit
+   rate limits and holds them until the membrane is at rest (``settle_speed``); the fit
    is measured there. If it does not beat the warm start, the paper law's result is returned
    unchanged and the reason says so: the result never ends worse than its warm start.
 Passive IPAMs are held neutral and passive cells never jam throughout, so an actuator held neutral
@@ -26,14 +26,13 @@ import time
 import numpy as np
 
 from ..design import Design
-from ..sampling import RadialSampler, fit_objective, mpre, pcc
+from ..sampling import RadialSampler, fit_objective
 from .explore import Explorer
 from .observe import DeviceConstants
 from .plans import parse_plans, start_plan
 from .refine import STOP_LIMIT, Refined, refine
 from .result import ControlResult
 from .settings import ControlSettings
-from .trajectory import SETTLE_SPEED
 
 __all__ = ["control_inverse", "result_objective", "PLANS_REFINED"]
 
@@ -117,27 +116,28 @@ def _refine_all(ctx: _Run, trajs: list, warm) -> tuple[list[Refined], int]:
 
 
 def _result(traj, w: int, warm: ControlResult, plan: str, ref, w_ref: int) -> ControlResult:
-    """World ``w`` of a finished trajectory as a control result (fields of ``warm`` replaced)."""
-    obs = traj.last
+    """World ``w`` of a finished trajectory as a control result (fields of ``warm`` replaced).
+    Converged: at rest, the refinement stopped by itself (not at its iteration limit), nothing saturated."""
+    obs, s = traj.last, traj.settings
     x, sampled = obs.positions[w].copy(), obs.sampled[w].copy()
-    r, R = np.linalg.norm(x, axis=1), np.linalg.norm(sampled, axis=1)
     vol, vol_t = obs.volume[w], obs.target_volume[w]
-    at_rest = bool(traj.settled[w])
-    stop = ref.stop[w_ref]
-    converged = at_rest and stop != STOP_LIMIT
-    speed = f"largest vertex speed {traj.speed[w] * 1e3:.3g} mm/s"
-    head = (f"converged: at rest ({speed} < {SETTLE_SPEED * 1e3:g} mm/s) with the refined controls" if converged
-            else f"not at rest ({speed})" if not at_rest else f"at rest ({speed}) but not converged")
-    reason = f"{head}; refinement of plan {plan!r} stopped: {stop} after {int(ref.iterations[w_ref])} step(s)"
-    if ref.saturated[w_ref]:
-        reason += "; held back by " + ", ".join(ref.saturated[w_ref])
+    at_rest, stop, saturated = bool(traj.settled[w]), ref.stop[w_ref], list(ref.saturated[w_ref])
+    speed = f"largest vertex speed {obs.max_speed[w] * 1e3:.2g} mm/s"
+    rest = (f"at rest ({speed} < {s.settle_speed * 1e3:g} mm/s)" if at_rest else
+            f"not at rest: {speed} after holding the refined controls (max_settle_steps {s.max_settle_steps})")
+    converged = at_rest and stop != STOP_LIMIT and not saturated
+    head = ("converged" if converged else "stopped by a limit: " + ", ".join(saturated) if saturated
+            else "not converged")
+    reason = (f"{head}; {rest}; model-based refinement of plan {plan!r}: {stop} after "
+              f"{int(ref.iterations[w_ref])} step(s)")
     return dataclasses.replace(
-        warm, achieved=warm.achieved.copy_with(x), sampled_target=warm.achieved.copy_with(sampled), pcc=pcc(r, R),
-        mare=float(np.mean(np.abs(r - R))), mpre=mpre(r, R), volume_error=float((vol - vol_t) / vol_t), ipam_forces=obs.ipam_forces[w].copy(),
+        warm, achieved=warm.achieved.copy_with(x), sampled_target=warm.achieved.copy_with(sampled),
+        objective=float(obs.objective[w]), pcc=float(obs.pcc[w]), mare=float(obs.mare[w]), mpre=float(obs.mpre[w]),
+        volume_error=float((vol - vol_t) / vol_t), ipam_forces=obs.ipam_forces[w].copy(),
         ipam_pressures=traj.controls.pressures[w].copy(), air_moles=float(traj.controls.air[w]),
         jammed=obs.jammed[w].copy().astype(bool), jam_steps=traj.jam_steps[w].copy(), converged=converged,
-        reason=reason, control_steps=int(obs.step), history=traj.history.columns(w),
-        frames=traj.history.frame_stack(w))
+        reason=reason, saturated=saturated, settled=at_rest, max_speed=float(obs.max_speed[w]),
+        control_steps=int(obs.step), history=traj.history.columns(w), frames=traj.history.frame_stack(w))
 
 
 def _info(w: int, names: list, refined: list, best: int, warm_obj: float, objective: float) -> dict:

@@ -3,7 +3,8 @@
 A law has ``phase`` ((W,) int: 1 initial inflation, 2 shape control), ``update_phase(obs, done)``
 called once per control step before the step is recorded, and ``step(obs, controls, active)``
 returning a ``LawStep`` for the worlds still running (the others keep their controls).
-``PaperLaw`` is the paper's law, eqs. (11)-(15), with the gain back-off. ``LAWS``: the laws by name,
+``PaperLaw`` is the paper's law, eqs. (11)-(15), with the gain back-off (see docs/controller.md for
+the readings of the paper's ambiguities, e.g. where the jam rule's last curvature starts). ``LAWS``: the laws by name,
 each built as ``law(settings, device_constants, passive_ipams, passive_cells)``.
 """
 
@@ -55,7 +56,10 @@ class PaperLaw:
         self.gain_p = np.full((W, dev.n_ipam), settings.pressure_gain)  # per world and IPAM
         self.err_v_prev = np.zeros(W)
         self.err_l_prev = np.zeros((W, dev.n_ipam))
-        self.kappa_prev = None
+        # eqs. (14)-(15)'s last curvature and the IPAM back-off's last length error start at a world's
+        # first shape-control step: not carried over from the inflation phase, when neither is controlled
+        self.kappa_prev = np.zeros((W, dev.n_cell))
+        self.shaped = np.zeros(W, dtype=bool)  # (W,) the world has had a shape-control step
 
     def update_phase(self, obs: Observation, done: np.ndarray) -> np.ndarray:
         """Phase 2 (shape control) starts once the volume is in its deadband; returns ``phase``."""
@@ -70,7 +74,8 @@ class PaperLaw:
         air = self._air(obs, controls.air, active)
         pressures = self._pressures(obs, controls.pressures, active, shaping)
         jam = self._jams(obs, shaping)
-        self.kappa_prev = obs.kappa
+        self.kappa_prev = np.where(shaping[:, None], obs.kappa, self.kappa_prev)
+        self.shaped |= shaping
         return LawStep(Controls(air, pressures), jam)
 
     def _back_off(self, obs: Observation, active: np.ndarray) -> None:
@@ -86,7 +91,7 @@ class PaperLaw:
         if self.dev.n_ipam:
             err_l = obs.ipam_target_lengths - obs.ipam_lengths
             flip_l = (err_l * self.err_l_prev < 0) & (np.abs(err_l) > 0.5 * np.abs(self.err_l_prev)) \
-                & (np.abs(err_l) > s.length_deadband) & (self.phase[:, None] == 2)
+                & (np.abs(err_l) > s.length_deadband) & self.shaped[:, None]
             self.gain_p = np.where(flip_l & active[:, None], np.maximum(self.gain_p * s.gain_backoff,
                                                                         s.min_gain * s.pressure_gain), self.gain_p)
             self.err_l_prev = err_l
@@ -114,15 +119,16 @@ class PaperLaw:
         return pressures
 
     def _jams(self, obs: Observation, shaping: np.ndarray) -> list:
-        """Eqs. (13)-(15): a cell jams when its curvature is no longer between its previous value and
-        its target (beyond ``curvature_tolerance``)."""
-        if not (self.dev.n_cell and self.settings.jamming and self.kappa_prev is not None):
+        """Eqs. (13)-(15): a cell jams when its curvature is no longer between its previous value (that of
+        the law's last shape-control step) and its target (beyond ``curvature_tolerance``). No cell jams
+        at a world's first shape-control step: it has no previous curvature yet."""
+        if not (self.dev.n_cell and self.settings.jamming):
             return []
         tol = self.settings.curvature_tolerance
         lo = np.minimum(obs.kappa_target, self.kappa_prev) - tol
         hi = np.maximum(obs.kappa_target, self.kappa_prev) + tol
         away = (obs.kappa < lo) | (obs.kappa > hi)
-        hit = away & shaping[:, None] & ~obs.jammed & ~self.passive_cells
+        hit = away & (shaping & self.shaped)[:, None] & ~obs.jammed & ~self.passive_cells
         return [(int(w), int(j)) for w, j in zip(*np.nonzero(hit))]
 
 

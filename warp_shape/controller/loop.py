@@ -11,18 +11,17 @@ import numpy as np
 from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
-from ..sampling import RadialSampler, pcc
+from ..sampling import RadialSampler
 from ..targets import centred_targets
 from ..settings import SimulationSettings
+from .checks import check_targets_against_rest
 from .history import History
 from .laws import LAWS, Controls, PaperLaw
 from .observe import DeviceConstants, Observation, Observer
 from .result import ControlResult
 from .settings import ControlSettings
 
-__all__ = ["control", "control_many", "CONVERGED"]
-
-CONVERGED = "converged: volume and IPAM lengths within their deadbands (or IPAMs at a pressure limit)"
+__all__ = ["control", "control_many", "HOLD_PHASE"]
 
 
 def _checked_targets(design, targets) -> list[TriMesh]:
@@ -54,89 +53,179 @@ def _simulator(design: Design, s: SimulationSettings, device: str, worlds: int):
                      reestimate_every=s.reestimate_every)
 
 
-class _StopRule:
-    """Per world: done once settled in phase 2 (volume and IPAM lengths in their deadbands, an IPAM
-    pinned at a pressure limit counting as settled), stretched beyond ``max_stretch``, or at the step
-    limit; keeps the observation and controls at which each world finished."""
+RUNNING, HOLDING, DONE = 0, 1, 2
+HOLD_PHASE = 3  # the history's phase of a step at which the controls are held for the membrane to settle
+
+
+class _Ending:
+    """Per world: running (the law acts), holding (controls held until the membrane is at rest) or done.
+
+    A running world starts holding when it meets its deadbands in phase 2 (volume and every IPAM
+    length; an IPAM pinned at a pressure limit while its target asks for more counts as met, since
+    it cannot move further), when the mean edge stretch passes ``max_stretch``, or after
+    ``max_steps`` steps of the law. It holds until its largest vertex speed is below
+    ``settle_speed`` (at rest) or for ``max_settle_steps`` control steps. A world that held for its
+    deadbands and left them while settling resumes control (within the step limit); otherwise it is
+    done, and the observation at which it finished is what its result reports."""
 
     def __init__(self, settings: ControlSettings, dev: DeviceConstants, passive_ipams: np.ndarray):
         W = passive_ipams.shape[0]
         self.settings, self.dev, self.passive_ipams = settings, dev, passive_ipams
-        self.done = np.zeros(W, dtype=bool)
-        self.reason = ["step limit reached"] * W
+        self.state = np.full(W, RUNNING)
+        self.cause = [""] * W  # why the world held: "deadbands", "stretch" or "step limit"
+        self.stretch_note = [""] * W
+        self.hold_start = np.zeros(W, dtype=np.int64)
+        self.law_steps = np.zeros(W, dtype=np.int64)  # control steps at which the law acted
+        self.settled = np.zeros(W, dtype=bool)
+        self.final_met = np.zeros(W, dtype=bool)  # deadbands met at the final observation
         self.final: list = [None] * W  # (observation, controls) at the end of each world's run
 
-    def _lengths_settled(self, obs: Observation, pressures: np.ndarray) -> np.ndarray:
-        if not self.dev.n_ipam:
-            return np.ones(len(self.done), bool)
-        # an IPAM pinned at a pressure limit and still asked to go further cannot do better
+    @property
+    def running(self) -> np.ndarray:
+        return self.state == RUNNING
+
+    @property
+    def done(self) -> np.ndarray:
+        return self.state == DONE
+
+    def pinned(self, obs: Observation, controls: Controls) -> np.ndarray:
+        """(W, n_ipam) bool: active IPAMs at a pressure limit whose target length asks, beyond the
+        length deadband, for more in that direction."""
         lim = self.dev.ipam_limits
+        p = controls.pressures
         want = obs.ipam_target_lengths - obs.ipam_lengths
-        pinned = ((pressures >= lim[:, 1]) & (want > 0)) | ((pressures <= lim[:, 0]) & (want < 0))
-        return np.all((np.abs(want) < self.settings.length_deadband) | pinned | self.passive_ipams, axis=1)
+        far = np.abs(want) >= self.settings.length_deadband
+        return far & ~self.passive_ipams & (((p >= lim[:, 1]) & (want > 0)) | ((p <= lim[:, 0]) & (want < 0)))
 
-    def check(self, obs: Observation, phase: np.ndarray, controls: Controls) -> None:
+    def deadbands_met(self, obs: Observation, controls: Controls) -> np.ndarray:
+        """(W,) bool: volume and every IPAM length within their deadbands (pinned or passive IPAMs aside)."""
+        vol_ok = obs.volume_within(self.settings.volume_deadband)
+        if not self.dev.n_ipam:
+            return vol_ok
+        near = np.abs(obs.ipam_target_lengths - obs.ipam_lengths) < self.settings.length_deadband
+        return vol_ok & np.all(near | self.pinned(obs, controls) | self.passive_ipams, axis=1)
+
+    def update(self, obs: Observation, phase: np.ndarray, controls: Controls) -> None:
+        """Move every world on by this observation (see the class docstring)."""
         s = self.settings
-        vol_ok = obs.volume_within(s.volume_deadband)
-        len_ok = self._lengths_settled(obs, controls.pressures)
-        for w in np.flatnonzero(~self.done):
-            if phase[w] == 2 and vol_ok[w] and len_ok[w]:
-                self.done[w], self.reason[w] = True, CONVERGED
-            elif obs.mean_stretch[w] > s.max_stretch:
-                self.done[w], self.reason[w] = True, (f"target unreachable: mean membrane stretch "
-                                                      f"{obs.mean_stretch[w]:.2f} exceeds max_stretch {s.max_stretch}")
-            elif obs.step == s.max_steps:
-                self.done[w] = True
-            if self.done[w]:
-                self.final[w] = (obs, controls)
+        met = self.deadbands_met(obs, controls) & (phase == 2)
+        for w in np.flatnonzero(self.state == RUNNING):
+            cause = ("deadbands" if met[w] else "stretch" if obs.mean_stretch[w] > s.max_stretch
+                     else "step limit" if self.law_steps[w] >= s.max_steps else "")
+            if cause:
+                self.state[w], self.cause[w], self.hold_start[w] = HOLDING, cause, obs.step
+                if cause == "stretch":
+                    self.stretch_note[w] = (f"target unreachable: mean membrane stretch {obs.mean_stretch[w]:.2f} "
+                                            f"exceeds max_stretch {s.max_stretch:g}")
+        for w in np.flatnonzero(self.state == HOLDING):
+            at_rest = obs.max_speed[w] < s.settle_speed
+            if at_rest and self.cause[w] == "deadbands" and not met[w]:
+                if self.law_steps[w] < s.max_steps:
+                    self.state[w] = RUNNING  # left the deadbands while settling: control on
+                    continue
+                self.cause[w] = "step limit"
+            if at_rest or obs.step - self.hold_start[w] >= s.max_settle_steps:
+                self.state[w], self.settled[w], self.final[w] = DONE, at_rest, (obs, controls)
+                self.final_met[w] = met[w]
+
+    def saturated(self, w: int) -> list[str]:
+        """World ``w``'s actuators pinned at a limit at its final observation while their target asks for
+        more, e.g. "ipam 3 at P_max 300 kPa"."""
+        obs, controls = self.final[w]
+        out = []
+        if self.dev.n_ipam:
+            lim = self.dev.ipam_limits
+            for i in np.flatnonzero(self.pinned(obs, controls)[w]):
+                top = controls.pressures[w, i] >= lim[i, 1]
+                out.append(f"ipam {i} at P_{'max' if top else 'min'} {lim[i, 1 if top else 0] / 1e3:g} kPa")
+        if controls.air[w] <= 0.0 and obs.volume[w] > obs.target_volume[w] * (1 + self.settings.volume_deadband):
+            out.append("air at 0 mol")
+        return out
+
+    def reason(self, w: int, saturated: list[str]) -> str:
+        """Why world ``w`` ended, whether it is at rest, and which limit stopped it."""
+        s, obs = self.settings, self.final[w][0]
+        speed = f"largest vertex speed {obs.max_speed[w] * 1e3:.2g} mm/s"
+        rest = (f"at rest ({speed} < {s.settle_speed * 1e3:g} mm/s)" if self.settled[w] else
+                f"not at rest: {speed} after holding the controls {obs.step - self.hold_start[w]} control steps "
+                f"(max_settle_steps {s.max_settle_steps})")
+        limits = ", ".join(saturated)
+        if self.cause[w] == "deadbands" and not self.final_met[w]:
+            head = "the deadbands were met, then left while the controls were held"
+        elif self.cause[w] == "deadbands" and not saturated:
+            head = ("converged" if self.settled[w] else "within the deadbands") \
+                + ": volume and every IPAM length within their deadbands"
+        elif self.cause[w] == "deadbands":
+            ask = "their targets ask" if len(saturated) > 1 else "its target asks"
+            head = (f"stopped by a limit: {limits} ({ask} for more); the volume and the other IPAM lengths within "
+                    f"their deadbands")
+        elif self.cause[w] == "stretch":
+            head = self.stretch_note[w]
+        else:
+            head = f"step limit reached ({s.max_steps} control steps)" + (f"; at a limit: {limits}" if limits else "")
+        return f"{head}; {rest}"
 
 
-def _run(sim, observer: Observer, law: PaperLaw, stop: _StopRule, history: History, *, progress=None,
-         recorder=None) -> np.ndarray:
-    """Observe, record, stop, then apply the law's controls, every control period until every world is
-    done; returns (W, n_cell) the control step at which each cell jammed (-1: never)."""
-    dev, s = observer.dev, stop.settings
-    W = len(stop.done)
-    controls = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipam)))
-    jam_steps = np.full((W, dev.n_cell), -1, dtype=np.int64)
-    for step in range(s.max_steps + 1):
-        obs = observer.observe(sim, step, controls.air, controls.pressures)
-        phase = law.update_phase(obs, stop.done)
-        history.record(obs, phase, controls, stop.done)
-        if recorder is not None:
-            recorder.log_control_step(step=step, time=obs.time, positions=obs.positions, sampled=obs.sampled,
-                                      rows=history.rows, done=stop.done)
-        stop.check(obs, phase, controls)
-        if progress is not None:
-            progress(step, s.max_steps, int(stop.done.sum()), W)
-        if stop.done.all():
-            break
-        out = law.step(obs, controls, ~stop.done)  # worlds already done keep their controls
+def _apply(sim, observer: Observer, law, ending: _Ending, obs: Observation, controls: Controls,
+           jam_steps: np.ndarray) -> Controls:
+    """The law's step for the running worlds (the others hold their controls), applied to ``sim``."""
+    active = ending.running
+    if active.any():
+        out = law.step(obs, controls, active)
         for w, j in out.jam:
             sim.jam(j, world=w)
-            jam_steps[w, j] = step
+            jam_steps[w, j] = obs.step
         controls = out.controls
-        sim.air_moles = controls.air
-        if dev.n_ipam:
-            sim.ipam_pressures = controls.pressures
+        ending.law_steps += active
+    sim.air_moles = controls.air
+    if observer.dev.n_ipam:
+        sim.ipam_pressures = controls.pressures
+    return controls
+
+
+def _run(sim, observer: Observer, law: PaperLaw, ending: _Ending, history: History, *, progress=None,
+         recorder=None) -> np.ndarray:
+    """Observe, move on, record, then apply the law's controls, every control period until every world
+    is done; returns (W, n_cell) the control step at which each cell jammed (-1: never)."""
+    dev, s = observer.dev, ending.settings
+    W = len(ending.state)
+    controls = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipam)))
+    jam_steps = np.full((W, dev.n_cell), -1, dtype=np.int64)
+    step = 0
+    while True:
+        obs = observer.observe(sim, step, controls.air, controls.pressures)
+        was_done = ending.done.copy()
+        phase = law.update_phase(obs, ~ending.running)
+        ending.update(obs, phase, controls)
+        history.record(obs, np.where(ending.running, phase, HOLD_PHASE), controls, was_done)
+        if recorder is not None:
+            recorder.log_control_step(step=step, time=obs.time, positions=obs.positions, sampled=obs.sampled,
+                                      rows=history.rows, done=was_done)
+        if progress is not None:
+            progress(step, s.max_steps + s.max_settle_steps, int(ending.done.sum()), W)
+        if ending.done.all():
+            return jam_steps
+        controls = _apply(sim, observer, law, ending, obs, controls, jam_steps)
         sim.step(s.control_period)
-    return jam_steps
+        step += 1
 
 
-def _result(w: int, stop: _StopRule, history: History, jam_steps: np.ndarray, design: Design, target: TriMesh,
+def _result(w: int, ending: _Ending, history: History, jam_steps: np.ndarray, design: Design, target: TriMesh,
             passive_ipams: np.ndarray, passive_cells: np.ndarray) -> ControlResult:
-    obs, controls = stop.final[w]
+    obs, controls = ending.final[w]
     x, sampled = obs.positions[w].copy(), obs.sampled[w].copy()
-    r, R = np.linalg.norm(x, axis=1), np.linalg.norm(sampled, axis=1)
     vol, vol_t = obs.volume[w], obs.target_volume[w]
+    saturated = ending.saturated(w)
     return ControlResult(
         achieved=design.rest.copy_with(x), sampled_target=design.rest.copy_with(sampled),
-        pcc=pcc(r, R), mare=float(np.mean(np.abs(r - R))), mpre=float(100 * np.mean(np.abs(r - R) / R)),
+        objective=float(obs.objective[w]), pcc=float(obs.pcc[w]), mare=float(obs.mare[w]), mpre=float(obs.mpre[w]),
         volume_error=float((vol - vol_t) / vol_t), ipam_forces=obs.ipam_forces[w].copy(),
         ipam_pressures=controls.pressures[w].copy(), air_moles=float(controls.air[w]),
         jammed=obs.jammed[w].copy().astype(bool), jam_steps=jam_steps[w].copy(),
-        converged=stop.reason[w].startswith("converged"), reason=stop.reason[w], control_steps=int(obs.step),
-        history=history.columns(w), settings=stop.settings, frames=history.frame_stack(w), design=design,
+        converged=bool(ending.cause[w] == "deadbands" and ending.final_met[w] and ending.settled[w] and not saturated),
+        reason=ending.reason(w, saturated), saturated=saturated, settled=bool(ending.settled[w]),
+        max_speed=float(obs.max_speed[w]), control_steps=int(obs.step),
+        history=history.columns(w), settings=ending.settings, frames=history.frame_stack(w), design=design,
         target=target, passive_ipams=np.flatnonzero(passive_ipams[w]), passive_cells=np.flatnonzero(passive_cells[w]))
 
 
@@ -166,19 +255,21 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
                                recorder_prefix=recorder_prefix, passive_ipams=passive_ipams,
                                passive_cells=passive_cells, target_names=target_names)
     W = len(targets)
-    sampler = RadialSampler(targets, device=device)  # checks star-shape; raises ShapeError naming directions
+    names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
+    sampler = RadialSampler(targets, device=device, names=names)  # checks star-shape, naming the directions
+    check_targets_against_rest(design.rest, targets, sampler, names, max_stretch=settings.max_stretch)
     sim = _simulator(design, settings.simulation, device, W)
     dev = DeviceConstants.of(sim, design)
     passive_i = _passive_mask(passive_ipams, W, dev.n_ipam, "passive_ipams")  # (W, n_ipam)
     passive_c = _passive_mask(passive_cells, W, dev.n_cell, "passive_cells")  # (W, n_cell)
-    names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
     if recorder is not None:
         recorder.begin_run(design=design, targets=targets, target_names=names, prefix=recorder_prefix,
                            settings=settings)
-    stop, history = _StopRule(settings, dev, passive_i), History(W, dev)
+    ending, history = _Ending(settings, dev, passive_i), History(W, dev)
     law = LAWS["paper"](settings, dev, passive_i, passive_c)
-    jam_steps = _run(sim, Observer(dev, sampler, W), law, stop, history, progress=progress, recorder=recorder)
-    results = [_result(w, stop, history, jam_steps, design, targets[w], passive_i, passive_c) for w in range(W)]
+    observer = Observer(dev, sampler, W, [t.volume() for t in targets])
+    jam_steps = _run(sim, observer, law, ending, history, progress=progress, recorder=recorder)
+    results = [_result(w, ending, history, jam_steps, design, targets[w], passive_i, passive_c) for w in range(W)]
     if recorder is not None:
         recorder.end_run(results)
     return results

@@ -2,8 +2,10 @@
 
 An observation holds, per world: the membrane and the target sampled radially through its vertices,
 the enclosed and target volumes and the absolute chamber pressure, each IPAM's length, target length
-and axial force, each cell's curvature and target curvature and jam state, the mean edge stretch and
-the fit (PCC, MARE, MPRE).
+and axial force, each cell's curvature and target curvature and jam state, the mean edge stretch, the
+largest vertex speed and the fit: the objective (``sampling.fit_objective``: area-weighted RMS of
+(R - r) / V_t^(1/3), weights the sampled target's vertex area shares, V_t the target mesh's own
+volume), PCC, MARE and MPRE, each by its one implementation in ``sampling``.
 """
 
 from __future__ import annotations
@@ -16,10 +18,10 @@ from ..design import Design
 from ..material import GAS_CONSTANT
 from ..physics.ipam import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
 from ..physics.pressure import volumes_np
-from ..sampling import RadialSampler, pcc
+from ..sampling import RadialSampler, fit_objective, mare, mpre, pcc
 
 __all__ = ["DeviceConstants", "Observation", "Observer", "cell_anchor_faces", "ipam_lengths_and_forces",
-           "ipam_neutral_pressures"]
+           "ipam_neutral_pressures", "vertex_area_shares", "fit_of"]
 
 
 def cell_anchor_faces(design: Design) -> np.ndarray:
@@ -119,6 +121,8 @@ class Observation:
     kappa_target: np.ndarray  # (W, n_cell) m
     jammed: np.ndarray  # (W, n_cell) bool
     mean_stretch: np.ndarray  # (W,) mean edge length / rest length
+    max_speed: np.ndarray  # (W,) largest vertex speed, m/s
+    objective: np.ndarray  # (W,) fit objective (unitless, 0 = perfect fit)
     pcc: np.ndarray  # (W,) eq. (10) on vertex radii
     mare: np.ndarray  # (W,) m
     mpre: np.ndarray  # (W,) %
@@ -136,21 +140,39 @@ def _curvatures(radii: np.ndarray, dev: DeviceConstants) -> np.ndarray:
                      for j in range(dev.n_cell)], 1)
 
 
-def _fit(r: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per world PCC, MARE (m) and MPRE (%) of (W, V) design radii r and target radii R."""
-    W = r.shape[0]
-    return (np.array([pcc(r[w], R[w]) for w in range(W)]),
-            np.array([float(np.mean(np.abs(r[w] - R[w]))) for w in range(W)]),
-            np.array([float(100.0 * np.mean(np.abs(r[w] - R[w]) / R[w])) for w in range(W)]))
+def vertex_area_shares(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(W, V) the area each vertex stands for (a third of each adjacent face) of the (W, V, 3) ``points``
+    triangulated by ``faces``."""
+    W, V = points.shape[:2]
+    p = points[:, faces]  # (W, F, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0]), axis=2)  # (W, F)
+    idx = (np.arange(W)[:, None, None] * V + faces[None]).reshape(-1)
+    return np.bincount(idx, weights=np.repeat(area / 3.0, 3, axis=1).reshape(-1), minlength=W * V).reshape(W, V)
+
+
+def fit_of(positions: np.ndarray, sampled: np.ndarray, faces: np.ndarray, target_volumes: np.ndarray) -> dict:
+    """Per world the fit of (W, V, 3) membrane ``positions`` to the ``sampled`` target (hits through the
+    same vertices): ``objective`` (weights: the sampled target's vertex area shares; V_t:
+    ``target_volumes`` (W,), the target meshes' own volumes), ``pcc``, ``mare`` (m), ``mpre`` (%), each
+    a (W,) array."""
+    r, R = np.linalg.norm(positions, axis=2), np.linalg.norm(sampled, axis=2)
+    w = vertex_area_shares(sampled, faces)
+    W = len(r)
+    return dict(objective=np.array([fit_objective(r[k], R[k], target_volumes[k], w[k]) for k in range(W)]),
+                pcc=np.array([pcc(r[k], R[k]) for k in range(W)]),
+                mare=np.array([mare(r[k], R[k]) for k in range(W)]),
+                mpre=np.array([mpre(r[k], R[k]) for k in range(W)]))
 
 
 class Observer:
-    """Takes one observation of every world of a simulator (one target per world)."""
+    """Takes one observation of every world of a simulator (one target per world; ``target_volumes``:
+    (W,) each world's target mesh volume, m^3, the scale of the objective)."""
 
-    def __init__(self, dev: DeviceConstants, sampler: RadialSampler, worlds: int):
+    def __init__(self, dev: DeviceConstants, sampler: RadialSampler, worlds: int, target_volumes):
         self.dev = dev
         self.sampler = sampler
         self.world_index = np.arange(worlds)
+        self.target_volumes = np.asarray(target_volumes, dtype=np.float64).reshape(worlds)  # m^3, per world
 
     def observe(self, sim, step: int, air: np.ndarray, pressures: np.ndarray) -> Observation:
         """The state of every world of ``sim`` now; ``air`` (W,) mol and ``pressures`` (W, n_ipam) Pa
@@ -164,12 +186,13 @@ class Observer:
         cen_t = sampled[:, dev.faces].mean(axis=2)
         length, target_length, force = ipam_lengths_and_forces(cen, cen_t, dev, pressures)
         stretch = np.linalg.norm(x[:, dev.hinges[:, 1]] - x[:, dev.hinges[:, 0]], axis=2) / dev.rest_length
-        r_v, r_vt = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
-        fit_pcc, fit_mare, fit_mpre = _fit(r_v, r_vt)
+        v = np.asarray(sim.velocities, dtype=np.float64).reshape(W, -1, 3)
+        fit = fit_of(x, sampled, dev.faces, self.target_volumes)
         return Observation(
             step=step, time=sim.time, positions=x, sampled=sampled, volume=vol, target_volume=vol_t,
             pressure_abs=air * dev.rt / vol, ipam_lengths=length, ipam_target_lengths=target_length,
             ipam_forces=force, kappa=_curvatures(np.linalg.norm(cen, axis=2), dev),
             kappa_target=_curvatures(np.linalg.norm(cen_t, axis=2), dev),
             jammed=np.asarray(sim.jammed).reshape(W, dev.n_cell),
-            mean_stretch=np.array([s.mean() for s in stretch]), pcc=fit_pcc, mare=fit_mare, mpre=fit_mpre)
+            mean_stretch=np.array([s.mean() for s in stretch]), max_speed=np.linalg.norm(v, axis=2).max(axis=1),
+            **fit)

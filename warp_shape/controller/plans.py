@@ -67,7 +67,7 @@ def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
     dev = ctx.dev
     air = np.array([r.air_moles for r in warm])
     press = np.stack([r.ipam_pressures for r in warm]) if dev.n_ipam else np.zeros((W, 0))
-    observer = Observer(dev, ctx.sampler, W)
+    observer = Observer(dev, ctx.sampler, W, [r.target.volume() for r in warm])
     if name == "paper":
         sim = replay_simulator(ctx.design, warm, device=ctx.device)
         hist = _history_from_results(warm, dev)

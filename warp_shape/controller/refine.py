@@ -109,9 +109,9 @@ class _World:
             if not self.active[k]:
                 continue
             if self.u[k] >= self.hi[k] - 1e-9 and g[k] < 0:
-                out.append(f"ipam{i} at its upper limit {self.hi[k] * PRESSURE_SCALE:.0f} Pa")
+                out.append(f"ipam {i} at P_max {self.hi[k] * PRESSURE_SCALE / 1e3:g} kPa")
             elif self.u[k] <= self.lo[k] + 1e-9 and g[k] > 0:
-                out.append(f"ipam{i} at its lower limit {self.lo[k] * PRESSURE_SCALE:.0f} Pa")
+                out.append(f"ipam {i} at P_min {self.lo[k] * PRESSURE_SCALE / 1e3:g} kPa")
         return out
 
 

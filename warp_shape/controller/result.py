@@ -17,8 +17,9 @@ __all__ = ["ControlResult"]
 class ControlResult:
     """Outcome of driving one design to one target. Files: ``warp_shape.io.outputs``."""
 
-    achieved: TriMesh  # membrane at the end of the control sequence
+    achieved: TriMesh  # membrane at the end of the control sequence, measured at rest (see ``settled``)
     sampled_target: TriMesh  # the target sampled radially through the achieved vertices
+    objective: float  # fit objective: area-weighted RMS of (R - r) / V_t^(1/3) (unitless, 0 = perfect)
     pcc: float
     mare: float  # m
     mpre: float  # %
@@ -28,8 +29,11 @@ class ControlResult:
     air_moles: float
     jammed: np.ndarray  # (n_cell,) bool
     jam_steps: np.ndarray  # (n_cell,) control step at which each cell jammed, -1 if never
-    converged: bool
-    reason: str
+    converged: bool  # at rest, within the deadbands and no actuator saturated
+    reason: str  # why the run ended, whether at rest, and which limit stopped it
+    saturated: list  # actuators pinned at a limit while their target asks for more, e.g. "ipam 3 at P_max 300 kPa"
+    settled: bool  # the final shape is at rest: largest vertex speed below settings.settle_speed
+    max_speed: float  # largest vertex speed of the final shape, m/s
     control_steps: int
     history: dict = field(repr=False)  # column name -> (n_steps,) array, see controller.history
     settings: ControlSettings = field(repr=False, default_factory=ControlSettings)
@@ -56,8 +60,10 @@ class ControlResult:
 
     def summary(self) -> dict:
         """Fit, final actuator state, convergence and settings as a JSON-ready dict (SI units)."""
-        return dict(pcc=self.pcc, mare_m=self.mare, mpre_pct=self.mpre, volume_error=self.volume_error,
-                    converged=self.converged, reason=self.reason, control_steps=self.control_steps,
+        return dict(objective=self.objective, pcc=self.pcc, mare_m=self.mare, mpre_pct=self.mpre,
+                    volume_error=self.volume_error, converged=self.converged, saturated=list(self.saturated),
+                    settled=self.settled, max_speed_m_s=self.max_speed, reason=self.reason,
+                    control_steps=self.control_steps,
                     air_moles=self.air_moles, ipam_forces_n=self.ipam_forces.tolist(),
                     ipam_pressures_pa=self.ipam_pressures.tolist(), jammed=self.jammed.tolist(),
                     jam_steps=self.jam_steps.tolist(), actuators=self.actuator_summary,

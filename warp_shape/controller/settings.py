@@ -32,6 +32,8 @@ class ControlSettings:
     jamming: bool = True  # False: never jam (for path-dependence studies)
     curvature_tolerance: float = 1e-6  # m; a move away from the target smaller than this is noise
     max_stretch: float = 4.0  # mean edge stretch beyond which the target is deemed unreachable
+    settle_speed: float = 1e-3  # m/s; at rest when the largest vertex speed is below this (float32 floor ~1e-4)
+    max_settle_steps: int = 100  # control steps the controls are held at most for the membrane to come to rest
     method: str = "inverse"  # "inverse": paper's law as warm start, then model-based (controller.inverse); "paper"
     inverse_iterations: int = 6  # Gauss-Newton iteration limit of the model-based refinement
     inverse_tolerance: float = 0.005  # refinement stops when an iteration lowers the objective by less (relative)
@@ -51,11 +53,14 @@ class ControlSettings:
                               "inverse_tolerance >= 0")
         if self.control_period < 1 or self.max_steps < 1:
             raise DesignError("ControlSettings needs control_period >= 1 and max_steps >= 1")
+        if self.max_settle_steps < 0:
+            raise DesignError(f"ControlSettings.max_settle_steps must be >= 0 (0: never hold to settle), "
+                              f"got {self.max_settle_steps}")
         if not isinstance(self.simulation, SimulationSettings):
             raise DesignError(f"ControlSettings.simulation must be a SimulationSettings (warp_shape.settings), "
                               f"got {type(self.simulation).__name__}")
         for name in ("volume_deadband", "length_deadband", "air_rate", "pressure_rate", "air_gain", "pressure_gain",
-                     "gain_backoff", "min_gain"):
+                     "gain_backoff", "min_gain", "settle_speed", "max_stretch"):
             if getattr(self, name) <= 0:
                 raise DesignError(f"ControlSettings.{name} must be > 0, got {getattr(self, name)}")
 

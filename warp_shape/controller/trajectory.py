@@ -2,8 +2,8 @@
 
 The model-based controller drives its main simulator open loop with planned commands: it ramps the
 controls to new values within the rate limits (``air_rate`` of the rest air and ``pressure_rate``
-per control step), holds them until the membrane is at rest (largest vertex speed below
-``SETTLE_SPEED``, at most ``SETTLE_LIMIT`` control steps) and jams cells. Every control step is
+per control step), holds them until the membrane is at rest (largest vertex speed below the
+settings' ``settle_speed``, at most ``max_settle_steps`` control steps) and jams cells. Every control step is
 recorded as a history row (``controller.history``) with phase ``PHASE_PLANNED``, so the record stays a
 sequence a valve controller can replay (``controller.replay``). Passive IPAMs are held neutral and
 passive cells never jam, as in the control loop.
@@ -17,13 +17,11 @@ from .history import History
 from .laws import Controls
 from .observe import DeviceConstants, Observation, Observer, ipam_neutral_pressures
 from .settings import ControlSettings
-from .worlds import max_speeds, take_worlds
+from .worlds import take_worlds
 
-__all__ = ["Trajectory", "PHASE_PLANNED", "SETTLE_SPEED", "SETTLE_LIMIT"]
+__all__ = ["Trajectory", "PHASE_PLANNED"]
 
-PHASE_PLANNED = 3  # history phase of the model-based controller's rows (1, 2: the paper's law)
-SETTLE_SPEED = 1e-3  # m/s: the membrane is at rest when no vertex moves faster
-SETTLE_LIMIT = 100  # control steps a hold waits at most for the membrane to come to rest
+PHASE_PLANNED = 4  # history phase of the model-based controller's rows (1, 2, 3: the paper's law and its hold)
 
 
 class Trajectory:
@@ -50,7 +48,7 @@ class Trajectory:
         new = np.array([not rows or abs(rows[-1]["time"] - obs.time) > 0.5 * self.sim.dt
                         for rows in self.history.rows])
         self.history.record(obs, np.full(self.W, phase), self.controls, ~new)
-        self.last, self.speed = obs, max_speeds(self.sim)
+        self.last, self.speed = obs, obs.max_speed
         return obs
 
     def _apply(self, air: np.ndarray, pressures: np.ndarray) -> None:
@@ -85,14 +83,15 @@ class Trajectory:
             self._apply(a0 + f * (air - a0), p0 + f[:, None] * (pressures - p0))
 
     def hold(self) -> None:
-        """Hold the commands until every world is at rest (or ``SETTLE_LIMIT`` control steps)."""
+        """Hold the commands until every world is at rest (or ``max_settle_steps`` control steps)."""
         if self.last is None:
             self.observe()
-        for _ in range(SETTLE_LIMIT):
-            if np.all(self.speed < SETTLE_SPEED):
+        s = self.settings
+        for _ in range(s.max_settle_steps):
+            if np.all(self.speed < s.settle_speed):
                 break
             self._apply(self.controls.air, self.controls.pressures)
-        self.settled = self.speed < SETTLE_SPEED
+        self.settled = self.speed < s.settle_speed
 
     def jam_all(self) -> None:
         """Jam every cell that is not passive in every world, now (recorded from the next row on)."""

@@ -37,8 +37,8 @@ class DesignSettings:
     volume_scale: float = 0.8  # rest volume / smallest target volume (multi-target initialisation)
     min_angle_deg: float = 120.0  # the two IPAM ends are at least this far apart seen from the origin
     initialize: bool = True  # False: keep the given rest shape (single-target mode)
-    select_actuators: bool = True  # leave a new actuator set out of a target's sequence when it lowers that PCC
-    max_drop: float = 0.005  # PCC drop that triggers the selection above
+    select_actuators: bool = True  # leave a new actuator set out of a target's sequence when it worsens its fit
+    max_rise: float = 0.005  # relative rise of a target's fit objective that triggers the selection above
     ipam_stiffness: float = DEFAULT_IPAM_STIFFNESS  # N/m of every added IPAM
     ipam_area: float = DEFAULT_IPAM_AREA  # m^2
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
@@ -52,6 +52,8 @@ class DesignSettings:
             raise DesignError(f"volume_scale must be in (0, 1], got {self.volume_scale}")
         if self.round_control not in ROUND_CONTROLS:
             raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
+        if not (self.max_rise >= 0 and math.isfinite(self.max_rise)):
+            raise DesignError(f"max_rise must be a relative tolerance >= 0 (e.g. 0.005), got {self.max_rise}")
         if not 0 < self.min_angle_deg < 180:
             raise DesignError(f"min_angle_deg must be in (0, 180), got {self.min_angle_deg}")
 

@@ -95,11 +95,13 @@ def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float
 
 def write_round_outputs(out_dir, round_index: int, names, rounds) -> list[Path]:
     """What a finished design round leaves behind, so an interrupted run keeps its rounds: a partial
-    ``report.json`` (``complete`` false, PCC by round so far) and the round's control sequences.
+    ``report.json`` (``complete`` false, PCC and fit objective by round so far) and the round's control
+    sequences.
     ``rounds``: every finished round's control results, this round last."""
     out = Path(out_dir)
     report = dict(complete=False, rounds_done=round_index + 1, targets=list(names),
-                  pcc_by_round=[[r.pcc for r in rs] for rs in rounds])
+                  pcc_by_round=[[r.pcc for r in rs] for rs in rounds],
+                  objective_by_round=[[r.objective for r in rs] for rs in rounds])
     return [write_json(out / "report.json", report)] + write_control_outputs(rounds[-1], names, out)
 
 

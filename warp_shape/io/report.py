@@ -1,4 +1,5 @@
-"""The Markdown design report: PCC by round, actuators added, final fit and actuator needs."""
+"""The Markdown design report: PCC by round, actuators added, final fit (objective, PCC, MARE, MPRE,
+saturation, convergence) and actuator needs."""
 
 from __future__ import annotations
 
@@ -29,10 +30,14 @@ def _added_table(result) -> list[str]:
 
 
 def _fit_table(result) -> list[str]:
-    lines = ["## Final fit", "", "| target | PCC | MARE (mm) | MPRE (%) | volume error (%) | converged |",
-             "|---|---|---|---|---|---|"]
+    lines = ["## Final fit (measured at rest)", "",
+             "Objective: area-weighted RMS of the radial error scaled by the target's size, (R - r) / V_t^(1/3); "
+             "0 is a perfect fit.", "",
+             "| target | objective | PCC | MARE (mm) | MPRE (%) | volume error (%) | saturated | converged |",
+             "|---|---|---|---|---|---|---|---|"]
     for n, r in zip(result.target_names, result.results):
-        lines.append(f"| {n} | {r.pcc:.4f} | {r.mare * 1e3:.3f} | {r.mpre:.2f} | {100 * r.volume_error:.3f} | "
+        lines.append(f"| {n} | {r.objective:.4f} | {r.pcc:.4f} | {r.mare * 1e3:.3f} | {r.mpre:.2f} | "
+                     f"{100 * r.volume_error:.3f} | {', '.join(r.saturated) or '-'} | "
                      f"{'yes' if r.converged else 'no: ' + r.reason} |")
     return lines
 
