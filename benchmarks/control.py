@@ -13,7 +13,6 @@ import time
 import numpy as np
 
 from warp_shape.controller import ControlSettings, control_many
-from warp_shape.controller.inverse import result_objective
 from warp_shape.design import Design
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.targets import target
@@ -58,8 +57,8 @@ def _case(name: str, design: Design, targets: list, device: str, repeats: int) -
     fmt = lambda vals, k=1.0: " ".join(f"{k * v:.4f}" for v in vals)  # noqa: E731
     return dict(case=name, vertices=design.rest.n_vertices, ipams=design.n_ipams, targets=len(targets),
                 paper_s=round(paper_s, 2), inverse_s=round(inverse_s, 2), ratio=round(inverse_s / paper_s, 1),
-                paper_objective=fmt(result_objective(r) for r in paper),
-                inverse_objective=fmt(result_objective(r) for r in inverse),
+                paper_objective=fmt(r.objective for r in paper),
+                inverse_objective=fmt(r.objective for r in inverse),
                 paper_mare_mm=fmt((r.mare for r in paper), 1e3), inverse_mare_mm=fmt((r.mare for r in inverse), 1e3),
                 plans=" ".join(r.refinement["plan"] if not r.refinement["fell_back"] else "paper(kept)"
                                for r in inverse),

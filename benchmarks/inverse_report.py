@@ -23,7 +23,6 @@ import numpy as np
 import warp_shape as ws
 from warp_shape.benchmarks.sim import format_rows
 from warp_shape.controller import control_many
-from warp_shape.controller.inverse import result_objective
 from warp_shape.scenarios import cube_fig6_design
 
 __all__ = ["main"]
@@ -44,7 +43,7 @@ def _with_limit(design: ws.Design, high: float) -> ws.Design:
 def _row(method: str, limit: float, res, wall: float) -> dict:
     info = res.refinement or {}
     plan = ("paper (kept)" if info.get("fell_back") else info.get("plan", "")) if info else ""
-    return dict(method=method, limit_kpa=f"{limit / 1e3:.0f}", objective=f"{result_objective(res):.5f}",
+    return dict(method=method, limit_kpa=f"{limit / 1e3:.0f}", objective=f"{res.objective:.5f}",
                 pcc=f"{res.pcc:.4f}", mare_mm=f"{res.mare * 1e3:.3f}", mpre_pct=f"{res.mpre:.2f}",
                 pressures_kpa=" ".join(f"{p / 1e3:.0f}" for p in res.ipam_pressures),
                 saturated="; ".join(info.get("saturated", [])) or "-", plan=plan, wall_s=f"{wall:.1f}")
@@ -91,7 +90,7 @@ def ten_rows() -> list[dict]:
     inv, ti = _timed(d, targets, "inverse")
     rows = []
     for n, p, q in zip(names, paper, inv):
-        op, oq = result_objective(p), result_objective(q)
+        op, oq = p.objective, q.objective
         rows.append(dict(target=n, paper_objective=f"{op:.5f}", inverse_objective=f"{oq:.5f}",
                          objective_ratio=f"{oq / op:.3f}", paper_mare_mm=f"{p.mare * 1e3:.3f}",
                          inverse_mare_mm=f"{q.mare * 1e3:.3f}", mare_ratio=f"{q.mare / p.mare:.3f}",
@@ -99,8 +98,8 @@ def ten_rows() -> list[dict]:
     ratio = np.array([float(r["objective_ratio"]) for r in rows])
     rows.append(dict(target="mean", objective_ratio=f"{ratio.mean():.3f}",
                      mare_ratio=f"{np.mean([float(r['mare_ratio']) for r in rows]):.3f}",
-                     paper_objective=f"{np.mean([result_objective(p) for p in paper]):.5f}",
-                     inverse_objective=f"{np.mean([result_objective(q) for q in inv]):.5f}",
+                     paper_objective=f"{np.mean([p.objective for p in paper]):.5f}",
+                     inverse_objective=f"{np.mean([q.objective for q in inv]):.5f}",
                      plan=f"paper {tp:.0f} s, inverse {ti:.0f} s (10 targets in one batch)"))
     return rows
 

@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from ..design import Design
-from ..sampling import RadialSampler, fit_objective
+from ..sampling import RadialSampler
 from .explore import Explorer
 from .observe import DeviceConstants
 from .plans import parse_plans, start_plan
@@ -34,17 +34,9 @@ from .refine import STOP_LIMIT, Refined, refine
 from .result import ControlResult
 from .settings import ControlSettings
 
-__all__ = ["control_inverse", "result_objective", "PLANS_REFINED"]
+__all__ = ["control_inverse", "PLANS_REFINED"]
 
 PLANS_REFINED = 2  # plans refined per target: those that fit best, settled, before refining
-
-
-def result_objective(result: ControlResult) -> float:
-    """The fit objective of a control result: RMS of (R - r) / V_t^(1/3) over the achieved vertices,
-    weighted by the sampled target's vertex areas, V_t the target mesh's volume."""
-    r = np.linalg.norm(result.achieved.vertices, axis=1)
-    R = np.linalg.norm(result.sampled_target.vertices, axis=1)
-    return fit_objective(r, R, result.target.volume(), result.sampled_target.vertex_areas())
 
 
 @dataclasses.dataclass
@@ -165,7 +157,7 @@ def _finish_and_choose(trajs: list, names: list, refined: list, warm: list) -> l
     for w, base in enumerate(warm):
         p = int(best[w])
         cand = _result(trajs[p], w, base, names[p], refined[p], w)
-        obj, warm_obj = result_objective(cand), result_objective(base)
+        obj, warm_obj = cand.objective, base.objective
         info = _info(w, names, refined, p, warm_obj, obj)
         if obj < warm_obj:
             out.append(dataclasses.replace(cand, refinement=info))

@@ -48,9 +48,7 @@ def _passive_mask(spec, W: int, n: int, what: str) -> np.ndarray:
 def _simulator(design: Design, s: SimulationSettings, device: str, worlds: int):
     from ..simulator import Simulator
 
-    return Simulator(design, device=device, integrator=s.integrator, dt=s.dt, precision=s.precision,
-                     bending=s.bending, substeps=s.substeps, worlds=worlds, launch_mode=s.launch_mode,
-                     reestimate_every=s.reestimate_every)
+    return Simulator(design, device=device, settings=s, worlds=worlds)
 
 
 RUNNING, HOLDING, DONE = 0, 1, 2
