@@ -19,7 +19,9 @@ def register(subparsers) -> None:
     e.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
     e.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
-    e.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
+    e.add_argument("--marker-height", type=float, default=2e-3, help="IPAM boss height on the mold core, m")
+    e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
+                   help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")
     add_common_args(e)
     e.set_defaults(func=run)
 
@@ -44,7 +46,7 @@ def run(args) -> int:
     written = []
     if "molds" in args.what:
         written += write_molds(scene.design, out, marker_height=args.marker_height,
-                               layer_thickness=args.layer_thickness)
+                               layer_thickness=args.layer_thickness, units=args.units)
     if "usd" in args.what:
         written.append(save_scene(scene, out / "design.usda"))
     if "control" in args.what and named:
