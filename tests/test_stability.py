@@ -170,7 +170,7 @@ def test_largest_mesh_a_few_steps():
 # --------------------------------------------------------------------------- pressure up to 10 atmospheres
 
 
-@pytest.mark.parametrize("gauge_atm", [0.1, 1.0, 10.0])
+@pytest.mark.parametrize("gauge_atm", [0.1, 1.0, 10.0, 100.0])
 @pytest.mark.parametrize("integrator", ["rk4", "semi_implicit"])
 def test_high_pressure(gauge_atm, integrator):
     d = _design(2)
