@@ -123,8 +123,8 @@ def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
                          extra_report: dict | None = None) -> list[Path]:
     """Every output of a finished design: ``design.usda`` (the design, its targets, its settings and
-    each target's actuator selection), per target the control sequence (CSV, JSON) and
-    ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
+    each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
+    sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
     result's report, ``extra_report`` entries and the list of outputs), written last."""
     from .scene_schema import Scene
     from .scene_write import save_scene
@@ -137,6 +137,9 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
     written += write_control_outputs(result.results, names, out, usd=True)
+    from .valve import write_valve_outputs
+
+    written += write_valve_outputs(result.results, names, out)
     written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
     written += write_figures_or_skip(result, out)
     report = result.report()
