@@ -94,25 +94,22 @@ def test_default_outputs_exist_and_validate(default_run):
 
     rc, out = default_run
     expected = {"design.usda", "actuation_oval.usdc", "actuation_heart.usdc", "control_oval.csv", "control_oval.json",
-                "control_heart.csv", "control_heart.json", "report.json", "report.md", "mold_inner.stl",
-                "mold_outer.stl", "pcc_by_round.png", "control_oval.png", "control_heart.png"}
+                "control_heart.csv", "control_heart.json", "report.json", "report.md", "mold_core_mm.stl",
+                "mold_shell_bottom_mm.stl", "mold_shell_top_mm.stl", "molds_mm.json", "valve_oval.csv",
+                "valve_heart.csv", "pcc_by_round.png", "control_oval.png", "control_heart.png"}
     assert expected <= {p.name for p in out.iterdir()}
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary files
     for name in ("design.usda", "actuation_oval.usdc", "actuation_heart.usdc"):
         assert ws.validate_usd(out / name) == [], name
     loaded = ws.load_scene(out / "design.usda")
     assert loaded.design.n_ipams == 4 and loaded.target_names == ["oval", "heart"]
-    inner = trimesh.load(out / "mold_inner.stl")
-    outer = trimesh.load(out / "mold_outer.stl")
-    assert inner.is_watertight and outer.is_watertight and inner.is_winding_consistent
+    core = trimesh.load(out / "mold_core_mm.stl")
+    halves = [trimesh.load(out / f"mold_shell_{h}_mm.stl") for h in ("bottom", "top")]
+    assert core.is_watertight and core.is_winding_consistent and all(h.is_watertight for h in halves)
     rest = loaded.design.rest
-    c = rest.centroid()
-    r_rest = np.linalg.norm(rest.vertices - c, axis=1)
-    r_outer = np.linalg.norm(np.asarray(outer.vertices) - c, axis=1)
-    # STL merges nothing away: same vertex order as the rest mesh after trimesh's merge, so compare means
-    assert r_outer.mean() - r_rest.mean() == pytest.approx(5e-3, rel=0.02)
-    assert outer.volume > rest.volume() and inner.volume > rest.volume()  # markers stand proud
-    assert len(inner.vertices) == rest.n_vertices + 8  # one marker apex per IPAM end
+    # millimetres: the core is the rest shape (m^3 -> mm^3) plus its IPAM bosses
+    assert 1.0 < core.volume / (rest.volume() * 1e9) < 1.05
+    assert len(json.loads((out / "molds_mm.json").read_text())["ipam_markers"]) == 8  # one boss per IPAM end
 
 
 def test_default_run_writes_report_figures(default_run):

@@ -2,7 +2,7 @@
 
 Every file is written atomically (a temporary file, then a rename), so an interrupted run never
 leaves half a file. Units: control sequences in SI (s, Pa, m, N) as in the controller's history
-columns; molds as binary STL in metres as the rest shape is given.
+columns; molds as binary STL in millimetres (the unit is in the file name).
 """
 
 from __future__ import annotations
@@ -83,14 +83,18 @@ def write_stl(mesh, path) -> Path:
     return atomic_write(path, mesh.to_trimesh().export(file_type="stl"))
 
 
-def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float) -> list[Path]:
-    """``mold_inner.stl`` (rest shape with IPAM markers) and ``mold_outer.stl`` (rest shape offset by
-    the jamming layer)."""
-    from ..molds import inner_mold, outer_mold
+def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float, units: str = "mm") -> list[Path]:
+    """The printable molds in ``units`` (unit in each file name): ``mold_core_<u>.stl`` (rest shape
+    with IPAM bosses), ``mold_shell_bottom_<u>.stl`` and ``mold_shell_top_<u>.stl`` (the two-part
+    shell whose cavity is the rest shape offset by the jamming layer), and ``molds_<u>.json``
+    (units, sizes, split plane, keys, pour and vent, IPAM markers, per part extents and volume)."""
+    from ..molds import mold_set
 
     out = Path(out_dir)
-    return [write_stl(inner_mold(design, marker_height), out / "mold_inner.stl"),
-            write_stl(outer_mold(design, layer_thickness), out / "mold_outer.stl")]
+    molds = mold_set(design, units=units, marker_height=marker_height, layer_thickness=layer_thickness)
+    written = [atomic_write(out / f"{name}_{units}.stl", mesh.export(file_type="stl"))
+               for name, mesh in molds.parts().items()]
+    return written + [write_json(out / f"molds_{units}.json", molds.info)]
 
 
 def write_round_outputs(out_dir, round_index: int, names, rounds) -> list[Path]:
@@ -119,8 +123,8 @@ def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
                          extra_report: dict | None = None) -> list[Path]:
     """Every output of a finished design: ``design.usda`` (the design, its targets, its settings and
-    each target's actuator selection), per target the control sequence (CSV, JSON) and
-    ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
+    each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
+    sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
     result's report, ``extra_report`` entries and the list of outputs), written last."""
     from .scene_schema import Scene
     from .scene_write import save_scene
@@ -133,6 +137,9 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
     written += write_control_outputs(result.results, names, out, usd=True)
+    from .valve import write_valve_outputs
+
+    written += write_valve_outputs(result.results, names, out)
     written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
     written += write_figures_or_skip(result, out)
     report = result.report()
