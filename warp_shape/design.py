@@ -146,8 +146,11 @@ class Design:
         self.ipams.append(ipam)
         return len(self.ipams) - 1
 
-    def add_cell(self, faces) -> int:
-        """Add a jamming cell over these face indices; returns its index. Cells may not overlap."""
+    def add_cell(self, faces, shared: bool = False) -> int:
+        """Add a jamming cell over these face indices; returns its index. Cells may not overlap, except
+        with ``shared`` True: a model holding alternative actuator sets (designer candidates, each
+        world masking out all but its own) may hold cells that share faces; ``face_cell`` keeps the
+        first cell of a shared face."""
         try:
             arr = np.unique(np.asarray(faces).reshape(-1))
         except (ValueError, TypeError) as exc:  # ragged nesting, unorderable objects
@@ -160,11 +163,11 @@ class Design:
         if bad.size:
             raise DesignError(f"cell face {int(bad[0])} is out of range: the rest mesh has {self.rest.n_faces} faces")
         taken = self._face_cell[arr]
-        if np.any(taken >= 0):
+        if np.any(taken >= 0) and not shared:
             i = int(np.flatnonzero(taken >= 0)[0])
             raise DesignError(f"cell face {int(arr[i])} already belongs to cell {int(taken[i])}; cells may not overlap")
         self.cells.append(Cell(faces=arr.astype(np.int32)))
-        self._face_cell[arr] = len(self.cells) - 1
+        self._face_cell[arr[taken < 0]] = len(self.cells) - 1
         return len(self.cells) - 1
 
     # ------------------------------------------------------------------ queries

@@ -205,6 +205,40 @@ class Simulator:
                 f"clip it or widen pressure_limits in Design.add_ipam")
         self.control.ipam_pressure.assign(a)
 
+    def _mask(self, value, n: int, name: str) -> np.ndarray:
+        a = np.asarray(value)
+        if a.dtype != bool or a.shape not in ((n,), (self.worlds, n)):
+            raise DesignError(f"{name} must be a bool array of shape ({n},) or ({self.worlds}, {n}), got "
+                              f"{a.dtype} {a.shape}")
+        return np.ascontiguousarray(np.broadcast_to(a, (self.worlds, n)))
+
+    @property
+    def ipam_mask(self) -> np.ndarray:
+        """(n_ipam,) bool, False where an IPAM is masked out of the world ((W, n_ipam) with several
+        worlds): it exerts no force there. One model can so hold alternative actuator sets."""
+        return self._out(self.control.ipam_enabled.numpy()[:, : self.model.n_ipams].astype(bool))
+
+    @ipam_mask.setter
+    def ipam_mask(self, value):
+        n = self.model.n_ipams
+        a = self._mask(value, n, "ipam_mask")
+        full = np.ones((self.worlds, max(n, 1)), dtype=np.int32)
+        full[:, :n] = a
+        self.control.ipam_enabled.assign(full)
+
+    @property
+    def cell_mask(self) -> np.ndarray:
+        """(n_cell,) bool, False where a cell is masked out of the world ((W, n_cell)): it never jams there."""
+        return self._out(self.state.cell_enabled.copy())
+
+    @cell_mask.setter
+    def cell_mask(self, value):
+        a = self._mask(value, self.model.n_cells, "cell_mask")
+        if np.any(~a & self.state.cell_jammed):
+            w, c = np.argwhere(~a & self.state.cell_jammed)[0]
+            raise DesignError(f"cell {c} is already jammed in world {w}; mask cells out before they jam")
+        self.state.cell_enabled[:] = a
+
     @property
     def jammed(self) -> np.ndarray:
         """(n_cell,) bool jam state of each cell ((W, n_cell) with several worlds)."""
@@ -227,7 +261,7 @@ class Simulator:
         for w in worlds:
             if not 0 <= w < self.worlds:
                 raise DesignError(f"world must be in 0..{self.worlds - 1}, got {w}")
-            if not self.state.cell_jammed[w, cell]:
+            if not self.state.cell_jammed[w, cell] and self.state.cell_enabled[w, cell]:  # masked: never jams
                 mask[w] = 1
         if not mask.any():
             return
@@ -281,7 +315,7 @@ class Simulator:
             return self._out(np.zeros((self.worlds, 0)))
         length = ipam_lengths_np(self.state.x.numpy().astype(np.float64), h.faces, h.ipam_faces)
         natural = natural_length_np(h.ipam_free_length, h.ipam_area_over_k, self._ipam_pressure())
-        return self._out(axial_force_np(h.ipam_stiffness, length, natural))
+        return self._out(axial_force_np(h.ipam_stiffness, length, natural) * self.ipam_mask.reshape(self.worlds, -1))
 
     def edge_state(self):
         """Current (lengths, dihedral angles) of every edge, each (E,) (or (W, E))."""
@@ -305,7 +339,8 @@ class Simulator:
                    spring=spring_energy_np(x, h.hinges, st.rest_length.numpy(), k), bending=zero,
                    gas=gas_energy_np(volumes_np(x, h.faces), self.control.air.numpy(), m.gas_rt,
                                      m.atmospheric_pressure),
-                   ipam=ipam_energy_np(x, h, self._ipam_pressure()) if m.has_ipams else zero)
+                   ipam=ipam_energy_np(x, h, self._ipam_pressure(), self.ipam_mask.reshape(self.worlds, -1))
+                   if m.has_ipams else zero)
         if m.has_bending:
             kt = m.bending_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
             out["bending"] = bending_energy_np(x, h.hinges, st.rest_angle.numpy(), kt)
