@@ -64,7 +64,7 @@ def test_export_command(tmp_path):
 
     rc = main(["export", "cube_fig6", "--out", str(tmp_path), "--what", "molds", "usd"])
     assert rc == 0
-    assert {"mold_inner.stl", "mold_outer.stl", "design.usda"} <= {p.name for p in tmp_path.iterdir()}
-    assert trimesh.load(tmp_path / "mold_outer.stl").is_watertight
+    assert {"mold_core_mm.stl", "mold_shell_top_mm.stl", "design.usda"} <= {p.name for p in tmp_path.iterdir()}
+    assert trimesh.load(tmp_path / "mold_shell_top_mm.stl").is_watertight
     assert ws.load_scene(tmp_path / "design.usda").design.n_ipams == 5
     assert main(["export", "target_oval", "--out", str(tmp_path / "x")]) == 2  # no design in a target scene

@@ -20,7 +20,7 @@ from warp_shape.io.atomic import MANIFEST, StagedFolder, file_digest, manifest_p
 from warp_shape.io.outputs import is_run_output
 
 ROOT = Path(__file__).resolve().parents[1]
-SMALL = ["--subdivisions", "2", "--actuators", "1"]
+SMALL = ["--subdivisions", "2", "--actuators", "1", "--placement", "paper"]
 
 
 def snapshot(folder: Path) -> dict:

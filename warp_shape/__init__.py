@@ -32,3 +32,12 @@ from .physics import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # ws.sweep(...) (Ray-backed sweeps, docs/sweeps.md) is imported on first use
+    if name == "sweep":
+        import importlib
+
+        return importlib.import_module(".sweep", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -44,7 +44,7 @@ from .errors import MeshError, ShapeError
 from .mesh import TriMesh
 from .sampling import RadialSampler, radial_metrics
 
-__all__ = ["ScanComparison", "compare_scan", "load_scan", "icp", "kabsch"]
+__all__ = ["ScanComparison", "compare_scan", "load_scan", "icp", "kabsch", "surface_distances"]
 
 # Ignore pairs farther than this many robust standard deviations of the pair distances.
 INLIER_SIGMAS = 3.0
@@ -178,14 +178,17 @@ def kabsch(x: np.ndarray, y: np.ndarray, w: np.ndarray | None = None) -> tuple[n
 class _Closest:
     """Closest points on a mesh for batches of query points (device buffers reused)."""
 
-    def __init__(self, mesh: TriMesh, device):
+    def __init__(self, mesh, device):
         from .kernels import raycast
 
+        vertices, faces = load_scan(mesh)
+        if faces is None or len(faces) == 0:
+            raise ShapeError("closest-point queries need a mesh with triangles, got a point cloud")
         self._k = raycast.closest_points_kernel
         self.device = device
-        self._mesh = wp.Mesh(points=wp.array(mesh.vertices.astype(np.float32), dtype=wp.vec3, device=device),
-                             indices=wp.array(mesh.faces.reshape(-1).astype(np.int32), dtype=wp.int32, device=device))
-        self.max_dist = 1e3 * float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
+        self._mesh = wp.Mesh(points=wp.array(vertices.astype(np.float32), dtype=wp.vec3, device=device),
+                             indices=wp.array(faces.reshape(-1).astype(np.int32), dtype=wp.int32, device=device))
+        self.max_dist = 1e3 * float(np.max(np.linalg.norm(vertices, axis=1)) + np.max(np.ptp(vertices, axis=0)))
 
     def __call__(self, points: np.ndarray, normals: bool = False):
         """Closest points (N, 3) and distances (N,), plus face normals (N, 3) if ``normals``."""
@@ -202,6 +205,13 @@ class _Closest:
         # float64 distance from the float32 closest point
         d = np.linalg.norm(c - points, axis=1)
         return (c, d, nrm.numpy().astype(np.float64)) if normals else (c, d)
+
+
+def surface_distances(points, mesh, *, device=None) -> np.ndarray:
+    """Unsigned distance (N,) from each point to the surface of ``mesh`` (a TriMesh, trimesh object
+    or ``(vertices, faces)``; open meshes allowed), in the points' units, on the Warp BVH."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return _Closest(mesh, wp.get_device(device))(pts)[1]
 
 
 def _inliers(d: np.ndarray, sigmas: float, floor: float) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import bench, compare, control, design, export, simulate
+from . import bench, compare, control, design, export, simulate, sweep
 
 __all__ = ["main", "build_parser"]
 
@@ -18,7 +18,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``warp-shape`` argument parser with every subcommand."""
     p = argparse.ArgumentParser(prog="warp-shape", description="Simulate and design soft 3-D haptic shape displays.")
     sub = p.add_subparsers(dest="command", required=True)
-    for module in (simulate, design, control, export, bench, compare):
+    for module in (simulate, design, control, export, bench, compare, sweep):
         module.register(sub)
     return p
 

@@ -34,6 +34,9 @@ def register(subparsers) -> None:
                         "instead of the scene's base mesh; finer meshes fit more actuators")
     d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m (default: the "
                    "scene's, else 0.012)")
+    d.add_argument("--placement", choices=["paper", "simulated"], default=None,
+                   help="actuator placement: simulated candidate sets (default) or the paper's Algorithm 1")
+    d.add_argument("--candidates", type=int, default=None, help="simulated placement: candidate sets per round (K)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
     d.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
@@ -58,6 +61,9 @@ def _designer_options(scene, args) -> tuple[int, dict]:
     opts.pop("initialize", None)
     if args.cell_radius is not None:
         opts["cell_radius"] = args.cell_radius
+    for key in ("placement", "candidates"):
+        if getattr(args, key, None) is not None:
+            opts[key] = getattr(args, key)
     if isinstance(actuators, bool) or not isinstance(actuators, int) or actuators < 1:
         raise DesignError(f"the number of actuators must be a whole number >= 1, got {actuators!r}")
     return actuators, opts
@@ -99,6 +105,8 @@ def _run_designer(args, base, named, actuators, settings, staged):
     records, rounds = [], []
 
     def on_round(i, d_i, results):
+        if records and records[-1]["round"] == i:  # a round controlled again as the last (early stop)
+            records.pop(), rounds.pop()
         records.append(round_record(i, d_i, results, names))
         rounds.append(results)
         write_round_outputs(staged.path, names, records, rounds)

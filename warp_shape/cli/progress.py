@@ -68,7 +68,7 @@ class DesignProgress(Bar):
         """``on_round`` that also counts the finished round."""
         def counted(i, design, results):
             on_round(i, design, results)
-            self.advance()
+            self.to(i + 1)
         return counted
 
 

@@ -2,7 +2,7 @@
 
 Every file is written atomically (a temporary file, then a rename), so an interrupted run never
 leaves half a file. Units: control sequences in SI (s, Pa, m, N) as in the controller's history
-columns; molds as binary STL in metres as the rest shape is given.
+columns; molds as binary STL in millimetres (the unit is in the file name).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ __all__ = ["write_json", "control_csv_text", "control_json_data", "write_control
 #: How the files a design or control run writes are named (a file in an output folder named so is
 #: part of a run's set, even in a folder written before manifests existed). Add new outputs here.
 RUN_OUTPUT_NAMES = ("design.usda", "report.json", "report.md", "rounds.json", "pcc_by_round.png", "manifest.json")
-RUN_OUTPUT_PREFIXES = ("control_", "actuation_", "mold_")
+RUN_OUTPUT_PREFIXES = ("control_", "actuation_", "mold_", "molds_", "valve_")
 
 
 def is_run_output(name: str) -> bool:
@@ -95,14 +95,18 @@ def write_stl(mesh, path) -> Path:
     return atomic_write(path, mesh.to_trimesh().export(file_type="stl"))
 
 
-def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float) -> list[Path]:
-    """``mold_inner.stl`` (rest shape with IPAM markers) and ``mold_outer.stl`` (rest shape offset by
-    the jamming layer)."""
-    from ..molds import inner_mold, outer_mold
+def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float, units: str = "mm") -> list[Path]:
+    """The printable molds in ``units`` (unit in each file name): ``mold_core_<u>.stl`` (rest shape
+    with IPAM bosses), ``mold_shell_bottom_<u>.stl`` and ``mold_shell_top_<u>.stl`` (the two-part
+    shell whose cavity is the rest shape offset by the jamming layer), and ``molds_<u>.json``
+    (units, sizes, split plane, keys, pour and vent, IPAM markers, per part extents and volume)."""
+    from ..molds import mold_set
 
     out = Path(out_dir)
-    return [write_stl(inner_mold(design, marker_height), out / "mold_inner.stl"),
-            write_stl(outer_mold(design, layer_thickness), out / "mold_outer.stl")]
+    molds = mold_set(design, units=units, marker_height=marker_height, layer_thickness=layer_thickness)
+    written = [atomic_write(out / f"{name}_{units}.stl", mesh.export(file_type="stl"))
+               for name, mesh in molds.parts().items()]
+    return written + [write_json(out / f"molds_{units}.json", molds.info)]
 
 
 def round_record(round_index: int, design, results, names) -> dict:
@@ -145,10 +149,11 @@ def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
                          extra_report: dict | None = None, kept=()) -> list[Path]:
     """Every output of a finished design: ``design.usda`` (the design, its targets, its settings and
-    each target's actuator selection), per target the control sequence (CSV, JSON) and
-    ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
-    result's report, ``extra_report`` entries and the list of outputs, with the names in ``kept``:
-    files of the run already in ``out_dir`` such as ``rounds.json``), written last."""
+    each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
+    sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures,
+    ``report.md`` and ``report.json`` (the result's report, ``extra_report`` entries and the list of
+    outputs, with the names in ``kept``: files of the run already in ``out_dir`` such as
+    ``rounds.json``), written last."""
     from .scene_schema import Scene
     from .scene_write import save_scene
     from .report import design_markdown
@@ -160,6 +165,9 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
     written += write_control_outputs(result.results, names, out, usd=True)
+    from .valve import write_valve_outputs
+
+    written += write_valve_outputs(result.results, names, out)
     written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
     written += write_figures_or_skip(result, out)
     report = result.report()

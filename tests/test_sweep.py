@@ -1,0 +1,164 @@
+"""Sweeps: the plan of runs, checked parameters, the streamed results table, resuming, Ray against serial,
+a worker killed mid-sweep."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import sys
+
+import pytest
+
+import warp_shape as ws
+from warp_shape.cli import main
+from warp_shape.sweep import SweepError, execute, parse_param
+from warp_shape.sweep.plan import grid_plan, load_problem, subsets_plan
+
+#: a tiny run: 162-vertex base mesh, one IPAM, the paper's law, short control
+TINY = {"subdivisions": 2, "method": "paper", "max_steps": 60}
+NUMBERS = ("objective", "pcc_oval", "pcc_heart", "mare_oval_m", "mare_heart_m", "mpre_oval_pct", "mpre_heart_pct")
+
+
+def tiny_sweep(out, **kw):
+    return ws.sweep("subsets", targets=["oval", "heart"], actuators=1, fixed=dict(TINY), out=out, **kw)
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_subsets_plan_is_every_nonempty_subset_and_grid_the_product():
+    problem = load_problem(None, ["oval", "pear", "heart", "cube"], {"actuators": 5})
+    runs = subsets_plan(problem)
+    subsets = {tuple(t.target_names) for t in runs}
+    assert len(runs) == len(subsets) == 15 and {len(s) for s in subsets} == {1, 2, 3, 4}
+    assert all(t.actuators == 5 for t in runs) and len({t.run_id for t in runs}) == 15
+    grid = grid_plan(load_problem("four_targets_20", ["oval", "cube"]),
+                     [parse_param("actuators=5,10,20"), parse_param("cell_radius=0.006,0.012")])
+    assert [(t.actuators, t.settings["designer"]["cell_radius"]) for t in grid] == [
+        (5, 0.006), (5, 0.012), (10, 0.006), (10, 0.012), (20, 0.006), (20, 0.012)]
+    assert all(t.target_names == ["oval", "cube"] for t in grid)
+
+
+def test_any_setting_can_be_swept_and_bad_names_or_values_are_refused_before_any_run(tmp_path, capsys):
+    p = parse_param("youngs_modulus=5e4,9e4")
+    assert (p.group, p.values) == ("material", (5e4, 9e4))
+    assert parse_param("controller.max_steps=10,20").values == (10, 20)
+    with pytest.raises(SweepError, match="did you mean cell_radius"):
+        parse_param("cel_radius=0.01")
+    with pytest.raises(SweepError, match="youngs_modulus must be > 0"):
+        parse_param("youngs_modulus=-1")
+    with pytest.raises(SweepError, match="method.*choose one of"):
+        parse_param("method=fast")
+    rc = main(["sweep", "grid", "--param", "actuator=5,10", "--backend", "serial", "--out", str(tmp_path / "s")])
+    assert rc == 2 and "did you mean actuators" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()  # refused before anything was written
+
+
+def test_sweep_without_ray_says_how_to_install_it(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    rc = main(["sweep", "subsets", "--targets", "oval", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "pip install 'warp-shape[cluster]'" in err and "--backend serial" in err
+
+
+@pytest.fixture(scope="module")
+def serial_sweep(tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    return out, tiny_sweep(out, backend="serial")
+
+
+def test_serial_sweep_writes_one_row_per_run_with_the_design_outputs(serial_sweep):
+    out, res = serial_sweep
+    rows = read_csv(out / "results.csv")
+    assert [r["targets"] for r in rows] == ["oval", "heart", "oval heart"]
+    assert list(rows[0])[:4] == ["run_id", "targets", "actuators", "objective"]
+    assert list(rows[0])[-4:] == ["wall_s", "status", "error", "out_dir"]
+    assert all(r["status"] == "ok" and r["error"] == "" for r in rows)
+    assert rows[0]["pcc_heart"] == "" and rows[1]["pcc_oval"] == ""  # a run without that target
+    for r in rows:
+        report = json.loads((out / r["out_dir"] / "report.json").read_text())
+        assert report["complete"] and report["targets"] == r["targets"].split()
+        for name in report["targets"]:  # the row is the run's own report, to the last digit
+            assert float(r[f"pcc_{name}"]) == report["final"][name]["pcc"]
+            assert float(r[f"mare_{name}_m"]) == report["final"][name]["mare_m"]
+        assert {"design.usda", "mold_inner.stl", "report.md"} <= set(report["outputs"])
+        assert 0.5 < float(r["pcc_oval" if "oval" in r["targets"] else "pcc_heart"]) <= 1.0
+    assert json.loads((out / "results.json").read_text())["rows"] == res.rows
+    assert (out / "summary.md").read_text().count("| ok |") == 3 and (out / "summary.png").stat().st_size > 1000
+
+
+def test_rerun_skips_finished_runs_and_a_different_sweep_is_refused(serial_sweep):
+    out, first = serial_sweep
+    again = tiny_sweep(out, backend="serial")
+    assert (again.ran, again.skipped) == (0, 3) and again.rows == first.rows
+    with pytest.raises(SweepError, match="different sweep"):
+        ws.sweep("subsets", targets=["oval", "pear"], actuators=1, fixed=dict(TINY), out=out, backend="serial")
+
+
+def test_a_failing_run_records_its_error_and_the_sweep_goes_on(tmp_path):
+    res = ws.sweep("grid", targets=["oval"], params={"cell_radius": [0.2, 0.012]}, fixed={**TINY, "actuators": 1},
+                   out=tmp_path, backend="serial")
+    bad, good = res.rows
+    assert bad["status"] == "error" and "DesignError" in bad["error"] and "cell" in bad["error"]
+    assert bad["out_dir"] == "" and "objective" not in bad
+    assert good["status"] == "ok" and good["pcc_oval"] > 0.5
+    assert [r["status"] for r in read_csv(tmp_path / "results.csv")] == ["error", "ok"]
+
+
+# --- Ray -------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="warning", log_to_driver=False)
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # run_fn below, on the workers
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_runs_give_the_numbers_of_the_serial_runs(ray_local, serial_sweep, tmp_path):
+    _, serial = serial_sweep
+    res = tiny_sweep(tmp_path, backend="ray", workers=2)
+    assert res.ran == 3 and not res.failed
+    for s, r in zip(serial.rows, res.rows):
+        assert s["run_id"] == r["run_id"]
+        assert {k: s.get(k) for k in NUMBERS} == {k: r.get(k) for k in NUMBERS}
+
+
+def kill_once(marker_dir):
+    """A run function whose run ``heart`` kills its own worker process the first time it is tried."""
+    def run(task):
+        marker = os.path.join(marker_dir, f"{task.run_id}.tried")
+        if task.run_id == "heart" and not os.path.exists(marker):
+            open(marker, "w").close()
+            os.kill(os.getpid(), signal.SIGKILL)
+        return execute(task)
+    return run
+
+
+def test_worker_killed_mid_sweep_keeps_finished_rows_and_a_rerun_completes_only_the_missing_run(
+        ray_local, serial_sweep, tmp_path):
+    _, serial = serial_sweep
+    out, markers = tmp_path / "sweep", tmp_path / "markers"
+    markers.mkdir()
+    first = tiny_sweep(out, backend="ray", workers=2, retries=0, run_fn=kill_once(str(markers)))
+    status = {r["run_id"]: r["status"] for r in read_csv(out / "results.csv")}
+    assert status == {"oval": "ok", "heart": "error", "oval+heart": "ok"}
+    assert "WorkerCrashedError" in first.failed[0]["error"] and not (out / "runs" / "heart").exists()
+    again = tiny_sweep(out, backend="ray", workers=2, retries=0, run_fn=kill_once(str(markers)))
+    assert (again.ran, again.skipped) == (1, 2) and not again.failed
+    assert [r["status"] for r in read_csv(out / "results.csv")] == ["ok"] * 3
+    assert {k: again.rows[1].get(k) for k in NUMBERS} == {k: serial.rows[1].get(k) for k in NUMBERS}
+
+
+def test_a_killed_worker_is_retried_within_the_sweep(ray_local, tmp_path):
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    res = ws.sweep("subsets", targets=["heart"], actuators=1, fixed=dict(TINY), out=tmp_path / "s", backend="ray",
+                   retries=1, run_fn=kill_once(str(markers)))
+    assert (markers / "heart.tried").exists() and res.ran == 1 and not res.failed

@@ -1,0 +1,97 @@
+"""Where a sweep's runs execute: one after another in this process (``serial``), or one Ray task each (``ray``).
+
+Ray (``pip install 'warp-shape[cluster]'``) starts a local instance with ``workers`` CPUs by default,
+or joins a running cluster at ``address`` (``ray start --head`` on the head node, then
+``--address HOST:6379`` or ``auto``). Each run is one task asking for one CPU, and one GPU when the
+device is CUDA; at most ``workers`` tasks are in flight. A task whose worker process dies is retried
+``retries`` times by Ray, then recorded as failed; the sweep goes on.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+from .params import SweepError
+
+__all__ = ["BACKENDS", "run_serial", "run_ray", "require_ray", "start_ray"]
+
+BACKENDS = ("ray", "serial")
+
+INSTALL_HINT = ("Ray is not installed: install the cluster extra, pip install 'warp-shape[cluster]' "
+                "(or pip install 'ray>=2.60'), or run the sweep with --backend serial")
+
+
+def require_ray():
+    """The ``ray`` module, or a ``SweepError`` saying how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise SweepError(INSTALL_HINT) from None
+    return ray
+
+
+def start_ray(address: str | None, workers: int | None) -> tuple[bool, float]:
+    """Join ``address`` or start a local Ray instance with ``workers`` CPUs (this machine's count by
+    default); returns (started here, seconds taken). An instance already running in this process is used."""
+    ray = require_ray()
+    if ray.is_initialized():
+        return False, 0.0
+    t0 = time.perf_counter()
+    common = dict(include_dashboard=False, logging_level="warning", log_to_driver=False,
+                  runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}})
+    try:
+        if address:
+            ray.init(address=address, **common)
+        else:
+            ray.init(num_cpus=workers or os.cpu_count() or 1, **common)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        where = f"the Ray cluster at {address!r}" if address else "a local Ray instance"
+        raise SweepError(f"could not start or join {where}: {exc}. For a cluster, start its head with "
+                         f"`ray start --head` and pass --address HOST:6379 (or auto)") from None
+    return True, time.perf_counter() - t0
+
+
+def run_serial(tasks, run_fn, on_done) -> None:
+    """Every task in this process, one after another; ``on_done(task, row, files)`` after each."""
+    for task in tasks:
+        row, files = run_fn(task)
+        on_done(task, row, files)
+
+
+def _crash_row(task, exc) -> tuple[dict, dict]:
+    from .run import error_row
+
+    name = type(exc).__name__
+    text = str(exc).strip().splitlines()
+    return error_row(task, f"{name}: {text[0] if text else 'the worker running this run died'}"), {}
+
+
+def run_ray(tasks, run_fn, on_done, *, workers: int | None = None, address: str | None = None,
+            gpus_per_run: float = 0.0, retries: int = 1) -> float:
+    """Every task as one Ray task, at most ``workers`` at a time; ``on_done(task, row, files)`` in the
+    driver as each finishes. Returns the seconds Ray took to start (0 when already running)."""
+    ray = require_ray()
+    started, startup = start_ray(address, workers)
+    try:
+        if workers is None:
+            workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        remote = ray.remote(run_fn).options(num_cpus=1, num_gpus=gpus_per_run, max_retries=retries)
+        queue = list(tasks)
+        pending: dict = {}
+        while queue or pending:
+            while queue and len(pending) < workers:
+                task = queue.pop(0)
+                pending[remote.remote(task)] = task
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                task = pending.pop(ref)
+                try:
+                    row, files = ray.get(ref)
+                except ray.exceptions.RayError as exc:  # the worker died (killed, out of memory, node lost)
+                    row, files = _crash_row(task, exc)
+                on_done(task, row, files)
+    finally:
+        if started:  # a local instance stops; a cluster is only left
+            ray.shutdown()
+    return startup

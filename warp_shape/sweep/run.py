@@ -1,0 +1,91 @@
+"""One run of a sweep: the design ``warp-shape design`` runs, its outputs, and the run's results row.
+
+``execute(task)`` runs in the driver (serial backend) or in a Ray worker: it designs, writes every
+output with ``io.outputs.write_design_outputs`` (the code the ``design`` command uses) into a fresh
+temporary folder, and returns the row and the files' bytes, so the driver places them in the sweep's
+folder whichever machine the run ran on. A run that fails returns its error in the row.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from .plan import RunTask
+
+__all__ = ["execute", "row_of", "error_row", "read_outputs"]
+
+
+def _settings(task: RunTask):
+    """(DesignSettings, ControlSettings, Material, design() keywords) of a run."""
+    from ..controller import ControlSettings
+    from ..designer import DesignSettings
+    from ..material import Material
+
+    s = task.settings
+    simulation = ControlSettings().simulation.replace(**s.get("simulation", {}))
+    control = ControlSettings().replace(simulation=simulation, **s.get("controller", {}))
+    known = DesignSettings.__dataclass_fields__
+    designer = DesignSettings(**{k: v for k, v in s.get("designer", {}).items() if k in known})
+    material = Material(**s.get("material", {}))
+    return designer, control, material, dict(s.get("design", {}))
+
+
+def row_of(task: RunTask, result, wall: float) -> dict:
+    """A finished run's row: the mean fit objective over its targets, per target PCC, MARE (m) and
+    MPRE (%) of the final design."""
+    row = dict(run_id=task.run_id, targets=" ".join(task.target_names), actuators=task.actuators, **task.swept)
+    finals = result.results
+    row["objective"] = float(np.mean([r.objective for r in finals]))
+    for name, r in zip(task.target_names, finals):
+        row[f"pcc_{name}"] = float(r.pcc)
+        row[f"mare_{name}_m"] = float(r.mare)
+        row[f"mpre_{name}_pct"] = float(r.mpre)
+    row.update(wall_s=round(wall, 3), status="ok", error="")
+    return row
+
+
+def error_row(task: RunTask, error: str, wall: float = 0.0) -> dict:
+    """The row of a run that failed: its error (type and message) and no numbers."""
+    row = dict(run_id=task.run_id, targets=" ".join(task.target_names), actuators=task.actuators, **task.swept)
+    row.update(wall_s=round(wall, 3), status="error", error=" ".join(str(error).split())[:500])
+    return row
+
+
+def read_outputs(folder: Path) -> dict:
+    """{relative path: bytes} of every file under ``folder``."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def execute(task: RunTask) -> tuple[dict, dict]:
+    """Design, write the outputs (as ``warp-shape design``), return (row, {file: bytes}); never raises
+    for a failed design: the row carries the error."""
+    import warp as wp
+
+    from ..designer import design
+    from ..io.outputs import write_design_outputs
+
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
+    t0 = time.perf_counter()
+    try:
+        settings, control, material, keywords = _settings(task)
+        result = design(task.base, task.targets, actuators=task.actuators, device=task.device,
+                        target_names=task.target_names, settings=settings, control_settings=control,
+                        material=material, **keywords)
+        wall = time.perf_counter() - t0
+        with tempfile.TemporaryDirectory(prefix="warp_shape_run_") as tmp:
+            write_design_outputs(result, tmp, marker_height=task.marker_height, layer_thickness=task.layer_thickness,
+                                 extra_report=dict(complete=True, wall_seconds=wall, device=task.device,
+                                                   sweep_run=task.run_id, swept=task.swept))
+            files = read_outputs(Path(tmp))
+        return row_of(task, result, time.perf_counter() - t0), files
+    except Exception as exc:  # a failing run is recorded, the sweep goes on
+        detail = f"{type(exc).__name__}: {exc}"
+        if not hasattr(exc, "__module__") or not type(exc).__module__.startswith("warp_shape"):
+            detail += " | " + traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()
+        return error_row(task, detail, time.perf_counter() - t0), {}
