@@ -34,7 +34,10 @@ from .stability import (check_chamber, check_fixed_step, check_stable_dt, check_
                         stable_dt_estimate, substeps_error, substeps_for, worlds_identical)
 from .step_plan import Checkpoint, StepPlan
 
-__all__ = ["Simulator", "FROM_SETTINGS"]
+__all__ = ["Simulator", "FROM_SETTINGS", "MAX_REFINE"]
+
+#: most automatic-substep refinement after blow-ups within the estimate (see Simulator._retry)
+MAX_REFINE = 8
 
 class _FromSettings:
     def __repr__(self) -> str:
@@ -108,6 +111,7 @@ class Simulator:
         # further step repeats when even that state is not finite (corrupted behind the API's back)
         self._checkpoint = Checkpoint(self.state.xv)
         self._broken: SimulationError | None = None
+        self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
         self._update_plan()
 
     # ------------------------------------------------------------------ world helpers
@@ -201,6 +205,40 @@ class Simulator:
                 f"clip it or widen pressure_limits in Design.add_ipam")
         self.control.ipam_pressure.assign(a)
 
+    def _mask(self, value, n: int, name: str) -> np.ndarray:
+        a = np.asarray(value)
+        if a.dtype != bool or a.shape not in ((n,), (self.worlds, n)):
+            raise DesignError(f"{name} must be a bool array of shape ({n},) or ({self.worlds}, {n}), got "
+                              f"{a.dtype} {a.shape}")
+        return np.ascontiguousarray(np.broadcast_to(a, (self.worlds, n)))
+
+    @property
+    def ipam_mask(self) -> np.ndarray:
+        """(n_ipam,) bool, False where an IPAM is masked out of the world ((W, n_ipam) with several
+        worlds): it exerts no force there. One model can so hold alternative actuator sets."""
+        return self._out(self.control.ipam_enabled.numpy()[:, : self.model.n_ipams].astype(bool))
+
+    @ipam_mask.setter
+    def ipam_mask(self, value):
+        n = self.model.n_ipams
+        a = self._mask(value, n, "ipam_mask")
+        full = np.ones((self.worlds, max(n, 1)), dtype=np.int32)
+        full[:, :n] = a
+        self.control.ipam_enabled.assign(full)
+
+    @property
+    def cell_mask(self) -> np.ndarray:
+        """(n_cell,) bool, False where a cell is masked out of the world ((W, n_cell)): it never jams there."""
+        return self._out(self.state.cell_enabled.copy())
+
+    @cell_mask.setter
+    def cell_mask(self, value):
+        a = self._mask(value, self.model.n_cells, "cell_mask")
+        if np.any(~a & self.state.cell_jammed):
+            w, c = np.argwhere(~a & self.state.cell_jammed)[0]
+            raise DesignError(f"cell {c} is already jammed in world {w}; mask cells out before they jam")
+        self.state.cell_enabled[:] = a
+
     @property
     def jammed(self) -> np.ndarray:
         """(n_cell,) bool jam state of each cell ((W, n_cell) with several worlds)."""
@@ -223,7 +261,7 @@ class Simulator:
         for w in worlds:
             if not 0 <= w < self.worlds:
                 raise DesignError(f"world must be in 0..{self.worlds - 1}, got {w}")
-            if not self.state.cell_jammed[w, cell]:
+            if not self.state.cell_jammed[w, cell] and self.state.cell_enabled[w, cell]:  # masked: never jams
                 mask[w] = 1
         if not mask.any():
             return
@@ -277,7 +315,7 @@ class Simulator:
             return self._out(np.zeros((self.worlds, 0)))
         length = ipam_lengths_np(self.state.x.numpy().astype(np.float64), h.faces, h.ipam_faces)
         natural = natural_length_np(h.ipam_free_length, h.ipam_area_over_k, self._ipam_pressure())
-        return self._out(axial_force_np(h.ipam_stiffness, length, natural))
+        return self._out(axial_force_np(h.ipam_stiffness, length, natural) * self.ipam_mask.reshape(self.worlds, -1))
 
     def edge_state(self):
         """Current (lengths, dihedral angles) of every edge, each (E,) (or (W, E))."""
@@ -301,7 +339,8 @@ class Simulator:
                    spring=spring_energy_np(x, h.hinges, st.rest_length.numpy(), k), bending=zero,
                    gas=gas_energy_np(volumes_np(x, h.faces), self.control.air.numpy(), m.gas_rt,
                                      m.atmospheric_pressure),
-                   ipam=ipam_energy_np(x, h, self._ipam_pressure()) if m.has_ipams else zero)
+                   ipam=ipam_energy_np(x, h, self._ipam_pressure(), self.ipam_mask.reshape(self.worlds, -1))
+                   if m.has_ipams else zero)
         if m.has_bending:
             kt = m.bending_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
             out["bending"] = bending_energy_np(x, h.hinges, st.rest_angle.numpy(), kt)
@@ -354,7 +393,7 @@ class Simulator:
     def _update_plan(self):
         self._dt_stable = self.stable_dt()
         fixed = self.settings.substeps
-        n = substeps_for(self.dt, self._dt_stable) if fixed is None else fixed
+        n = substeps_for(self.dt, self._dt_stable) * self._refine if fixed is None else fixed
         h = self.dt / n
         if fixed is not None:
             check_fixed_step(self.dt, n, self._dt_stable, self.integrator)
@@ -373,6 +412,21 @@ class Simulator:
             step, codes = found
             time = self.time - (self.step_count - step) * self.dt
             raise blowup_error(codes, step, time, self.plan.h, self._dt_stable)
+
+    def _check_chamber(self) -> None:
+        """A membrane turned inside out or collapsed (volume <= 0) by the last output step is a
+        blow-up of that step (found where the host reads state anyway: immediate mode)."""
+        vol = self._volumes()
+        if np.all(vol > 0):
+            return
+        w = int(np.argmin(vol))
+        safe = 0.5 * min(self._dt_stable, self.plan.h)
+        raise SimulationError(
+            f"simulation blew up at output step {self.step_count} (t = {self.time:.6g} s, world {w}): the chamber "
+            f"volume became {vol[w]:.3g} m^3 (membrane inside out or collapsed) with internal step "
+            f"{self.plan.h:.4g} s; stable estimate {self._dt_stable:.4g} s. Try a smaller step, e.g. dt = "
+            f"{safe:.3g} s with substeps=1, or check the inputs (air, pressures, stiffness) for extreme values",
+            step=self.step_count, quantity="volume", safe_dt=safe, world=w)
 
     # ------------------------------------------------------------------ last good state
     _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at", "_dt_stable", "_substeps", "_elastic_cache",
@@ -396,7 +450,10 @@ class Simulator:
             self._broken = exc
 
     def _recover(self) -> None:
-        """A state set through the API that is finite again lifts the refusal."""
+        """A state set through the API: shorter steps taken after a blow-up end, and a finite state
+        lifts the refusal."""
+        if self._refine != 1:
+            self._refine, self._dirty = 1, True
         if self._broken is not None and self._finite():
             self._broken = None
 
@@ -414,18 +471,45 @@ class Simulator:
             b = self._broken
             raise SimulationError(f"{b} (the state is not finite; set positions and velocities to continue)",
                                   step=b.step, quantity=b.quantity, safe_dt=b.safe_dt, world=b.world)
-        self._save()
-        try:
-            self._advance(int(n))
-        except BaseException as exc:
-            self._restore(exc)
-            raise
+        target = self.step_count + int(n)
+        first, refine = None, self._refine
+        while True:
+            self._save()
+            try:
+                self._advance(target - self.step_count)
+                return
+            except BaseException as exc:
+                self._restore(exc)
+                first = first or exc
+                if not self._retry(exc):
+                    if first is exc or not isinstance(first, SimulationError):
+                        raise
+                    raise SimulationError(  # the first failure names the cause; say the retries failed too
+                        f"{first} (also with {self._refine // refine}x shorter internal steps)", step=first.step,
+                        quantity=first.quantity, safe_dt=first.safe_dt, world=first.world) from exc
+
+    def _retry(self, exc: BaseException) -> bool:
+        """Whether to take the failed output steps again with internal steps half as long.
+
+        The stable-step estimate holds for the state it was made at; a violent motion between two
+        estimates (a membrane at 100 atm sloshing at hundreds of m/s, crumpling as it recoils) can
+        need a smaller step before the next one. With automatic substeps a blow-up from a finite last
+        good state is retried at 2x, 4x, 8x the substeps (``MAX_REFINE``, within ``max_substeps``);
+        the refinement halves again at each periodic re-estimate. Only then is the blow-up raised."""
+        if not isinstance(exc, SimulationError) or exc.quantity == "estimate" or self._broken is not None \
+                or self.settings.substeps is not None or self._refine >= MAX_REFINE \
+                or 2 * (self._substeps or 1) > self.settings.max_substeps:
+            return False
+        self._refine *= 2
+        self._dirty = True
+        return True
 
     def _advance(self, n: int) -> None:
         watch = self.blowup_watch
         for _ in range(n):
             if self.reestimate_every and self._internal_steps - self._estimated_at >= self.reestimate_every:
                 self._estimated_at = self._internal_steps
+                self._refine = max(1, self._refine // 2)
                 self._dirty = True
             if self._dirty:
                 self._report(watch.poll())  # the estimate reads the state: a blown-up one is reported first
@@ -435,7 +519,8 @@ class Simulator:
             self.step_count += 1
             self.time += self.dt
             self._report(watch.after_step(self.step_count))
-            if not watch.deferred:  # each whole output step is the new last good state
+            if not watch.deferred:  # each whole output step with a chamber left is the new last good state
+                self._check_chamber()
                 self._save()
         self._report(watch.poll())
 
