@@ -27,12 +27,16 @@ def eval_ipam_kernel(
     v_in: wp.array2d(dtype=Any),  # (W, V) m/s
     # Control:
     pressure_in: wp.array2d(dtype=wp.float64),  # (W, n_ipam) gauge Pa
+    enabled: wp.array2d(dtype=wp.int32),  # (W, n_ipam) 0 where the IPAM is masked out of the world
     # Out:
     f_out: wp.array2d(dtype=Any),  # (W, V) N, accumulated
 ):
-    """IPAM as three sub-springs of stiffness k/3 and natural length L_n + offset, L_n = L0 + (A/k) P."""
+    """IPAM as three sub-springs of stiffness k/3 and natural length L_n + offset, L_n = L0 + (A/k) P.
+    An IPAM masked out of a world (enabled 0) exerts no force there."""
     w, s = wp.tid()
     i = s // 3
+    if enabled[w, i] == 0:
+        return
     pair = sub_pairs[s]
     k = stiffness[i]
     natural = ipam_natural_length(free_length[i], area_over_k[i], type(k)(pressure_in[w, i])) + sub_offsets[s]

@@ -45,3 +45,33 @@ class SceneError(WarpShapeError, ValueError):
         super().__init__(message)
         self.prim = prim
         self.attribute = attribute
+
+
+def numeric_array(value, name: str, error=None):
+    """``value`` as a float64 array, refusing what is not numbers (strings, bools, objects, ragged
+    nesting) with ``error`` (``DesignError`` by default) naming ``name``."""
+    import numpy as np
+
+    error = error or DesignError
+    try:
+        a = np.asarray(value)
+    except (ValueError, TypeError) as exc:
+        raise error(f"{name} must be an array of numbers, got {type(value).__name__} ({exc})") from None
+    if a.dtype.kind not in "iuf":
+        what = "bools" if a.dtype.kind == "b" else f"{a.dtype} values"
+        raise error(f"{name} must be an array of numbers, got {what}: "
+                    f"{np.array2string(a.reshape(-1)[:3], threshold=3)}")
+    return a.astype(np.float64)
+
+
+def check_number(value, name: str, error=None) -> float:
+    """``value`` as a finite float; bools, strings and non-finite numbers raise ``error`` (``DesignError``)."""
+    import math
+
+    import numpy as np
+
+    error = error or DesignError
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(float(value)):
+        raise error(f"{name} must be a finite number, got {value!r}")
+    return float(value)

@@ -45,7 +45,17 @@ class Solver:
         center = rest.mean(axis=0)
         self.size = float(2.0 * np.linalg.norm(rest - center, axis=1).max())  # m
         self.x_bound = float(np.linalg.norm(center) + 50.0 * self.size)  # |x| beyond this (m) is a blow-up
+        self.rest_x_bound = self.x_bound
         self.status = wp.zeros(W, dtype=wp.int32, device=dev)  # (W,) worst blow-up code since last cleared
+
+    def recenter(self, x: np.ndarray) -> bool:
+        """Move the blow-up region with positions x (W, V, 3) set by the user (a rigid move far from the
+        rest place is no blow-up); True when the bound changed (a prepared step must be rebuilt)."""
+        far = float(np.linalg.norm(x.mean(axis=1), axis=1).max()) + 50.0 * self.size
+        bound = max(self.rest_x_bound, far)
+        changed = bound != self.x_bound
+        self.x_bound = bound
+        return changed
 
     def check_args(self, h: float) -> list:
         """Blow-up bounds for internal step h: |x| and |v| (one mesh size per step)."""
@@ -178,6 +188,14 @@ class BlowupWatch:
         codes = self.codes.copy()
         self.status.zero_()
         return int(step), codes
+
+    def reset(self) -> None:
+        """Forget every code and note (the state they described was restored)."""
+        self.status.zero_()
+        if self.deferred:
+            self.pending = False
+            self.first_step.fill_(-1)
+            self.first_code.zero_()
 
     def poll(self):
         """Report the first blow-up noted since the last report (deferred mode copies the notes)."""

@@ -235,13 +235,17 @@ class State:
         self.jammed = wp.zeros((W, E), dtype=wp.int32, device=dev)  # (W, E) 1 where jammed
         self.cell_jammed = np.zeros((W, model.n_cells), dtype=bool)  # host mirror, (W, n_cell)
         self.cell_jam_time = np.full((W, model.n_cells), np.nan)  # (W, n_cell) s
+        self.cell_enabled = np.ones((W, model.n_cells), dtype=bool)  # (W, n_cell) False: the cell never jams there
 
 
 class Control:
-    """Per-world controls: chamber air amount and IPAM gauge pressures (float64)."""
+    """Per-world controls: chamber air amount, IPAM gauge pressures (float64) and the IPAM mask
+    ``ipam_enabled`` (W, n_ipam) int32: 0 where an IPAM is masked out of a world (no force there), so
+    one model can hold alternative actuator sets and each world enable its own."""
 
     def __init__(self, model: Model, worlds: int, air_moles: float):
         dev = model.device
         self.air = wp.array(np.full(worlds, air_moles, dtype=np.float64), dtype=wp.float64, device=dev)  # (W,) mol
         n = max(model.n_ipams, 1)  # a (W, 1) placeholder keeps the array valid; never launched when no IPAMs
         self.ipam_pressure = wp.zeros((worlds, n), dtype=wp.float64, device=dev)  # (W, n_ipam) Pa gauge
+        self.ipam_enabled = wp.array(np.ones((worlds, n), dtype=np.int32), dtype=wp.int32, device=dev)  # (W, n_ipam)

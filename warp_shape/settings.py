@@ -9,7 +9,8 @@ import numpy as np
 
 from .errors import DesignError
 
-__all__ = ["SimulationSettings", "replace_settings", "INTEGRATOR_NAMES", "PRECISION_NAMES", "LAUNCH_MODES"]
+__all__ = ["SimulationSettings", "replace_settings", "INTEGRATOR_NAMES", "PRECISION_NAMES", "LAUNCH_MODES",
+           "DEFAULT_MAX_SUBSTEPS"]
 
 INTEGRATOR_NAMES = ("rk4", "semi_implicit")
 INTEGRATOR_ALIASES = {"euler": "semi_implicit", "semi_implicit_euler": "semi_implicit",
@@ -17,12 +18,13 @@ INTEGRATOR_ALIASES = {"euler": "semi_implicit", "semi_implicit_euler": "semi_imp
 PRECISION_NAMES = ("float32", "float64")
 BENDING_NAMES = ("exact", "paper")
 LAUNCH_MODES = ("graph", "record", "direct")
+DEFAULT_MAX_SUBSTEPS = 10_000
 
 
 def replace_settings(settings, changes: dict, what: str):
     """A copy of a settings dataclass with ``changes`` applied; unknown names are an error."""
     known = {f.name for f in fields(settings)}
-    unknown = sorted(set(changes) - known)
+    unknown = sorted(str(k) for k in set(changes) - known)
     if unknown:
         raise DesignError(f"unknown {what} setting(s) {unknown}; known: {sorted(known)}")
     d = {f.name: getattr(settings, f.name) for f in fields(settings)}
@@ -45,6 +47,9 @@ class SimulationSettings:
     substeps: None (automatic from the stable-step estimate) or a fixed count >= 1.
     launch_mode: ``"graph"`` (captured and replayed), ``"record"`` (recorded launches) or ``"direct"``.
     reestimate_every: internal steps between periodic re-estimates of the stable step (0: never).
+    max_substeps: most internal steps one output step may take (default 10000, a few seconds of host
+        work on a 642-vertex membrane); an automatic split beyond it raises ``StabilityError`` naming the
+        material or state value that made the stable step so small.
     """
 
     integrator: str = "rk4"
@@ -54,6 +59,7 @@ class SimulationSettings:
     substeps: int | None = None
     launch_mode: str = "graph"
     reestimate_every: int = 1000
+    max_substeps: int = DEFAULT_MAX_SUBSTEPS
 
     def __post_init__(self):
         key = str(self.integrator).lower().replace("-", "_") if isinstance(self.integrator, str) else None
@@ -62,20 +68,28 @@ class SimulationSettings:
             raise DesignError(f"unknown integrator {self.integrator!r}; choose one of {list(INTEGRATOR_NAMES)}")
         object.__setattr__(self, "integrator", key)
         dt = self.dt
-        if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (int, float, np.floating)) \
+        if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (int, float, np.integer, np.floating)) \
                 or not math.isfinite(dt) or dt <= 0:
             raise DesignError(f"dt must be a positive number of seconds, got {dt!r}")
-        object.__setattr__(self, "dt", float(dt))
-        if self.precision not in PRECISION_NAMES:
+        # a float32 such as np.float32(1e-3) means the decimal it prints as, not its binary neighbour
+        object.__setattr__(self, "dt", float(str(dt)) if isinstance(dt, np.floating) else float(dt))
+        if not isinstance(self.precision, str) or self.precision not in PRECISION_NAMES:
             raise DesignError(f"precision must be one of {list(PRECISION_NAMES)}, got {self.precision!r}")
-        if self.bending not in BENDING_NAMES:
+        if not isinstance(self.bending, str) or self.bending not in BENDING_NAMES:
             raise DesignError(f"bending must be 'exact' or 'paper', got {self.bending!r}")
         if self.substeps is not None and (not _is_int(self.substeps) or self.substeps < 1):
             raise DesignError(f"substeps must be None (automatic) or an integer >= 1, got {self.substeps!r}")
-        if self.launch_mode not in LAUNCH_MODES:
+        if not isinstance(self.launch_mode, str) or self.launch_mode not in LAUNCH_MODES:
             raise DesignError(f"launch_mode must be one of {LAUNCH_MODES}, got {self.launch_mode!r}")
         if not _is_int(self.reestimate_every) or self.reestimate_every < 0:
             raise DesignError(f"reestimate_every must be an integer >= 0 (0: never), got {self.reestimate_every!r}")
+        if not _is_int(self.max_substeps) or self.max_substeps < 1:
+            raise DesignError(f"max_substeps must be an integer >= 1 (internal steps per output step), "
+                              f"got {self.max_substeps!r}")
+        for name in ("substeps", "reestimate_every", "max_substeps"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, int(value))
 
     def replace(self, **changes) -> "SimulationSettings":
         """A copy with some settings changed; unknown names raise ``DesignError``."""
@@ -88,4 +102,6 @@ class SimulationSettings:
     @classmethod
     def from_dict(cls, d: dict | None) -> "SimulationSettings":
         """Settings from ``to_dict`` output (or a scene's ``simulation`` group); unknown keys raise."""
+        if d is not None and not isinstance(d, dict):
+            raise DesignError(f"simulation settings must be a dict {{name: value}}, got {type(d).__name__}")
         return replace_settings(cls(), dict(d or {}), "simulation")

@@ -17,7 +17,7 @@ import warp as wp
 from warp_shape.kernels import common as kc
 
 from .design import Design
-from .errors import DesignError
+from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused
 from .integrators import BlowupWatch, blowup_error, make_solver
 from .material import GAS_CONSTANT
@@ -29,10 +29,15 @@ from .physics.jamming import eval_jam, jammed_factor_np
 from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, volumes_np
 from .physics.springs import spring_energy_np
 from .settings import SimulationSettings
-from .stability import check_fixed_step, elastic_omega2_bound, stable_dt_estimate, substeps_for, worlds_identical
-from .step_plan import StepPlan
+from .errors import numeric_array
+from .stability import (check_chamber, check_fixed_step, check_stable_dt, check_storable, elastic_omega2_bound,
+                        stable_dt_estimate, substeps_error, substeps_for, worlds_identical)
+from .step_plan import Checkpoint, StepPlan
 
-__all__ = ["Simulator", "FROM_SETTINGS"]
+__all__ = ["Simulator", "FROM_SETTINGS", "MAX_REFINE"]
+
+#: most automatic-substep refinement after blow-ups within the estimate (see Simulator._retry)
+MAX_REFINE = 8
 
 class _FromSettings:
     def __repr__(self) -> str:
@@ -56,13 +61,14 @@ class Simulator:
     def __init__(self, design: Design, device: str = "cpu", integrator: str = FROM_SETTINGS,
                  dt: float = FROM_SETTINGS, precision: str = FROM_SETTINGS, bending: str = FROM_SETTINGS,
                  substeps: int | None = FROM_SETTINGS, worlds: int = 1, launch_mode: str = FROM_SETTINGS,
-                 reestimate_every: int = FROM_SETTINGS, settings: SimulationSettings | None = None):
+                 reestimate_every: int = FROM_SETTINGS, settings: SimulationSettings | None = None,
+                 max_substeps: int = FROM_SETTINGS):
         if not isinstance(design, Design):
             raise DesignError(f"Simulator needs a ws.Design, got {type(design).__name__}")
         if settings is not None and not isinstance(settings, SimulationSettings):
             raise DesignError(f"settings must be a SimulationSettings or None, got {type(settings).__name__}")
         given = dict(integrator=integrator, dt=dt, precision=precision, bending=bending, substeps=substeps,
-                     launch_mode=launch_mode, reestimate_every=reestimate_every)
+                     launch_mode=launch_mode, reestimate_every=reestimate_every, max_substeps=max_substeps)
         self.settings = (settings or SimulationSettings()).replace(
             **{k: v for k, v in given.items() if v is not FROM_SETTINGS})
         if isinstance(worlds, (bool, np.bool_)) or not isinstance(worlds, (int, np.integer)) or worlds < 1:
@@ -74,10 +80,15 @@ class Simulator:
         self.dt, self.bending, self.precision = s.dt, s.bending, s.precision
         self.launch_mode, self.reestimate_every = s.launch_mode, s.reestimate_every
         self.worlds = int(worlds)
+        check_storable(design, s.precision)
         self.model = m = build_model(design, self.device, s.precision)
-        self.state = State(m, self.worlds)
         air0 = m.atmospheric_pressure * design.rest.volume() / (GAS_CONSTANT * m.temperature)
-        self.control = Control(m, self.worlds, air0)
+        try:
+            self.state = State(m, self.worlds)
+            self.control = Control(m, self.worlds, air0)
+        except (MemoryError, ValueError, RuntimeError) as exc:  # arrays too large to allocate
+            raise DesignError(f"worlds = {self.worlds} copies of a {m.n_vertices}-vertex design do not fit in "
+                              f"memory ({exc}); use fewer worlds") from None
         self.solver = make_solver(s.integrator, m, self.state, self.control, paper_bending=(s.bending == "paper"))
         self.integrator = self.solver.name
         # probe buffers for read-outs outside the step loop
@@ -100,14 +111,19 @@ class Simulator:
         self._estimated_at = 0  # internal step count at the last periodic re-estimate (keys the elastic bound)
         self.step_count = 0
         self.time = 0.0
+        # the last good state, restored when a step raises (blow-up, interrupt); _broken: the error every
+        # further step repeats when even that state is not finite (corrupted behind the API's back)
+        self._checkpoint = Checkpoint(self.state.xv)
+        self._broken: SimulationError | None = None
+        self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
         self._update_plan()
 
     # ------------------------------------------------------------------ world helpers
     def _out(self, a: np.ndarray):
         return a[0] if self.worlds == 1 else a
 
-    def _per_world(self, value, shape_tail: tuple, name: str) -> np.ndarray:
-        a = np.asarray(value, dtype=np.float64)
+    def _per_world(self, value, shape_tail: tuple, name: str, stored=np.float64) -> np.ndarray:
+        a = numeric_array(value, name)
         full = (self.worlds,) + shape_tail
         if a.shape == shape_tail:
             a = np.broadcast_to(a, full)
@@ -115,6 +131,13 @@ class Simulator:
             raise DesignError(f"{name} must have shape {shape_tail} or {full}, got {a.shape}")
         if not np.all(np.isfinite(a)):
             raise DesignError(f"{name} must be finite; got non-finite values")
+        with np.errstate(over="ignore"):
+            kept = a.astype(stored)
+        if not np.all(np.isfinite(kept)):
+            big = float(np.abs(a).max())
+            raise DesignError(f"{name} up to {big:.3g} do not fit in {np.dtype(stored).name} (stored as "
+                              f"{np.dtype(stored).name} at precision {self.precision!r}); use realistic values "
+                              f"(SI units) or precision='float64'")
         return np.ascontiguousarray(a)
 
     def _direct(self, kernel, dim, inputs):
@@ -128,10 +151,14 @@ class Simulator:
 
     @positions.setter
     def positions(self, value):
-        a = self._per_world(value, (self.model.n_vertices, 3), "positions")
+        a = self._per_world(value, (self.model.n_vertices, 3), "positions", self.model.np_dtype)
+        check_chamber(a, self.model.host.faces, self.model.np_dtype, float(self.model.host.rest_length.min()))
         self.state.x.assign(a.astype(self.model.np_dtype))
+        if self.solver.recenter(a):
+            self.plan.invalidate()
         self._geometry_version += 1
         self._dirty = True
+        self._recover()
 
     @property
     def velocities(self) -> np.ndarray:
@@ -140,8 +167,9 @@ class Simulator:
 
     @velocities.setter
     def velocities(self, value):
-        a = self._per_world(value, (self.model.n_vertices, 3), "velocities")
+        a = self._per_world(value, (self.model.n_vertices, 3), "velocities", self.model.np_dtype)
         self.state.v.assign(a.astype(self.model.np_dtype))
+        self._recover()
 
     @property
     def air_moles(self):
@@ -181,6 +209,40 @@ class Simulator:
                 f"clip it or widen pressure_limits in Design.add_ipam")
         self.control.ipam_pressure.assign(a)
 
+    def _mask(self, value, n: int, name: str) -> np.ndarray:
+        a = np.asarray(value)
+        if a.dtype != bool or a.shape not in ((n,), (self.worlds, n)):
+            raise DesignError(f"{name} must be a bool array of shape ({n},) or ({self.worlds}, {n}), got "
+                              f"{a.dtype} {a.shape}")
+        return np.ascontiguousarray(np.broadcast_to(a, (self.worlds, n)))
+
+    @property
+    def ipam_mask(self) -> np.ndarray:
+        """(n_ipam,) bool, False where an IPAM is masked out of the world ((W, n_ipam) with several
+        worlds): it exerts no force there. One model can so hold alternative actuator sets."""
+        return self._out(self.control.ipam_enabled.numpy()[:, : self.model.n_ipams].astype(bool))
+
+    @ipam_mask.setter
+    def ipam_mask(self, value):
+        n = self.model.n_ipams
+        a = self._mask(value, n, "ipam_mask")
+        full = np.ones((self.worlds, max(n, 1)), dtype=np.int32)
+        full[:, :n] = a
+        self.control.ipam_enabled.assign(full)
+
+    @property
+    def cell_mask(self) -> np.ndarray:
+        """(n_cell,) bool, False where a cell is masked out of the world ((W, n_cell)): it never jams there."""
+        return self._out(self.state.cell_enabled.copy())
+
+    @cell_mask.setter
+    def cell_mask(self, value):
+        a = self._mask(value, self.model.n_cells, "cell_mask")
+        if np.any(~a & self.state.cell_jammed):
+            w, c = np.argwhere(~a & self.state.cell_jammed)[0]
+            raise DesignError(f"cell {c} is already jammed in world {w}; mask cells out before they jam")
+        self.state.cell_enabled[:] = a
+
     @property
     def jammed(self) -> np.ndarray:
         """(n_cell,) bool jam state of each cell ((W, n_cell) with several worlds)."""
@@ -197,11 +259,13 @@ class Simulator:
         if isinstance(cell, (bool, np.bool_)) or not isinstance(cell, (int, np.integer)) or not 0 <= cell < m.n_cells:
             raise DesignError(f"cell must be an index in 0..{m.n_cells - 1}, got {cell!r}")
         mask = np.zeros(self.worlds, dtype=np.int32)
+        if world is not None and (isinstance(world, (bool, np.bool_)) or not isinstance(world, (int, np.integer))):
+            raise DesignError(f"world must be None (every world) or an integer index, got {world!r}")
         worlds = range(self.worlds) if world is None else [int(world)]
         for w in worlds:
             if not 0 <= w < self.worlds:
                 raise DesignError(f"world must be in 0..{self.worlds - 1}, got {w}")
-            if not self.state.cell_jammed[w, cell]:
+            if not self.state.cell_jammed[w, cell] and self.state.cell_enabled[w, cell]:  # masked: never jams
                 mask[w] = 1
         if not mask.any():
             return
@@ -255,7 +319,7 @@ class Simulator:
             return self._out(np.zeros((self.worlds, 0)))
         length = ipam_lengths_np(self.state.x.numpy().astype(np.float64), h.faces, h.ipam_faces)
         natural = natural_length_np(h.ipam_free_length, h.ipam_area_over_k, self._ipam_pressure())
-        return self._out(axial_force_np(h.ipam_stiffness, length, natural))
+        return self._out(axial_force_np(h.ipam_stiffness, length, natural) * self.ipam_mask.reshape(self.worlds, -1))
 
     def edge_state(self):
         """Current (lengths, dihedral angles) of every edge, each (E,) (or (W, E))."""
@@ -279,7 +343,8 @@ class Simulator:
                    spring=spring_energy_np(x, h.hinges, st.rest_length.numpy(), k), bending=zero,
                    gas=gas_energy_np(volumes_np(x, h.faces), self.control.air.numpy(), m.gas_rt,
                                      m.atmospheric_pressure),
-                   ipam=ipam_energy_np(x, h, self._ipam_pressure()) if m.has_ipams else zero)
+                   ipam=ipam_energy_np(x, h, self._ipam_pressure(), self.ipam_mask.reshape(self.worlds, -1))
+                   if m.has_ipams else zero)
         if m.has_bending:
             kt = m.bending_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
             out["bending"] = bending_energy_np(x, h.hinges, st.rest_angle.numpy(), kt)
@@ -302,10 +367,15 @@ class Simulator:
             edge_jam, x, rest, air = edge_jam[:1], x[:1], rest[:1], air[:1]
         edge_jam, x, rest = edge_jam.astype(bool), x.astype(np.float64), rest.astype(np.float64)
         key = (self._geometry_version, int(edge_jam.sum()), self._estimated_at, uniform)
-        if self._elastic_cache is None or self._elastic_cache[0] != key:
-            self._elastic_cache = (key, elastic_omega2_bound(m, edge_jam, x, rest))
-        est = stable_dt_estimate(m, type(self.solver), edge_jam, air, x, rest, elastic_bound=self._elastic_cache[1])
-        return float(est.min())
+        with np.errstate(all="ignore"):
+            try:
+                if self._elastic_cache is None or self._elastic_cache[0] != key:
+                    self._elastic_cache = (key, elastic_omega2_bound(m, edge_jam, x, rest))
+                est = stable_dt_estimate(m, type(self.solver), edge_jam, air, x, rest,
+                                         elastic_bound=self._elastic_cache[1])
+            except np.linalg.LinAlgError:  # a non-finite or degenerate state: no estimate
+                est = np.array([np.nan])
+        return check_stable_dt(float(est.min()), self.step_count, self.time)
 
     @property
     def substeps(self) -> int:
@@ -327,10 +397,14 @@ class Simulator:
     def _update_plan(self):
         self._dt_stable = self.stable_dt()
         fixed = self.settings.substeps
-        n = substeps_for(self.dt, self._dt_stable) if fixed is None else fixed
+        n = substeps_for(self.dt, self._dt_stable) * self._refine if fixed is None else fixed
         h = self.dt / n
         if fixed is not None:
             check_fixed_step(self.dt, n, self._dt_stable, self.integrator)
+        if n > self.settings.max_substeps:
+            st = self.state
+            raise substeps_error(self.design, self.model, st.jammed.numpy().astype(bool), self.control.air.numpy(),
+                                 st.x.numpy().astype(np.float64), self.dt, self._dt_stable, self.settings.max_substeps)
         self._substeps = n
         if h != self.plan.h or not self.plan.built:
             self.plan.build(self.solver, h)
@@ -343,18 +417,103 @@ class Simulator:
             time = self.time - (self.step_count - step) * self.dt
             raise blowup_error(codes, step, time, self.plan.h, self._dt_stable)
 
+    def _check_chamber(self) -> None:
+        """A membrane turned inside out or collapsed (volume <= 0) by the last output step is a
+        blow-up of that step (found where the host reads state anyway: immediate mode)."""
+        vol = self._volumes()
+        if np.all(vol > 0):
+            return
+        w = int(np.argmin(vol))
+        safe = 0.5 * min(self._dt_stable, self.plan.h)
+        raise SimulationError(
+            f"simulation blew up at output step {self.step_count} (t = {self.time:.6g} s, world {w}): the chamber "
+            f"volume became {vol[w]:.3g} m^3 (membrane inside out or collapsed) with internal step "
+            f"{self.plan.h:.4g} s; stable estimate {self._dt_stable:.4g} s. Try a smaller step, e.g. dt = "
+            f"{safe:.3g} s with substeps=1, or check the inputs (air, pressures, stiffness) for extreme values",
+            step=self.step_count, quantity="volume", safe_dt=safe, world=w)
+
+    # ------------------------------------------------------------------ last good state
+    _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at", "_dt_stable", "_substeps", "_elastic_cache",
+             "_dirty")
+
+    def _save(self) -> None:
+        self._checkpoint.save(self.state.xv, {k: getattr(self, k) for k in self._KEPT})
+
+    def _finite(self) -> bool:
+        return bool(np.all(np.isfinite(self.state.xv.numpy())))
+
+    def _restore(self, exc: BaseException) -> None:
+        """Back to the last good state after ``exc`` interrupted a step; a state that is not finite
+        even there (changed behind the API's back) leaves the simulator refusing further steps."""
+        for k, v in self._checkpoint.restore(self.state.xv).items():
+            setattr(self, k, v)
+        self.blowup_watch.reset()
+        if self._substeps is None or self.plan.h != self.dt / self._substeps:
+            self._dirty = True
+        if isinstance(exc, SimulationError) and not self._finite():
+            self._broken = exc
+
+    def _recover(self) -> None:
+        """A state set through the API: shorter steps taken after a blow-up end, and a finite state
+        lifts the refusal."""
+        if self._refine != 1:
+            self._refine, self._dirty = 1, True
+        if self._broken is not None and self._finite():
+            self._broken = None
+
     def step(self, n: int = 1) -> None:
         """Advance n output steps of dt (each ``substeps`` internal steps), checking for blow-up.
 
-        The blow-up error names the first output step after which a world blew up. On a GPU the
-        codes are read at the end of the call and before each re-estimate of the stable step, so
-        the state is then a few steps past that one."""
-        if not isinstance(n, (int, np.integer)) or n < 0:
+        The blow-up error names the first output step after which a world blew up. Any error or
+        interrupt (Ctrl-C) inside a step leaves the last good state: on CPU the state after the last
+        whole output step, on a GPU (where blow-up codes are read at the end of the call and before
+        each re-estimate of the stable step) the state at the start of the call; positions,
+        velocities, ``step_count`` and ``time`` always agree."""
+        if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
             raise DesignError(f"step count must be an integer >= 0, got {n!r}")
+        if self._broken is not None:
+            b = self._broken
+            raise SimulationError(f"{b} (the state is not finite; set positions and velocities to continue)",
+                                  step=b.step, quantity=b.quantity, safe_dt=b.safe_dt, world=b.world)
+        target = self.step_count + int(n)
+        first, refine = None, self._refine
+        while True:
+            self._save()
+            try:
+                self._advance(target - self.step_count)
+                return
+            except BaseException as exc:
+                self._restore(exc)
+                first = first or exc
+                if not self._retry(exc):
+                    if first is exc or not isinstance(first, SimulationError):
+                        raise
+                    raise SimulationError(  # the first failure names the cause; say the retries failed too
+                        f"{first} (also with {self._refine // refine}x shorter internal steps)", step=first.step,
+                        quantity=first.quantity, safe_dt=first.safe_dt, world=first.world) from exc
+
+    def _retry(self, exc: BaseException) -> bool:
+        """Whether to take the failed output steps again with internal steps half as long.
+
+        The stable-step estimate holds for the state it was made at; a violent motion between two
+        estimates (a membrane at 100 atm sloshing at hundreds of m/s, crumpling as it recoils) can
+        need a smaller step before the next one. With automatic substeps a blow-up from a finite last
+        good state is retried at 2x, 4x, 8x the substeps (``MAX_REFINE``, within ``max_substeps``);
+        the refinement halves again at each periodic re-estimate. Only then is the blow-up raised."""
+        if not isinstance(exc, SimulationError) or exc.quantity == "estimate" or self._broken is not None \
+                or self.settings.substeps is not None or self._refine >= MAX_REFINE \
+                or 2 * (self._substeps or 1) > self.settings.max_substeps:
+            return False
+        self._refine *= 2
+        self._dirty = True
+        return True
+
+    def _advance(self, n: int) -> None:
         watch = self.blowup_watch
-        for _ in range(int(n)):
+        for _ in range(n):
             if self.reestimate_every and self._internal_steps - self._estimated_at >= self.reestimate_every:
                 self._estimated_at = self._internal_steps
+                self._refine = max(1, self._refine // 2)
                 self._dirty = True
             if self._dirty:
                 self._report(watch.poll())  # the estimate reads the state: a blown-up one is reported first
@@ -364,6 +523,9 @@ class Simulator:
             self.step_count += 1
             self.time += self.dt
             self._report(watch.after_step(self.step_count))
+            if not watch.deferred:  # each whole output step with a chamber left is the new last good state
+                self._check_chamber()
+                self._save()
         self._report(watch.poll())
 
     def __repr__(self) -> str:

@@ -11,18 +11,19 @@ import math
 
 import numpy as np
 
-from .errors import StabilityError
-from .model import Model
+from .errors import DesignError, SimulationError, StabilityError
+from .material import GAS_CONSTANT, Material
+from .model import Model, host_model
 from .physics.bending import bending_rows_np, hinge_gradients_np
 from .physics.damping import viscous_rows_np
 from .physics.ipam import ipam_operator_terms, ipam_rows_np
 from .physics.jamming import jammed_factor_np
-from .physics.pressure import pressure_rows_np
+from .physics.pressure import pressure_rows_np, volumes_np
 from .physics.springs import spring_operator_terms, spring_rows_np
 
 __all__ = ["stable_dt_estimate", "elastic_omega2_bound", "lanczos_upper_bound", "ElasticOperator", "substeps_for",
            "jammed_stiffness", "gershgorin_rows", "check_fixed_step", "worlds_identical", "LANCZOS_SAFETY",
-           "LANCZOS_STEPS"]
+           "LANCZOS_STEPS", "check_stable_dt", "substeps_error", "check_chamber", "check_storable"]
 
 #: Lanczos bound safety factor on omega^2. Over meshes of 162-10242 vertices, jammed or not, the
 #: 12-step bound was 0.95-1.04 of a 100-step one and, where a dense eigensolve is affordable (162
@@ -207,3 +208,102 @@ def check_fixed_step(dt: float, substeps: int, dt_stable: float, integrator: str
             f"{dt_stable:.4g} s of this model ({integrator}, current stiffness and pressure); "
             f"use dt <= {dt_stable * substeps:.4g} s with substeps={substeps}, "
             f"substeps >= {substeps_for(dt, dt_stable)}, or substeps=None to choose automatically")
+
+
+def check_stable_dt(dt_stable: float, step: int, time: float) -> float:
+    """``dt_stable`` (s) when it is a positive finite number; else the state has no stable step (it is
+    not finite or degenerate) and ``SimulationError`` says so."""
+    if not (math.isfinite(dt_stable) and dt_stable > 0):
+        raise SimulationError(
+            f"the stable step estimate is {dt_stable} at output step {step} (t = {time:.6g} s): the state is "
+            f"not finite or degenerate (collapsed or inside-out membrane, non-finite air); set positions, "
+            f"velocities and air to sane values", step=step, quantity="estimate")
+    return dt_stable
+
+
+#: the finest relative resolution (float spacing at the positions / shortest rest edge) a state may have
+RESOLUTION_LIMIT = 1e-4
+
+
+def check_chamber(x: np.ndarray, faces: np.ndarray, dtype=np.float64, edge: float | None = None) -> None:
+    """Refuse positions x (W, V, 3) that enclose no positive volume (mirrored, inside out, collapsed):
+    the chamber's pressure n R T / V has no meaning there; and positions so far from the origin that
+    ``dtype`` resolves them coarser than RESOLUTION_LIMIT x the shortest rest ``edge`` (m)."""
+    if edge is not None:
+        far = float(np.abs(x).max())
+        spacing = float(np.spacing(np.asarray(far, dtype=dtype)))
+        if spacing > RESOLUTION_LIMIT * edge:
+            raise DesignError(
+                f"positions up to {far:.3g} m from the origin: {np.dtype(dtype).name} resolves them only to "
+                f"{spacing:.2g} m, too coarse for edges of {edge:.3g} m; keep the membrane near the origin "
+                f"or use precision='float64'")
+    vol = volumes_np(x, faces)
+    if not np.all(vol > 0):
+        w = int(np.argmin(vol))
+        raise DesignError(
+            f"positions enclose a volume of {vol[w]:.3g} m^3 (world {w}): a chamber needs a positive volume; "
+            f"these positions are mirrored, inside out or collapsed (keep the rest mesh's orientation)")
+
+
+def check_storable(design, precision: str) -> None:
+    """Refuse a design whose model values (stiffness, inverse mass, damping) do not fit in ``precision``
+    (float32 overflows near 3.4e38 and underflows to zero near 1e-45), naming the Material field."""
+    dtype = np.float32 if precision == "float32" else np.float64
+    h, mat = host_model(design), design.material
+    values = {"youngs_modulus x thickness (edge stiffness)": h.edge_stiffness, "areal_density (1 / vertex mass)":
+              1.0 / h.mass, "areal_density (vertex mass)": h.mass,
+              "bending_stiffness x jam_bend_factor": mat.bending_stiffness * mat.jam_bend_factor,
+              "spring_damping": mat.spring_damping, "viscous_damping": mat.viscous_damping,
+              "youngs_modulus x thickness x jam_stretch_factor": h.edge_stiffness * mat.jam_stretch_factor}
+    with np.errstate(all="ignore"):
+        for what, v in values.items():
+            v = np.asarray(v, dtype=np.float64)
+            kept = v.astype(dtype)
+            if not np.all(np.isfinite(v)) or not np.all(np.isfinite(kept)) or np.any((kept == 0) & (v != 0)):
+                raise DesignError(
+                    f"Material {what} = {float(np.abs(v).max()):.3g} (SI) does not fit in {precision}; use "
+                    f"realistic material values or precision='float64'")
+
+
+def _suspects(design, term: str, air: float, x: np.ndarray) -> list:
+    """(how far from normal, description) of the values that can make ``term`` extreme."""
+    mat, base, rest = design.material, Material(), design.rest
+    size = float(np.ptp(x, axis=0).max() / np.ptp(rest.vertices, axis=0).max())
+    air0 = mat.atmospheric_pressure * rest.volume() / (GAS_CONSTANT * mat.temperature)
+    out = [(base.areal_density / mat.areal_density, f"areal_density = {mat.areal_density:.3g} kg/m^2 (light "
+                                                    f"vertices move fast)")]
+    if term == "damping":
+        out += [(mat.spring_damping / base.spring_damping, f"spring_damping = {mat.spring_damping:.3g} N s/m"),
+                (mat.viscous_damping / base.viscous_damping, f"viscous_damping = {mat.viscous_damping:.3g} N s/m")]
+    elif term == "elastic":
+        out += [(mat.stretch_modulus / base.stretch_modulus, f"youngs_modulus x thickness = "
+                                                             f"{mat.stretch_modulus:.3g} N/m"),
+                (mat.bending_stiffness / base.bending_stiffness * mat.jam_bend_factor / base.jam_bend_factor,
+                 f"bending_stiffness = {mat.bending_stiffness:.3g} N m/rad (x{mat.jam_bend_factor:g} jammed)"),
+                (mat.jam_stretch_factor / base.jam_stretch_factor, f"jam_stretch_factor = {mat.jam_stretch_factor:g}"),
+                (1.0 / max(size, 1e-300), f"positions at {size:.3g} x the rest size (tiny edges)")]
+    else:
+        out += [(air / air0, f"air_moles = {air:.3g} mol ({air / air0:.3g} x the air at rest)"),
+                (1.0 / max(size, 1e-300) ** 3, f"positions at {size:.3g} x the rest size (tiny chamber)")]
+    return out
+
+
+def substeps_error(design, model: Model, edge_jammed: np.ndarray, air: np.ndarray, x: np.ndarray, dt: float,
+                   dt_stable: float, max_substeps: int) -> StabilityError:
+    """The error for an output step ``dt`` that needs more than ``max_substeps`` internal steps of
+    ``dt_stable``, naming the rate that limits the step (elastic, pressure, gas or damping) and the
+    material or state value furthest from normal behind it."""
+    with np.errstate(all="ignore"):
+        stiff, press, gas_eig, damp = gershgorin_rows(model, edge_jammed, air, x)
+        rates = np.sqrt((stiff + press).max(axis=1) + gas_eig) + damp.max(axis=1)
+        w = int(np.nanargmax(rates)) if np.any(np.isfinite(rates)) else 0
+        terms = {"elastic": math.sqrt(stiff[w].max()), "pressure": math.sqrt(press[w].max()),
+                 "gas": math.sqrt(max(gas_eig[w], 0.0)), "damping": float(damp[w].max())}
+        term = max(terms, key=lambda k: terms[k] if math.isfinite(terms[k]) else math.inf)
+        ratio, cause = max(_suspects(design, term, float(air[w]), x[w]), key=lambda t: t[0])
+    needed = dt / dt_stable
+    return StabilityError(
+        f"an output step of {dt:.4g} s needs {needed:.3g} internal steps of the stable step {dt_stable:.3g} s, "
+        f"more than max_substeps = {max_substeps}: the {term} rate ({terms[term]:.3g} 1/s) is extreme, "
+        f"most likely from {cause}. Use realistic values (SI units), or raise max_substeps "
+        f"(SimulationSettings / Simulator keyword) if this is intended")

@@ -6,7 +6,7 @@ import warp as wp
 
 from .settings import LAUNCH_MODES
 
-__all__ = ["StepPlan"]
+__all__ = ["StepPlan", "Checkpoint"]
 
 
 class StepPlan:
@@ -34,6 +34,10 @@ class StepPlan:
     def built(self) -> bool:
         """Whether build() has prepared a plan."""
         return self.kind is not None
+
+    def invalidate(self) -> None:
+        """Forget the prepared plan (its launch arguments changed); the next use rebuilds it."""
+        self.kind = None
 
     def direct(self, kernel, dim, inputs):
         """Launch a kernel now on the plan's device (the ``launch`` callable of direct mode)."""
@@ -74,3 +78,27 @@ class StepPlan:
         else:
             for _ in range(count):
                 self.solver.step(self.h, self.direct)
+
+
+class Checkpoint:
+    """The last good state of a simulator: a device copy of what a step changes (positions and
+    velocities, ``xv``) and the host values that go with it (counters, the stable-step estimate).
+
+    ``save`` copies on the device (no host transfer, cheap next to a step); ``restore`` copies back
+    and returns the host values saved with it.
+    """
+
+    def __init__(self, xv: wp.array):
+        self.xv = wp.empty_like(xv)
+        wp.copy(self.xv, xv)
+        self.host: dict = {}
+
+    def save(self, xv: wp.array, host: dict) -> None:
+        """Keep ``xv`` (copied on its device) and ``host`` (a dict of plain values)."""
+        wp.copy(self.xv, xv)
+        self.host = dict(host)
+
+    def restore(self, xv: wp.array) -> dict:
+        """Copy the kept state back into ``xv``; return the host values kept with it."""
+        wp.copy(xv, self.xv)
+        return dict(self.host)

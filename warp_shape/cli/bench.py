@@ -25,6 +25,8 @@ def register(subparsers) -> None:
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
     b.add_argument("--worlds", type=int, nargs="+", default=[1],
                    help="sim bench: worlds stepped as one batch, e.g. 1 64 1024 4096 (default 1)")
+    b.add_argument("--candidates", type=int, nargs="+", default=None,
+                   help="design bench: also the default problem by the paper's placement and at each K, e.g. 1 2 4 8")
     b.add_argument("--repeats", type=int, default=3)
     b.add_argument("--out", default="out")
     b.set_defaults(func=run)
@@ -100,11 +102,11 @@ def run(args) -> int:
     if args.which in ("tradeoff", "all"):
         results["tradeoff"] = _tradeoff(args, format_rows)
     if args.which in ("design", "all"):
-        from ..benchmarks.design import bench_design
+        from ..benchmarks.design import DESIGN_COLUMNS, bench_design
 
-        rows = bench_design(device=args.device)
+        rows = bench_design(device=args.device, candidates=args.candidates)
         results["design"] = rows
-        print(format_rows(rows, ["problem", "targets", "actuators", "wall_s", "final_pcc", "control_steps"]))
+        print(format_rows(rows, DESIGN_COLUMNS))
     if args.which in ("control", "all"):
         results["control"] = _control(args, format_rows)
     if args.which in ("peer", "all"):

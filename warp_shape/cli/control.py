@@ -16,8 +16,10 @@ def register(subparsers) -> None:
     c = subparsers.add_parser("control", help="drive a design to target shapes; writes the control sequences")
     c.add_argument("scene", nargs="?", default=None, help="problem: cube_fig6 (default) or a scene file/name")
     c.add_argument("--target", nargs="+", help="target names (oval pear heart cube) or mesh files")
-    c.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
-    c.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    c.add_argument("--integrator", default=None, choices=["rk4", "semi_implicit"],
+                   help="overrides the scene's simulation:integrator (default rk4)")
+    c.add_argument("--precision", default=None, choices=["float32", "float64"],
+                   help="overrides the scene's simulation:precision (default float32)")
     c.add_argument("--max-steps", type=int, default=300, help="control-step limit")
     c.add_argument("--method", default="inverse", choices=["inverse", "paper"],
                    help="inverse: the paper's law as warm start, then model-based control (default); paper: the "
@@ -62,8 +64,11 @@ def run(args) -> int:
 
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.target)
     names = [n for n, _ in targets]
+    # the scene's simulation settings (checked: unknown keys and bad values are errors), then the flags
+    flags = {k: v for k, v in (("integrator", args.integrator), ("precision", args.precision)) if v is not None}
+    simulation = SimulationSettings.from_dict(scene_settings.get("simulation", {})).replace(**flags)
     settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming, method=args.method,
-                               simulation=SimulationSettings(integrator=args.integrator, precision=args.precision))
+                               simulation=simulation)
     with open_recorder(args) as rec:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
                                progress=control_progress, recorder=rec, target_names=names,

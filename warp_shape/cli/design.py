@@ -20,6 +20,9 @@ def register(subparsers) -> None:
     d.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files")
     d.add_argument("--actuators", type=int, default=None, help="number of IPAMs to place")
     d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m")
+    d.add_argument("--placement", choices=["paper", "simulated"], default=None,
+                   help="actuator placement: simulated candidate sets (default) or the paper's Algorithm 1")
+    d.add_argument("--candidates", type=int, default=None, help="simulated placement: candidate sets per round (K)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
     d.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
@@ -47,6 +50,9 @@ def _problem(args):
     opts.pop("actuators", None)
     if args.cell_radius is not None:
         opts["cell_radius"] = args.cell_radius
+    for key in ("placement", "candidates"):
+        if getattr(args, key, None) is not None:
+            opts[key] = getattr(args, key)
     settings = DesignSettings(**{k: v for k, v in opts.items() if k in DesignSettings.__dataclass_fields__},
                               initialize=not args.keep_rest)
     return base, named, actuators, settings

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..io.valve import DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ
 from .options import actuator_selection, add_common_args, control_progress, load_targets, open_recorder, quiet_warp
 
 __all__ = ["register", "run"]
@@ -22,6 +23,16 @@ def register(subparsers) -> None:
     e.add_argument("--marker-height", type=float, default=2e-3, help="IPAM boss height on the mold core, m")
     e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
                    help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")
+    e.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ, metavar="HZ",
+                   help=f"valve CSV samples per second (default {DEFAULT_RATE_HZ:g}); 0: one row per control step")
+    e.add_argument("--max-slew", type=float, default=DEFAULT_MAX_SLEW_KPA_S, metavar="KPA_PER_S",
+                   help=f"slowest valve: stretch the sequence so no pressure changes faster "
+                        f"(default {DEFAULT_MAX_SLEW_KPA_S:g} kPa/s); 0: simulated timing")
+    e.add_argument("--max-flow", type=float, default=None, metavar="ML_PER_S",
+                   help="syringe pump: stretch the sequence so the chamber air changes no faster (default: no limit)")
+    e.add_argument("--passive", choices=["neutral", "zero"], default="neutral",
+                   help="pressure written for IPAMs a target does not use: the simulated neutral pressure "
+                        "(force-free, default) or 0 kPa (vented)")
     add_common_args(e)
     e.set_defaults(func=run)
 
@@ -32,6 +43,7 @@ def run(args) -> int:
     from ..controller import ControlSettings, control_many
     from ..errors import DesignError
     from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
+    from ..io.valve import write_valve_outputs
     from ..io.scene_read import load_scene
     from ..io.scene_write import save_scene
 
@@ -56,6 +68,9 @@ def run(args) -> int:
                                    progress=control_progress, recorder=rec, target_names=names,
                                    **actuator_selection(args, scene.settings, names))
         written += write_control_outputs(results, names, out, usd="usd" in args.what)
+        written += write_valve_outputs(results, names, out, rate_hz=args.rate or None,
+                                       max_slew_kpa_s=args.max_slew or None, max_flow_ml_s=args.max_flow,
+                                       passive=args.passive)
         written += write_figures_or_skip(results, out, names)
     if args.json:
         print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..sampling import RadialSampler
 from .observe import DeviceConstants, fit_of, ipam_neutral_pressures, vertex_area_shares
-from .worlds import WorldState, max_speeds, put_worlds, take_worlds
+from .worlds import WorldState, mask_passive, max_speeds, put_worlds, take_worlds
 
 __all__ = ["Settled", "Explorer"]
 
@@ -61,6 +61,7 @@ class Explorer:
         put_worlds(sim, states)
         sim.air_moles = np.asarray(air, dtype=np.float64)
         passive = self.passive[np.asarray(targets)] if self.dev.n_ipam else np.zeros((B, 0), bool)
+        mask_passive(sim, passive)
         p = np.array(pressures, dtype=np.float64).reshape(B, self.dev.n_ipam)
         done = 0
         while done < self.settle_steps:

@@ -14,7 +14,7 @@
    rate limits and holds them until the membrane is at rest (``settle_speed``); the fit
    is measured there. If it does not beat the warm start, the paper law's result is returned
    unchanged and the reason says so: the result never ends worse than its warm start.
-Passive IPAMs are held neutral and passive cells never jam throughout, so an actuator held neutral
+Passive IPAMs are held neutral (masked out of their worlds: no force) and passive cells never jam throughout, so an actuator held neutral
 leaves the controls of the others as they were. ``result.refinement`` tells what happened.
 """
 
@@ -33,6 +33,7 @@ from .plans import parse_plans, start_plan
 from .refine import STOP_LIMIT, Refined, refine
 from .result import ControlResult
 from .settings import ControlSettings
+from .worlds import mask_passive
 
 __all__ = ["control_inverse", "PLANS_REFINED"]
 
@@ -54,7 +55,10 @@ class _Run:
     def new_simulator(self, worlds: int):
         from ..simulator import Simulator
 
-        return Simulator(self.design, device=self.device, settings=self.settings.simulation, worlds=worlds)
+        sim = Simulator(self.design, device=self.device, settings=self.settings.simulation, worlds=worlds)
+        if self.passive_ipams is not None and worlds == len(self.passive_ipams):  # one world per target
+            mask_passive(sim, self.passive_ipams, self.passive_cells)
+        return sim
 
 
 def _masks(warm, dev) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,7 @@ from .laws import LAWS, Controls, PaperLaw
 from .observe import DeviceConstants, Observation, Observer
 from .result import ControlResult
 from .settings import ControlSettings
+from .worlds import mask_passive
 
 __all__ = ["control", "control_many", "HOLD_PHASE"]
 
@@ -235,8 +236,8 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     law as warm start then model-based control (``controller.inverse``), or ``"paper"``, the paper's law.
 
     ``passive_ipams`` / ``passive_cells``: actuators left out of this control sequence (indices for
-    every target, or one list per target). A passive IPAM's pressure tracks its current length
-    (natural length = length, so it exerts ~no force); a passive cell never jams. The paper (section
+    every target, or one list per target). A passive IPAM is masked out of its world (it exerts no
+    force; its recorded pressure tracks its length, natural length = length); a passive cell never jams. The paper (section
     V-C) notes an actuator can be neutralised this way. ``progress(step, max_steps, done, worlds)``
     is called every control step; ``recorder`` logs the run. Keyword overrides go to ``settings``.
     """
@@ -260,6 +261,7 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     dev = DeviceConstants.of(sim, design)
     passive_i = _passive_mask(passive_ipams, W, dev.n_ipam, "passive_ipams")  # (W, n_ipam)
     passive_c = _passive_mask(passive_cells, W, dev.n_cell, "passive_cells")  # (W, n_cell)
+    mask_passive(sim, passive_i, passive_c)
     if recorder is not None:
         recorder.begin_run(design=design, targets=targets, target_names=names, prefix=recorder_prefix,
                            settings=settings)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["WorldState", "take_worlds", "put_worlds", "max_speeds"]
+__all__ = ["WorldState", "take_worlds", "put_worlds", "max_speeds", "mask_passive"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,17 @@ def put_worlds(sim, states: list[WorldState]) -> None:
     sim.air_moles = np.array([s.air for s in states])
     if sim.model.n_ipams:
         sim.ipam_pressures = np.stack([s.pressures for s in states])
+
+
+def mask_passive(sim, passive_ipams: np.ndarray | None, passive_cells: np.ndarray | None = None):
+    """Mask the actuators a control sequence leaves out ((W, n_ipam) / (W, n_cell) bool, True =
+    passive) out of the worlds of ``sim``: a passive IPAM exerts no force, a passive cell never jams
+    (the paper, section V-C: an actuator can be neutralised). Returns ``sim``."""
+    if passive_ipams is not None and sim.model.n_ipams:
+        sim.ipam_mask = ~np.asarray(passive_ipams, dtype=bool).reshape(sim.worlds, -1)
+    if passive_cells is not None and sim.model.n_cells:
+        sim.cell_mask = ~np.asarray(passive_cells, dtype=bool).reshape(sim.worlds, -1)
+    return sim
 
 
 def max_speeds(sim) -> np.ndarray:

@@ -10,34 +10,36 @@
    sampled target's volume), each failure an error naming the fix.
 2. p rounds: control the current design to every target (one batch of worlds); compute the scaled
    radial error e = (R - r) / V_t^(1/3) at every face centroid (R: target sampled through the
-   achieved face centroid, r: its radius); the free face (no cell, no IPAM end) with the largest
-   |e| over all targets is one IPAM end; the other end is, in that target, the free face with the
-   largest error of the same sign among faces at least ``min_angle`` (120 degrees) away seen from
-   the origin; add the IPAM and a jamming cell of ``cell_radius`` around each end (faces whose rest
-   centroids lie within the radius and are in no cell yet).
+   achieved face centroid, r: its radius), then place one IPAM and a jamming cell of ``cell_radius``
+   around each end (faces whose rest centroids lie within the radius and are in no cell yet), by
+   ``settings.placement``:
+   - "paper" (Algorithm 1 as published): the free face (no cell, no IPAM end) with the largest |e|
+     over all targets is one end; the other is, in that target, the free face with the largest error
+     of the same sign among faces at least ``min_angle`` (120 degrees) away seen from the origin on
+     the REST shape. Every target uses every actuator.
+   - "simulated" (default): ``candidates`` (K) sets, first ends from the largest-error free faces of
+     every target, are controlled to every target in one batch of K x targets worlds of one union
+     model with per-world actuator masks; the set that lowers the summed fit objective most is kept,
+     left out (held neutral) for the targets it does not help, so no round makes a target worse; the
+     design stops early when no candidate gains more than ``min_gain``. Every candidate's scores are
+     in ``result.placement["rounds"]`` (``designer.simulated``).
 3. a final control run of the finished design: round p. ``pcc_by_round`` is (p + 1, n_targets).
-
-Actuator selection (``select_actuators``, on by default; not in the paper's algorithm): when a new
-actuator set raises a target's fit objective (the controller's ``objective``) by more than the
-relative tolerance ``max_rise`` (0.5 %), that target is re-run with the new set held neutral (IPAM
-natural length tracking its length, cells never jammed: the paper notes in section V-C that an
-actuator can be neutralised this way) and, where the target already leaves sets out, with every set
-in use (sets that do not help alone may help together: a cube's corner IPAMs each raise the
-objective under the paper's law, four together halve it); the run with the lowest objective is kept.
-The control sequence then records which actuators each target uses; ``added[k]["left_out_for"]`` lists them.
+``result.placement["start_pcc"]``: each target's PCC against the (averaged) rest shape; a target below
+0 (anti-correlated, a bad start) is listed in ``bad_start``.
 
 Modules: ``settings`` (DesignSettings), ``initialize`` (checks, initial rest shape, design copies),
-``placement`` (where the next actuator set goes: the paper's rule), ``selection`` (which actuators
-each target's sequence leaves out), ``loop`` (design), ``result`` (DesignResult, plain data).
+``placement`` (the paper's rule, candidate ends), ``simulated`` (the simulated placement),
+``selection`` (which actuators each target's sequence leaves out), ``loop`` (design), ``result`` (DesignResult, plain data).
 """
 
 from .initialize import copy_design, initial_rest_shape
 from .loop import design
 from .placement import PLACEMENTS, PlacementContext, paper_placement
 from .result import DesignResult
-from .selection import Selection, objective_selection, selection_from_settings, selection_to_settings
-from .settings import DesignSettings
+from .selection import Selection, selection_from_settings, selection_to_settings
+from .settings import PLACEMENT_METHODS, DesignSettings
+from .simulated import simulated_placement
 
 __all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "selection_to_settings",
            "selection_from_settings", "PlacementContext", "paper_placement", "PLACEMENTS", "Selection",
-           "objective_selection"]
+           "simulated_placement", "PLACEMENT_METHODS"]

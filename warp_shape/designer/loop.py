@@ -1,4 +1,5 @@
-"""The design loop (Algorithm 1): control every target, select, record, place the next actuator set."""
+"""The design loop (Algorithm 1): control every target, record, place the next actuator set (the
+paper's rule or simulated candidate sets, ``DesignSettings.placement``)."""
 
 from __future__ import annotations
 
@@ -9,46 +10,51 @@ from ..controller.checks import check_target_units, check_targets_against_rest
 from ..design import Design
 from ..material import Material
 from ..mesh import TriMesh
-from ..sampling import RadialSampler
+from ..sampling import RadialSampler, pcc
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
 from .placement import PLACEMENTS, PlacementContext
 from .result import DesignResult
-from .selection import Selection, objective_selection
+from .selection import Selection
+from .simulated import simulated_placement
 from .settings import DesignSettings, round_control_settings
 
 __all__ = ["design"]
 
 
-def _control_round(i: int, current: Design, targets, names, selection: Selection, new_cells: list,
-                   objective: np.ndarray, added: list, settings: DesignSettings, control_settings: ControlSettings, *,
-                   device, progress, recorder) -> list:
-    """Round ``i``: the current design controlled to every target, then (from round 1) the selection
-    of the newest actuator set per target."""
+def _start_pcc(rest: TriMesh, sampler: RadialSampler, n_targets: int) -> np.ndarray:
+    """(n_targets,) PCC of the rest shape's radii against each target's, sampled through its vertices:
+    below 0, a target is anti-correlated with the (averaged) rest shape, a bad start."""
+    r = np.linalg.norm(rest.vertices, axis=1)
+    return np.array([pcc(r, np.linalg.norm(sampler.sample(rest.vertices, j), axis=1)) for j in range(n_targets)])
+
+
+def _placement_info(settings: DesignSettings, names, start_pcc: np.ndarray) -> dict:
+    bad = [n for n, v in zip(names, start_pcc) if v < 0]
+    return dict(method=settings.placement, candidates=settings.candidates if settings.placement == "simulated" else 1,
+                start_pcc=start_pcc.tolist(), bad_start=bad, rounds=[], stopped=None)
+
+
+def _round_progress(progress, i: int, rounds_total: int):
     def ctl_progress(step, total, done, worlds):
         if progress is not None:
-            progress(i, len(objective) - 1, step, total, done, worlds)
+            progress(i, rounds_total, step, total, done, worlds)
+    return ctl_progress
 
-    results = control_many(current, targets, device=device, settings=control_settings, progress=ctl_progress,
+
+def _control_round(i: int, current: Design, targets, names, selection: Selection, round_settings, designs: list,
+                   rounds: list, *, device, progress, recorder, on_round, rounds_total: int) -> list:
+    """Round ``i``: the current design controlled to every target (one batch of worlds), the actuators
+    each target leaves out held neutral; recorded, appended to ``designs`` and ``rounds``."""
+    designs.append(copy_design(current))
+    results = control_many(current, targets, device=device, settings=round_settings,
+                           progress=_round_progress(progress, i, rounds_total),
                            passive_ipams=selection.passive_ipams(), passive_cells=selection.passive_cells(),
                            recorder=recorder, recorder_prefix=f"design/round_{i}", target_names=names)
-    if i > 0 and settings.select_actuators:
-        def rerun(which, passive_ipams, passive_cells):
-            # the paper (V-C): an actuator can be held neutral for a target it does not help
-            labels = [names[j] if names[j] not in [names[m] for m in which[:k]] else f"{names[j]}_all_sets"
-                      for k, j in enumerate(which)]  # a target's second run uses every set
-            return control_many(current, [targets[j] for j in which], device=device, settings=control_settings,
-                                passive_ipams=passive_ipams, passive_cells=passive_cells, recorder=recorder,
-                                recorder_prefix=f"design/round_{i}_selected", target_names=labels)
-
-        left_out, taken_back = objective_selection(results, objective[i - 1], selection, {current.n_ipams - 1},
-                                                   set(new_cells), settings.max_rise, rerun)
-        for j in left_out:
-            added[-1].setdefault("left_out_for", []).append(names[j])
-        back = {names[j] for j in taken_back}
-        for record in added:  # a target that took every set back uses them all again
-            kept = [n for n in record.pop("left_out_for", []) if n not in back]
-            if kept:
-                record["left_out_for"] = kept
+    rounds.append(results)
+    if recorder is not None:
+        recorder.log_design_round(i, np.array([r.pcc for r in results]), names, designs[-1])
+    if on_round is not None:
+        on_round(i, designs[-1], results)
     return results
 
 
@@ -56,7 +62,9 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
            settings: DesignSettings | None = None, control_settings: ControlSettings | None = None,
            material: Material | None = None, progress=None, on_round=None, recorder=None,
            **overrides) -> DesignResult:
-    """Design a shape display for ``targets`` with ``actuators`` IPAMs (Algorithm 1, paper placement).
+    """Design a shape display for ``targets`` with ``actuators`` IPAMs (Algorithm 1). Where each
+    round's actuator set goes: ``placement`` ("simulated", the default: ``candidates`` sets tried in
+    one batch of worlds, the best kept, early stop when none helps; "paper": Algorithm 1 as published).
 
     ``progress(round, n_rounds, step, max_steps, done, worlds)`` is called during control runs;
     ``on_round(i, design_i, results_i)`` after each round (e.g. to write outputs as they finish).
@@ -80,26 +88,32 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     current = Design(rest, material)
     designs, rounds, added = [], [], []
     selection = Selection(len(targets))
-    new_cells: list[int] = []
-    pcc = np.zeros((actuators + 1, len(targets)))
-    objective = np.zeros((actuators + 1, len(targets)))
-    for i in range(actuators + 1):
-        designs.append(copy_design(current))
-        round_settings = control_settings if i == actuators else round_control_settings(control_settings,
-                                                                                         settings.round_control)
-        results = _control_round(i, current, targets, names, selection, new_cells, objective, added, settings,
-                                 round_settings, device=device, progress=progress, recorder=recorder)
-        rounds.append(results)
-        pcc[i] = [r.pcc for r in results]
-        objective[i] = [r.objective for r in results]
-        if recorder is not None:
-            recorder.log_design_round(i, pcc[i].copy(), names, designs[-1])
-        if on_round is not None:
-            on_round(i, designs[-1], results)
-        if i == actuators:
+    info = _placement_info(settings, names, _start_pcc(rest, sampler, len(targets)))
+    i, final = 0, False
+    while True:
+        final = final or i == actuators
+        round_settings = control_settings if final else round_control_settings(control_settings, settings.round_control)
+        results = _control_round(i, current, targets, names, selection, round_settings, designs, rounds, device=device,
+                                 progress=progress, recorder=recorder, on_round=on_round, rounds_total=actuators)
+        if final:
             break
-        record, new_cells = PLACEMENTS["paper"](current, results, ctx, i)
+        if settings.placement == "paper":
+            record, _ = PLACEMENTS["paper"](current, results, ctx, i)
+        else:
+            record = simulated_placement(current, results, ctx, i, selection, targets=targets, names=names,
+                                         control_settings=round_settings, device=device,
+                                         progress=_round_progress(progress, i, actuators), recorder=recorder)
+            info["rounds"].append(record)
+            if recorder is not None and hasattr(recorder, "log_design_candidates"):
+                recorder.log_design_candidates(i, record)
+            if record["chosen"] is None:  # nothing helps: this design is controlled again as the last round
+                info["stopped"] = record["stopped"]
+                designs.pop(), rounds.pop()
+                final = True
+                continue
         added.append(record)
-    return DesignResult(design=current, designs=designs, rounds=rounds, pcc_by_round=pcc, target_names=names,
+        i += 1
+    pcc_rows = np.array([[r.pcc for r in rs] for rs in rounds])
+    return DesignResult(design=current, designs=designs, rounds=rounds, pcc_by_round=pcc_rows, target_names=names,
                         targets=targets, added=added, settings=settings, control_settings=control_settings,
-                        passive_ipams=selection.passive_ipams(), passive_cells=selection.passive_cells())
+                        passive_ipams=selection.passive_ipams(), passive_cells=selection.passive_cells(), placement=info)

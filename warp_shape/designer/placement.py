@@ -3,7 +3,10 @@
 A placement is a function ``place(design, results, ctx, round_index) -> (record, new_cells)``: it
 adds one IPAM and its cells to ``design`` (in place) given the round's control results (one per
 target), and returns what it placed (a JSON-ready dict) and the indices of the new cells.
-``paper_placement`` is the paper's rule (Algorithm 1); ``PLACEMENTS``: the placements by name.
+``paper_placement`` is the paper's rule (Algorithm 1: the largest scaled error, the other end by the
+120-degree rule measured on the rest shape, cells around both ends); ``PLACEMENTS``: the placements by
+name. ``candidate_ends`` proposes the candidate sets the simulated placement (``designer.simulated``)
+tries.
 """
 
 from __future__ import annotations
@@ -18,8 +21,8 @@ from ..errors import DesignError
 from ..sampling import RadialSampler
 from .settings import DesignSettings
 
-__all__ = ["PlacementContext", "scaled_errors", "free_faces", "paper_ends", "add_actuator_set", "paper_placement",
-           "PLACEMENTS"]
+__all__ = ["PlacementContext", "scaled_errors", "free_faces", "rest_directions", "other_end", "paper_ends",
+           "cell_faces", "add_actuator_set", "paper_placement", "end_angle_deg", "candidate_ends", "PLACEMENTS"]
 
 
 @dataclass(frozen=True)
@@ -53,56 +56,113 @@ def free_faces(design: Design) -> np.ndarray:
     return free
 
 
-def paper_ends(errors: np.ndarray, cents: list, free: np.ndarray, min_angle_deg: float, actuator: int,
-               actuators: int) -> tuple[int, int, int]:
-    """(target, face_a, face_b): face_a the free face with the largest |error| over all targets; face_b
-    in that target the free face at least ``min_angle_deg`` away (seen from the origin) with the
-    largest error of the same sign (the smallest opposite one where none is left). ``actuator`` (1-based)
-    of ``actuators`` names the actuator in errors."""
-    if not free.any():
-        raise DesignError(f"no free face left for actuator {actuator} of {actuators}: every face is in a cell or "
-                          f"an IPAM end; use fewer actuators or a smaller cell_radius")
-    masked = np.where(free[None, :], np.abs(errors), -np.inf)
-    j_max, f_max = np.unravel_index(int(np.argmax(masked)), masked.shape)
-    e_max = errors[j_max, f_max]
-    u = cents[j_max] / np.linalg.norm(cents[j_max], axis=1, keepdims=True)
-    far = u @ u[f_max] <= math.cos(math.radians(min_angle_deg))
-    same = np.sign(errors[j_max]) == np.sign(e_max)
-    cand = free & far & same
+def rest_directions(ctx: PlacementContext) -> np.ndarray:
+    """(F, 3) unit directions of the rest shape's face centroids (the 120-degree rule is measured here)."""
+    c = ctx.rest_centroids
+    return c / np.linalg.norm(c, axis=1, keepdims=True)
+
+
+def other_end(errors_j: np.ndarray, free: np.ndarray, u_rest: np.ndarray, a: int, min_angle_deg: float,
+              actuator: int) -> int:
+    """The free face at least ``min_angle_deg`` from face ``a`` in the rest shape (seen from the
+    origin) with the largest error of the sign of ``errors_j[a]`` (the smallest opposite one where
+    none is left)."""
+    far = u_rest @ u_rest[a] <= math.cos(math.radians(min_angle_deg))
+    cand = free & far & (np.sign(errors_j) == np.sign(errors_j[a]))
     if not cand.any():
         cand = free & far  # no same-sign face left: the smallest opposite-sign error hurts least
         if not cand.any():
-            raise DesignError(f"no free face at least {min_angle_deg} degrees from face {f_max} for "
+            raise DesignError(f"no free face at least {min_angle_deg} degrees from face {a} for "
                               f"actuator {actuator}; use fewer actuators or a smaller cell_radius")
-    score = np.where(cand, errors[j_max] * np.sign(e_max), -np.inf)
-    return int(j_max), int(f_max), int(np.argmax(score))
+    return int(np.argmax(np.where(cand, errors_j * np.sign(errors_j[a]), -np.inf)))
 
 
-def add_actuator_set(design: Design, face_a: int, face_b: int, ctx: PlacementContext) -> list[int]:
+def _check_free(free: np.ndarray, actuator: int, actuators: int) -> None:
+    if not free.any():
+        raise DesignError(f"no free face left for actuator {actuator} of {actuators}: every face is in a cell or "
+                          f"an IPAM end; use fewer actuators or a smaller cell_radius")
+
+
+def paper_ends(errors: np.ndarray, free: np.ndarray, u_rest: np.ndarray, min_angle_deg: float, actuator: int,
+               actuators: int) -> tuple[int, int, int]:
+    """(target, face_a, face_b): face_a the free face with the largest |error| over all targets; face_b
+    in that target by ``other_end`` (the 120-degree rule on the rest shape, ``u_rest``). ``actuator``
+    (1-based) of ``actuators`` names the actuator in errors."""
+    _check_free(free, actuator, actuators)
+    masked = np.where(free[None, :], np.abs(errors), -np.inf)
+    j_max, f_max = np.unravel_index(int(np.argmax(masked)), masked.shape)
+    return int(j_max), int(f_max), other_end(errors[j_max], free, u_rest, int(f_max), min_angle_deg, actuator)
+
+
+def cell_faces(taken: np.ndarray, end: int, ctx: PlacementContext) -> np.ndarray:
+    """Faces whose rest centroids lie within ``cell_radius`` of face ``end``'s and are not ``taken``."""
+    c = ctx.rest_centroids
+    return np.flatnonzero((np.linalg.norm(c - c[end], axis=1) < ctx.settings.cell_radius) & ~taken)
+
+
+def add_actuator_set(design: Design, face_a: int, face_b: int, ctx: PlacementContext,
+                     taken: np.ndarray | None = None) -> list[int]:
     """Add an IPAM between ``face_a`` and ``face_b`` and a cell around each end (rest-shape faces within
-    ``cell_radius`` not yet in a cell); returns the new cells' indices."""
+    ``cell_radius`` not yet in a cell); returns the new cells' indices. ``taken``: (F,) bool faces no
+    new cell may use (default: those in a cell of ``design``); given, the cells may share faces with
+    cells of ``design`` (a model of alternative candidate sets)."""
     s = ctx.settings
     design.add_ipam(face_a, face_b, stiffness=s.ipam_stiffness, area=s.ipam_area,
                     pressure_limits=s.ipam_pressure_limits, damping=s.ipam_damping)
-    c = ctx.rest_centroids
+    shared = taken is not None
     new_cells = []
     for end in (face_a, face_b):
-        near = np.flatnonzero((np.linalg.norm(c - c[end], axis=1) < s.cell_radius) & (design.face_cell() < 0))
+        near = cell_faces(design.face_cell() >= 0 if taken is None else taken, end, ctx)
         if near.size:
-            new_cells.append(design.add_cell(near))
+            new_cells.append(design.add_cell(near, shared=shared))
     return new_cells
 
 
 def paper_placement(design: Design, results, ctx: PlacementContext, round_index: int) -> tuple[dict, list[int]]:
     """The paper's placement (Algorithm 1): ends by ``paper_ends`` on the scaled radial errors of the
     round's results, then ``add_actuator_set``."""
-    errors, cents = scaled_errors(results, ctx)
-    j, a, b = paper_ends(errors, cents, free_faces(design), ctx.settings.min_angle_deg, round_index + 1,
-                         ctx.actuators)
+    errors, _ = scaled_errors(results, ctx)
+    j, a, b = paper_ends(errors, free_faces(design), rest_directions(ctx), ctx.settings.min_angle_deg,
+                         round_index + 1, ctx.actuators)
     new_cells = add_actuator_set(design, a, b, ctx)
     record = dict(round=round_index, target=j, face_a=a, face_b=b, error=float(errors[j, a]),
-                  error_b=float(errors[j, b]))
+                  error_b=float(errors[j, b]), rest_angle_deg=end_angle_deg(ctx, a, b))
     return record, new_cells
+
+
+def end_angle_deg(ctx: PlacementContext, a: int, b: int) -> float:
+    """Angle between faces ``a`` and ``b`` of the rest shape seen from the origin, degrees."""
+    u = rest_directions(ctx)
+    return float(np.degrees(np.arccos(np.clip(u[a] @ u[b], -1.0, 1.0))))
+
+
+def candidate_ends(errors: np.ndarray, free: np.ndarray, ctx: PlacementContext, count: int,
+                   actuator: int) -> list[tuple[int, int, int]]:
+    """Up to ``count`` distinct candidate (target, face_a, face_b): first ends taken in turn from every
+    target's free faces by decreasing |error| (targets in order of their largest |error|; a face
+    within two cell radii (rest shape) of a first end already taken is skipped, so candidates differ),
+    the other end by ``other_end``. The first candidate is the paper's choice."""
+    _check_free(free, actuator, ctx.actuators)
+    u, c = rest_directions(ctx), ctx.rest_centroids
+    masked = np.where(free[None, :], np.abs(errors), -np.inf)
+    order_t = np.argsort(-masked.max(axis=1), kind="stable")
+    queues = {int(j): [int(f) for f in np.argsort(-masked[j], kind="stable") if free[f]] for j in order_t}
+    firsts: list[tuple[int, int]] = []
+    out, seen = [], set()
+    while len(out) < count and any(queues.values()):
+        for j in order_t:
+            q = queues[int(j)]
+            while q and any(np.linalg.norm(c[q[0]] - c[f]) < 2 * ctx.settings.cell_radius for _, f in firsts):
+                q.pop(0)
+            if not q or len(out) >= count:
+                continue
+            a = q.pop(0)
+            firsts.append((int(j), a))
+            b = other_end(errors[j], free, u, a, ctx.settings.min_angle_deg, actuator)
+            if frozenset((a, b)) not in seen:  # the same pair reached from its other end
+                seen.add(frozenset((a, b)))
+                out.append((int(j), a, b))
+    return out
 
 
 PLACEMENTS = {"paper": paper_placement}

@@ -29,6 +29,12 @@ class DesignResult:
     passive_cells: list = field(default_factory=list)  # per target: cells left out of its control sequence
     settings: DesignSettings = field(default_factory=DesignSettings)
     control_settings: ControlSettings = field(default_factory=ControlSettings)
+    placement: dict = field(default_factory=dict)  # method, K, start PCC / bad start, per round every candidate's scores
+
+    @property
+    def objective_by_round(self) -> np.ndarray:
+        """(rounds, n_targets) fit objective of every target after every round."""
+        return np.array([[r.objective for r in rs] for rs in self.rounds])
 
     @property
     def results(self) -> list[ControlResult]:
@@ -48,6 +54,10 @@ class DesignResult:
             actuators=self.design.n_ipams, cells=self.design.n_cells,
             vertices=self.design.rest.n_vertices,
             pcc_by_round=self.pcc_by_round.tolist(),
+            objective_by_round=self.objective_by_round.tolist(),
+            mare_by_round=[[r.mare for r in rs] for rs in self.rounds],
+            mpre_by_round=[[r.mpre for r in rs] for rs in self.rounds],
+            placement=self.placement,
             final={name: r.summary() for name, r in zip(self.target_names, fin)},
             added=self.added,
             settings=dict(designer=asdict(self.settings), controller=asdict(self.control_settings)),

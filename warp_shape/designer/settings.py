@@ -1,4 +1,4 @@
-"""Designer parameters: DesignSettings (cell radius, initial volume, end separation, selection, IPAM properties)."""
+"""Designer parameters: DesignSettings (placement, cell radius, initial volume, end separation, IPAM properties)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,13 @@ from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESS
 from ..errors import DesignError
 from ..settings import replace_settings
 
-__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings"]
+__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENT_METHODS"]
+
+#: Where each design round puts its actuator set: "paper": Algorithm 1 as published (the free face
+#: with the largest scaled error, the other end by the 120-degree rule on the rest shape, every target
+#: uses every actuator); "simulated": ``candidates`` sets controlled to every target in one batch of
+#: worlds, the one that lowers the summed fit objective most kept (designer.simulated).
+PLACEMENT_METHODS = ("paper", "simulated")
 
 #: How the designer controls the rounds before the last (the last round always uses the control
 #: settings as given, so that re-controlling the saved design reproduces its sequences):
@@ -37,8 +43,9 @@ class DesignSettings:
     volume_scale: float = 0.8  # rest volume / smallest target volume (multi-target initialisation)
     min_angle_deg: float = 120.0  # the two IPAM ends are at least this far apart seen from the origin
     initialize: bool = True  # False: keep the given rest shape (single-target mode)
-    select_actuators: bool = True  # leave a new actuator set out of a target's sequence when it worsens its fit
-    max_rise: float = 0.005  # relative rise of a target's fit objective that triggers the selection above
+    placement: str = "simulated"  # "paper" (Algorithm 1 as published) or "simulated" (candidate sets, PLACEMENT_METHODS)
+    candidates: int = 4  # simulated placement: candidate actuator sets tried per round (K; worlds = K x targets)
+    min_gain: float = 0.005  # simulated placement stops when no candidate lowers the summed objective by this fraction
     ipam_stiffness: float = DEFAULT_IPAM_STIFFNESS  # N/m of every added IPAM
     ipam_area: float = DEFAULT_IPAM_AREA  # m^2
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
@@ -52,8 +59,13 @@ class DesignSettings:
             raise DesignError(f"volume_scale must be in (0, 1], got {self.volume_scale}")
         if self.round_control not in ROUND_CONTROLS:
             raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
-        if not (self.max_rise >= 0 and math.isfinite(self.max_rise)):
-            raise DesignError(f"max_rise must be a relative tolerance >= 0 (e.g. 0.005), got {self.max_rise}")
+        if self.placement not in PLACEMENT_METHODS:
+            raise DesignError(f"placement must be one of {list(PLACEMENT_METHODS)}, got {self.placement!r}")
+        if isinstance(self.candidates, bool) or not isinstance(self.candidates, int) or self.candidates < 1:
+            raise DesignError(f"candidates must be a whole number >= 1 (candidate actuator sets per round), got "
+                              f"{self.candidates!r}")
+        if not (0 <= self.min_gain < 1):
+            raise DesignError(f"min_gain must be a relative gain in [0, 1) (e.g. 0.005), got {self.min_gain}")
         if not 0 < self.min_angle_deg < 180:
             raise DesignError(f"min_angle_deg must be in (0, 180), got {self.min_angle_deg}")
 

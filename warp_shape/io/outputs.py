@@ -46,23 +46,25 @@ def control_json_data(result) -> dict:
     return data
 
 
-def write_control_usd(result, path, target_name: str = "target") -> Path:
+def write_control_usd(result, path, target_name: str = "target", playback: str = "valve") -> Path:
     """The controlled run as an animated USD stage (``.usda`` or ``.usdc``): membrane points, IPAM
     curves, pressures, forces and jam state time-sampled once per control step, the target as a ghost,
-    and the controller and simulation settings."""
-    from .usd_animation import export_animation
+    and the controller and simulation settings. ``playback``: ``"valve"`` plays the sequence as long
+    as its valve schedule lasts, ``"simulated"`` at the simulator's clock (``usd_animation``)."""
+    from .usd_animation import export_animation, playback_times
 
     h = result.history
     n_ipam, n_cell = len(result.ipam_forces), len(result.jammed)
     per = lambda key, n: np.stack([h[key.format(i)] for i in range(n)], axis=1) if n else None  # noqa: E731
     controller = {k: v for k, v in asdict(result.settings).items() if v is not None and k != "simulation"}
     return export_animation(
-        path, result.design, result.frames, h["time"],
+        path, result.design, result.frames, playback_times(result, playback),
         ipam_pressures=per("ipam{}_pressure_pa", n_ipam), ipam_forces=per("ipam{}_force_n", n_ipam),
         jammed=per("cell{}_jammed", n_cell).astype(bool) if n_cell else None,
         targets=[result.target] if result.target is not None else None,
         target_names=[target_name] if result.target is not None else None,
-        settings={"controller": controller, "simulation": result.settings.simulation.to_dict()})
+        settings={"controller": controller, "simulation": result.settings.simulation.to_dict()},
+        playback={"timing": playback, "simulated_duration_s": float(h["time"][-1] - h["time"][0])})
 
 
 def write_control_outputs(results, names, out_dir, *, usd: bool = False) -> list[Path]:
@@ -123,8 +125,8 @@ def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
                          extra_report: dict | None = None) -> list[Path]:
     """Every output of a finished design: ``design.usda`` (the design, its targets, its settings and
-    each target's actuator selection), per target the control sequence (CSV, JSON) and
-    ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
+    each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
+    sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
     result's report, ``extra_report`` entries and the list of outputs), written last."""
     from .scene_schema import Scene
     from .scene_write import save_scene
@@ -137,6 +139,9 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
     written += write_control_outputs(result.results, names, out, usd=True)
+    from .valve import write_valve_outputs
+
+    written += write_valve_outputs(result.results, names, out)
     written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
     written += write_figures_or_skip(result, out)
     report = result.report()

@@ -379,6 +379,18 @@ class Recorder:
             s.log("design/actuators", rr.Scalars([float(design.n_ipams)]))
         s.reset_time()
 
+    def log_design_candidates(self, i: int, record: dict) -> None:
+        """Every candidate set's score (summed fit objective) in simulated placement round ``i``
+        (``design/candidates/<k>/score``, ``round`` timeline) and the one kept (``design/candidates/kept``)."""
+        rr, s = self._rr, self.stream
+        s.reset_time()
+        s.set_time("round", sequence=int(i))
+        for k, c in enumerate(record.get("candidates", [])):
+            s.log(f"design/candidates/{k}/score", rr.Scalars([float(c["score"])]))
+        kept = record.get("chosen")
+        s.log("design/candidates/kept", rr.Scalars([float(-1 if kept is None else kept)]))
+        s.reset_time()
+
     # ------------------------------------------------------------------ plain simulations
     def begin_simulation(self, design, prefix: str = "simulate", names=None, worlds: int = 1) -> None:
         """Start logging a plain simulation of ``design`` (``worlds`` copies)."""

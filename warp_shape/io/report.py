@@ -1,4 +1,5 @@
-"""The Markdown design report: PCC by round, actuators added, final fit (objective, PCC, MARE, MPRE,
+"""The Markdown design report: PCC by round, actuators added, placement (method, K, candidate scores
+per round, a bad start), final fit (objective, PCC, MARE, MPRE,
 saturation, convergence) and actuator needs."""
 
 from __future__ import annotations
@@ -52,6 +53,43 @@ def _actuator_needs(result) -> list[str]:
     return lines
 
 
+def _placement_section(result) -> list[str]:
+    """How the actuators were placed: method, K, the start against the rest shape, every round's
+    candidate scores (simulated placement) and an early stop."""
+    info = getattr(result, "placement", None) or {}
+    if not info:
+        return []
+    names = result.target_names
+    method = info.get("method", "paper")
+    lines = ["## Placement", "", f"Method: {method}" + (f", K = {info.get('candidates')} candidate sets per round "
+                                                       "(each controlled to every target in one batch of worlds)"
+                                                       if method == "simulated" else
+                                                       " (Algorithm 1 as published: every target uses every "
+                                                       "actuator)") + "."]
+    start = info.get("start_pcc") or []
+    if start:
+        lines += ["", "PCC of each target against the rest shape before control: "
+                  + ", ".join(f"{n} {v:+.3f}" for n, v in zip(names, start)) + "."]
+    for n in info.get("bad_start", []):
+        lines.append(f"Bad start: {n} is anti-correlated with the (averaged) rest shape (PCC < 0); its fit "
+                     "depends on the actuators placed for it.")
+    for rnd in info.get("rounds", []):
+        lines += ["", f"Round {rnd['round']}: summed objective before {rnd['previous_score']:.4f}; "
+                  f"{rnd['worlds']} worlds.", "",
+                  "| candidate | for | faces | rest angle | " + " | ".join(f"{n} objective" for n in names)
+                  + " | score | gain |", "|---" * (len(names) + 6) + "|"]
+        for k, c in enumerate(rnd["candidates"]):
+            mark = " (kept)" if rnd.get("chosen") == k else ""
+            lines.append(f"| {k}{mark} | {names[c['target']]} | {c['face_a']}-{c['face_b']} | "
+                         f"{c['rest_angle_deg']:.0f} deg | " + " | ".join(f"{v:.4f}" for v in c["objective"])
+                         + f" | {c['score']:.4f} | {100 * c['gain']:+.2f} % |")
+        if rnd.get("left_out_for"):
+            lines.append(f"\nThe kept set is held neutral for {', '.join(rnd['left_out_for'])} (it does not help there).")
+    if info.get("stopped"):
+        lines += ["", f"Stopped early: {info['stopped']}."]
+    return lines
+
+
 def design_markdown(result) -> str:
     """A short Markdown report of a ``DesignResult``: PCC table by round, actuators added, final fit,
     actuator needs."""
@@ -59,6 +97,6 @@ def design_markdown(result) -> str:
     lines = [f"# Design report: {', '.join(result.target_names)}", "",
              f"{d.n_ipams} IPAMs, {d.n_cells} jamming cells, "
              f"{d.rest.n_vertices}-vertex membrane (rest volume {d.rest.volume() * 1e6:.1f} cm^3).", ""]
-    lines += _pcc_table(result) + [""] + _added_table(result) + [""] + _fit_table(result) + [""] \
-        + _actuator_needs(result)
+    lines += _pcc_table(result) + [""] + _added_table(result) + [""] + _placement_section(result) + [""] \
+        + _fit_table(result) + [""] + _actuator_needs(result)
     return "\n".join(lines) + "\n"

@@ -19,12 +19,13 @@ __all__ = ["eval_ipams", "ipam_lengths_np", "centroid_distances_np", "natural_le
 
 
 def eval_ipams(model: Model, x, v, control: Control, f, launch: Launch):
-    """Add IPAM sub-spring forces at (x, v) (W, V) into f; launches nothing without IPAMs."""
+    """Add IPAM sub-spring forces at (x, v) (W, V) into f (none from an IPAM masked out of a world,
+    ``control.ipam_enabled``); launches nothing without IPAMs."""
     if not model.has_ipams:
         return
     launch(kip.eval_ipam_kernel, (x.shape[0], 3 * model.n_ipams),
            [model.ipam_sub_pairs, model.ipam_sub_offsets, model.ipam_stiffness, model.ipam_area_over_k,
-            model.ipam_free_length, model.ipam_damping, x, v, control.ipam_pressure, f])
+            model.ipam_free_length, model.ipam_damping, x, v, control.ipam_pressure, control.ipam_enabled, f])
 
 
 def ipam_lengths_np(x: np.ndarray, faces: np.ndarray, ipam_faces: np.ndarray) -> np.ndarray:
@@ -57,14 +58,18 @@ def pressure_for_length_np(free_length, area_over_k, length):
     return (length - free_length) / area_over_k
 
 
-def ipam_energy_np(x: np.ndarray, host: HostModel, pressure: np.ndarray) -> np.ndarray:
+def ipam_energy_np(x: np.ndarray, host: HostModel, pressure: np.ndarray, enabled: np.ndarray | None = None) -> np.ndarray:
     """(W,) elastic energy of the IPAM sub-springs in J at positions x (W, V, 3) and gauge pressures
-    (W, n): three springs of stiffness k/3 each, natural length L_n + the sub-spring's rest offset."""
+    (W, n): three springs of stiffness k/3 each, natural length L_n + the sub-spring's rest offset;
+    none from an IPAM masked out of a world (``enabled`` (W, n) bool False)."""
     pairs = host.ipam_sub_pairs
     natural = natural_length_np(host.ipam_free_length, host.ipam_area_over_k, pressure)
     natural = np.repeat(natural, 3, axis=1) + host.ipam_sub_offsets
     d = np.linalg.norm(x[:, pairs[:, 1]] - x[:, pairs[:, 0]], axis=-1)
-    return 0.5 * np.sum(np.repeat(host.ipam_stiffness / 3.0, 3) * (d - natural) ** 2, axis=1)
+    e = np.repeat(host.ipam_stiffness / 3.0, 3) * (d - natural) ** 2
+    if enabled is not None:
+        e = e * np.repeat(np.asarray(enabled, dtype=np.float64), 3, axis=1)
+    return 0.5 * np.sum(e, axis=1)
 
 
 def ipam_rows_np(stiff: np.ndarray, damp: np.ndarray, host: HostModel, inv_m: np.ndarray,

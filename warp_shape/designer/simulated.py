@@ -1,0 +1,93 @@
+"""Simulated placement: each round, candidate actuator sets controlled to every target in one batch.
+
+Round i of ``placement="simulated"``:
+1. ``candidates`` (K) candidate sets (``placement.candidate_ends``): first ends from the largest-error
+   free faces of every target, the other end by the 120-degree rule on the rest shape, a cell of
+   ``cell_radius`` around each end.
+2. One union model: the current design plus every candidate's IPAM and cells (cells of different
+   candidates may share faces). K x targets worlds, world (k, j) candidate k on target j: every other
+   candidate's IPAMs and cells are masked out of it (no force, never jammed), and the actuators target
+   j already leaves out stay left out. One ``control_many`` call: one launch per kernel for all worlds.
+3. A candidate's score is the summed fit objective over the targets, each target counting the better
+   of its objective with the candidate and without it (the previous round's): a candidate that does
+   not help a target is held neutral for it (section V-C), so a round never makes a target worse.
+   The candidate with the lowest score is kept and left out of the targets it does not help; when no
+   candidate lowers the summed objective by more than ``min_gain`` (relative), the design stops early.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..controller import control_many
+from ..design import Design
+from .initialize import copy_design
+from .placement import (PlacementContext, add_actuator_set, candidate_ends, end_angle_deg, free_faces,
+                        scaled_errors)
+from .selection import Selection
+
+__all__ = ["candidate_worlds", "simulated_placement"]
+
+
+def candidate_worlds(base: Design, ends: list, ctx: PlacementContext) -> tuple[Design, list[int], list[list[int]]]:
+    """The union design (``base`` plus every candidate's IPAM and cells, cells around each end among
+    the faces in no cell of ``base``), the candidates' IPAM indices and their cell indices."""
+    union = copy_design(base)
+    taken = base.face_cell() >= 0
+    ipams, cells = [], []
+    for _, a, b in ends:
+        cells.append(add_actuator_set(union, a, b, ctx, taken=taken))
+        ipams.append(union.n_ipams - 1)
+    return union, ipams, cells
+
+
+def _passive(selection: Selection, k: int, j: int, ipams: list, cells: list) -> tuple[list, list]:
+    """World (k, j): what target j leaves out plus every candidate but k."""
+    pi = set(selection.ipams[j]) | {ipams[m] for m in range(len(ipams)) if m != k}
+    pc = set(selection.cells[j]) | {c for m in range(len(cells)) if m != k for c in cells[m]}
+    return sorted(pi), sorted(pc)
+
+
+def simulated_placement(current: Design, results, ctx: PlacementContext, round_index: int, selection: Selection, *,
+                        targets, names, control_settings, device, progress=None, recorder=None) -> dict:
+    """Round ``round_index`` of the simulated placement (module docstring). Adds the kept set to
+    ``current`` and leaves it out of the targets it does not help (``selection``); returns the
+    round's record: every candidate's ends, per-target objectives and score, the one kept (``chosen``,
+    None when the round stopped the design) and the targets that leave it out."""
+    T = len(results)
+    errors, _ = scaled_errors(results, ctx)
+    ends = candidate_ends(errors, free_faces(current), ctx, ctx.settings.candidates, round_index + 1)
+    union, ipams, cells = candidate_worlds(current, ends, ctx)
+    K = len(ends)
+    passive = [_passive(selection, k, j, ipams, cells) for k in range(K) for j in range(T)]
+    runs = control_many(union, [targets[j] for _ in range(K) for j in range(T)], device=device,
+                        settings=control_settings, progress=progress, recorder=recorder,
+                        passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
+                        recorder_prefix=f"design/round_{round_index}_candidates",
+                        target_names=[f"{names[j]}_candidate{k}" for k in range(K) for j in range(T)])
+    obj = np.array([r.objective for r in runs]).reshape(K, T)
+    prev = np.array([r.objective for r in results])
+    score = np.minimum(obj, prev[None, :]).sum(axis=1)
+    gain = (prev.sum() - score) / prev.sum()
+    best = int(np.argmin(score))
+    record = dict(round=round_index, method="simulated", candidates=[
+        dict(target=j, face_a=a, face_b=b, error=float(errors[j, a]), error_b=float(errors[j, b]),
+             rest_angle_deg=end_angle_deg(ctx, a, b), objective=obj[k].tolist(),
+             mare_m=[runs[k * T + t].mare for t in range(T)], pcc=[runs[k * T + t].pcc for t in range(T)],
+             score=float(score[k]), gain=float(gain[k])) for k, (j, a, b) in enumerate(ends)],
+        previous_objective=prev.tolist(), previous_score=float(prev.sum()), worlds=K * T)
+    if gain[best] <= ctx.settings.min_gain:
+        record.update(chosen=None, stopped=(
+            f"no candidate lowers the summed objective by more than {100 * ctx.settings.min_gain:g} % "
+            f"(best {100 * gain[best]:.3g} %): the design stops with {current.n_ipams} IPAMs"))
+        return record
+    j, a, b = ends[best]
+    new_cells = add_actuator_set(current, a, b, ctx)
+    left_out = [t for t in range(T) if obj[best, t] >= prev[t]]
+    for t in left_out:
+        selection.ipams[t].add(current.n_ipams - 1)
+        selection.cells[t].update(new_cells)
+    record.update(chosen=best, target=j, face_a=a, face_b=b, error=float(errors[j, a]),
+                  error_b=float(errors[j, b]), rest_angle_deg=end_angle_deg(ctx, a, b), new_cells=new_cells,
+                  left_out_for=[names[t] for t in left_out])
+    return record
