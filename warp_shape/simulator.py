@@ -82,9 +82,13 @@ class Simulator:
         self.worlds = int(worlds)
         check_storable(design, s.precision)
         self.model = m = build_model(design, self.device, s.precision)
-        self.state = State(m, self.worlds)
         air0 = m.atmospheric_pressure * design.rest.volume() / (GAS_CONSTANT * m.temperature)
-        self.control = Control(m, self.worlds, air0)
+        try:
+            self.state = State(m, self.worlds)
+            self.control = Control(m, self.worlds, air0)
+        except (MemoryError, ValueError, RuntimeError) as exc:  # arrays too large to allocate
+            raise DesignError(f"worlds = {self.worlds} copies of a {m.n_vertices}-vertex design do not fit in "
+                              f"memory ({exc}); use fewer worlds") from None
         self.solver = make_solver(s.integrator, m, self.state, self.control, paper_bending=(s.bending == "paper"))
         self.integrator = self.solver.name
         # probe buffers for read-outs outside the step loop
