@@ -108,3 +108,29 @@ def test_control_figure_has_seconds_pressures_passive_and_named_inflation(tmp_pa
     assert "inflation" in [tx.get_text() for tx in a.texts]
     assert "grey band: inflation" in fig._suptitle.get_text()
     _check_png(control_figure(res, tmp_path / "c.png"))
+
+
+def test_report_gives_ipam_ends_and_cells_in_mm_and_a_glossary():
+    from types import SimpleNamespace
+
+    from warp_shape.io.report import lab_sections
+    from warp_shape.scenarios import cube_fig6_design
+
+    d = cube_fig6_design(subdivisions=2)
+    results = [SimpleNamespace(passive_ipams=np.array([], int)), SimpleNamespace(passive_ipams=np.array([2]))]
+    text = "\n".join(lab_sections(SimpleNamespace(design=d, target_names=["cube", "egg"], results=results)))
+    c = d.rest.face_centroids()
+    ip = d.ipams[2]
+    row = next(line for line in text.splitlines() if line.startswith("| 2 |"))
+    # IPAM 2's ends as rest-shape coordinates in mm (a 35 mm-radius design: tens of mm, not 0.0x)
+    for f in (ip.face_a, ip.face_b):
+        assert "(" + ", ".join(f"{v * 1e3:+.1f}" for v in c[f]) + ")" in row
+    assert np.max(np.abs(c[ip.face_a])) * 1e3 > 10.0
+    assert f"| {ip.rest_length * 1e3:.1f} |" in row and row.endswith("| cube |")  # egg holds it neutral
+    cells = text.split("## Jamming cells")[1].split("## Glossary")[0]
+    assert len([line for line in cells.splitlines() if line.startswith("| ") and line[2].isdigit()]) == d.n_cells
+    assert "IPAM 0 a" in cells
+    glossary = text.split("## Glossary")[1]
+    for term in ("**objective**", "**PCC**", "**MARE**", "**MPRE**", "**max scaled error**"):
+        assert term in glossary
+    assert "(R - r) / V_t^(1/3)" in glossary
