@@ -122,6 +122,37 @@ def test_interrupt_keeps_the_whole_output_steps_already_taken(monkeypatch):
     np.testing.assert_array_equal(sim.positions, ref.positions)
 
 
+def test_deferred_blowup_check_undoes_the_whole_call(monkeypatch):
+    """The GPU path reads blow-up codes at the end of a call: a failed or interrupted call is undone
+    whole (the state, step count and time before it), never left part-way."""
+    from warp_shape.integrators import BlowupWatch
+
+    d = ws.Design(_sphere())
+    sim = ws.Simulator(d)
+    sim.blowup_watch = BlowupWatch(sim.solver.status, deferred=True)
+    sim.step(2)
+    x2, v2 = sim.positions, sim.velocities
+    sim.velocities = _runaway(sim)
+    with pytest.raises(ws.SimulationError, match="blew up at output step 3 .*ran away"):
+        sim.step(4)
+    assert sim.step_count == 2 and not sim.blowup_watch.pending
+    np.testing.assert_array_equal(sim.positions, x2)
+    sim.velocities = v2
+    run, calls = sim.plan.run, []
+
+    def interrupted(count):
+        calls.append(count)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        run(count)
+
+    monkeypatch.setattr(sim.plan, "run", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        sim.step(5)
+    assert sim.step_count == 2 and sim.time == pytest.approx(2 * sim.dt)
+    np.testing.assert_array_equal(sim.positions, x2)
+
+
 # --------------------------------------------------------------------------- inputs in their storage precision
 
 
@@ -402,3 +433,10 @@ def test_control_applies_the_scene_simulation_settings(monkeypatch, tmp_path, ca
     assert "unknown integrator 'foo'" in capsys.readouterr().err
     assert _control_settings(monkeypatch, tmp_path, {"dt": -1.0}) == 2
     assert "dt must be a positive number" in capsys.readouterr().err
+
+
+def test_a_huge_output_step_is_named_as_the_cause():
+    with pytest.raises(ws.StabilityError, match=r"output step of 1e\+30 s .* the output step dt = 1e\+30 s itself"):
+        ws.Simulator(ws.Design(_sphere()), dt=1e30)
+    with pytest.raises(ws.DesignError, match="substeps = 20000 is more than max_substeps = 10000"):
+        ws.Simulator(ws.Design(_sphere()), substeps=20000)

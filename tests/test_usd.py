@@ -405,13 +405,15 @@ def test_animation_export(tmp_path, recorded, ext):
     assert validate_usd(path) == []
     stage = Usd.Stage.Open(str(path))
     nfr = frames.shape[0]
-    assert stage.GetTimeCodesPerSecond() == pytest.approx(1.0 / np.median(np.diff(times)), rel=1e-5)
+    # content tools play at 24 frames per second: time codes and frames per second both 24
+    assert stage.GetTimeCodesPerSecond() == stage.GetFramesPerSecond() == 24.0
     mesh = UsdGeom.Mesh.Get(stage, "/Scene/Membrane")
     pts = mesh.GetPointsAttr()
     samples = pts.GetTimeSamples()
     assert len(samples) == nfr
-    assert stage.GetStartTimeCode() == samples[0] and stage.GetEndTimeCode() == samples[-1]
-    np.testing.assert_allclose(np.array(samples) / stage.GetTimeCodesPerSecond(), times, rtol=0, atol=1e-9)
+    assert stage.GetStartTimeCode() == samples[0] == 0.0 and stage.GetEndTimeCode() == samples[-1]
+    np.testing.assert_allclose(np.array(samples) / 24.0, times - times[0], rtol=0, atol=1e-9)
+    assert stage.GetEndTimeCode() == pytest.approx(24.0 * (times[-1] - times[0]))
     np.testing.assert_array_equal(np.array(pts.Get(samples[-1])), frames[-1].astype(np.float32))
     np.testing.assert_array_equal(np.array(pts.Get(samples[3])), frames[3].astype(np.float32))
     # the rest shape stays readable: default value and exact rest points
@@ -445,6 +447,42 @@ def test_animation_export(tmp_path, recorded, ext):
     back = load_scene(path)
     assert_designs_equal(d, back.design)
     assert back.target_names == ["cube"] and back.settings == {"simulation": {"dt": 1e-3}}
+
+
+def test_animation_plays_over_a_given_duration(tmp_path, recorded):
+    d, frames, times, *_ = recorded
+    path = export_animation(tmp_path / "slow.usda", d, frames, times, duration=3.0, playback={"timing": "test"})
+    stage = Usd.Stage.Open(str(path))
+    assert stage.GetTimeCodesPerSecond() == stage.GetFramesPerSecond() == 24.0
+    assert stage.GetEndTimeCode() == pytest.approx(72.0)  # 3 s at 24 per second
+    samples = np.array(UsdGeom.Mesh.Get(stage, "/Scene/Membrane").GetPointsAttr().GetTimeSamples())
+    np.testing.assert_allclose(samples, 72.0 * (times - times[0]) / (times[-1] - times[0]), atol=1e-9)
+    meta = stage.GetRootLayer().customLayerData["warpShape:playback"]
+    assert meta["timing"] == "test" and meta["duration_s"] == pytest.approx(3.0)
+    with pytest.raises(SceneError, match="duration"):
+        export_animation(tmp_path / "bad.usda", d, frames, times, duration=0.0)
+
+
+def test_control_animation_plays_at_the_valve_schedule(tmp_path):
+    """A controlled run's animation lasts as long as its valve schedule (slew-limited seconds), not
+    the simulator's fraction of a second; ``playback="simulated"`` keeps the simulated clock."""
+    from warp_shape.io.outputs import write_control_usd
+    from warp_shape.io.usd_animation import playback_times
+    from warp_shape.io.valve import valve_schedule
+
+    res = ws.control(cube_fig6_design(subdivisions=2), ws.target("cube"), max_steps=15)
+    valve_s = float(valve_schedule(res, rate_hz=None)["time_s"][-1])
+    sim_s = float(res.history["time"][-1] - res.history["time"][0])
+    assert valve_s > 2 * sim_s  # real valves are slower than the simulated steps
+    for playback, seconds in (("valve", valve_s), ("simulated", sim_s)):
+        stage = Usd.Stage.Open(str(write_control_usd(res, tmp_path / f"{playback}.usdc", "cube", playback=playback)))
+        assert stage.GetTimeCodesPerSecond() == stage.GetFramesPerSecond() == 24.0
+        assert stage.GetStartTimeCode() == 0.0
+        assert stage.GetEndTimeCode() == pytest.approx(24.0 * seconds, rel=1e-9)
+        assert stage.GetRootLayer().customLayerData["warpShape:playback"]["timing"] == playback
+    assert playback_times(res, "valve")[-1] == pytest.approx(valve_s)
+    with pytest.raises(SceneError, match="playback"):
+        playback_times(res, "fast")
 
 
 def test_animation_input_checks(tmp_path):

@@ -58,23 +58,25 @@ def control_json_data(result) -> dict:
     return data
 
 
-def write_control_usd(result, path, target_name: str = "target") -> Path:
+def write_control_usd(result, path, target_name: str = "target", playback: str = "valve") -> Path:
     """The controlled run as an animated USD stage (``.usda`` or ``.usdc``): membrane points, IPAM
     curves, pressures, forces and jam state time-sampled once per control step, the target as a ghost,
-    and the controller and simulation settings."""
-    from .usd_animation import export_animation
+    and the controller and simulation settings. ``playback``: ``"valve"`` plays the sequence as long
+    as its valve schedule lasts, ``"simulated"`` at the simulator's clock (``usd_animation``)."""
+    from .usd_animation import export_animation, playback_times
 
     h = result.history
     n_ipam, n_cell = len(result.ipam_forces), len(result.jammed)
     per = lambda key, n: np.stack([h[key.format(i)] for i in range(n)], axis=1) if n else None  # noqa: E731
     controller = {k: v for k, v in asdict(result.settings).items() if v is not None and k != "simulation"}
     return export_animation(
-        path, result.design, result.frames, h["time"],
+        path, result.design, result.frames, playback_times(result, playback),
         ipam_pressures=per("ipam{}_pressure_pa", n_ipam), ipam_forces=per("ipam{}_force_n", n_ipam),
         jammed=per("cell{}_jammed", n_cell).astype(bool) if n_cell else None,
         targets=[result.target] if result.target is not None else None,
         target_names=[target_name] if result.target is not None else None,
-        settings={"controller": controller, "simulation": result.settings.simulation.to_dict()})
+        settings={"controller": controller, "simulation": result.settings.simulation.to_dict()},
+        playback={"timing": playback, "simulated_duration_s": float(h["time"][-1] - h["time"][0])})
 
 
 def write_control_outputs(results, names, out_dir, *, usd: bool = False) -> list[Path]:
