@@ -459,3 +459,36 @@ def test_a_huge_output_step_is_named_as_the_cause():
         ws.Simulator(ws.Design(_sphere()), dt=1e30)
     with pytest.raises(ws.DesignError, match="substeps = 20000 is more than max_substeps = 10000"):
         ws.Simulator(ws.Design(_sphere()), substeps=20000)
+
+
+def test_ipam_values_that_do_not_fit_the_precision_are_refused():
+    d = ws.Design(_sphere())
+    far = int(np.argmin(d.rest.face_centroids() @ d.rest.face_centroids()[0]))
+    d.add_ipam(0, far, stiffness=1e39)
+    with pytest.raises(ws.DesignError, match=r"Design.add_ipam stiffness = 1e\+39 .* does not fit in float32"):
+        ws.Simulator(d)
+    with pytest.raises(ws.StabilityError, match=r"most likely from an IPAM stiffness of 1e\+39 N/m"):
+        ws.Simulator(d, precision="float64")  # fits float64, and is refused by the step limit
+
+
+def test_interrupted_jam_is_undone_whole(monkeypatch):
+    import warp_shape.simulator as simulator
+
+    d = ws.Design(_sphere())
+    d.add_cell(np.arange(10))
+    sim = ws.Simulator(d)
+    edge = sim.state.edge.numpy().copy()
+
+    def jam_then_interrupt(model, state, cell, mask, launch):
+        real(model, state, cell, mask, launch)
+        raise KeyboardInterrupt
+
+    real = simulator.eval_jam
+    monkeypatch.setattr(simulator, "eval_jam", jam_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        sim.jam(0)
+    np.testing.assert_array_equal(sim.state.edge.numpy(), edge)
+    assert not sim.jammed.any() and not sim.state.jammed.numpy().any()
+    monkeypatch.setattr(simulator, "eval_jam", real)
+    sim.jam(0)
+    assert sim.jammed.all() and not np.array_equal(sim.state.edge.numpy(), edge)
