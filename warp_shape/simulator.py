@@ -270,9 +270,17 @@ class Simulator:
                 mask[w] = 1
         if not mask.any():
             return
-        eval_jam(m, self.state, cell, wp.array(mask, dtype=wp.int32, device=self.device), self._direct)
-        self.state.cell_jammed[mask.astype(bool), cell] = True
-        self.state.cell_jam_time[mask.astype(bool), cell] = self.time
+        edge, jammed = wp.clone(self.state.edge), wp.clone(self.state.jammed)  # undone whole if interrupted
+        try:
+            eval_jam(m, self.state, cell, wp.array(mask, dtype=wp.int32, device=self.device), self._direct)
+            self.state.cell_jammed[mask.astype(bool), cell] = True
+            self.state.cell_jam_time[mask.astype(bool), cell] = self.time
+        except BaseException:
+            wp.copy(self.state.edge, edge)
+            wp.copy(self.state.jammed, jammed)
+            self.state.cell_jammed[mask.astype(bool), cell] = False
+            self.state.cell_jam_time[mask.astype(bool), cell] = np.nan
+            raise
         self._dirty = True
 
     # ------------------------------------------------------------------ read-outs

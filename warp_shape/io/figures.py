@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..material import GAS_CONSTANT
 from .atomic import atomic_write
 
 __all__ = ["build_control_figure", "control_figure", "pcc_by_round_figure", "write_figures"]
@@ -149,8 +150,6 @@ def _panel_chamber(ax, t, h, material) -> None:
     ax.set_ylabel("chamber pressure (kPa gauge)")
     ax.set_title("(f) chamber")
     if "air_mol" in h:
-        from ..material import GAS_CONSTANT
-
         temp, p_atm = (material.temperature, material.atmospheric_pressure) if material else (293.15, 101325.0)
         air = ax.twinx()
         air.plot(t, np.asarray(h["air_mol"]) * GAS_CONSTANT * temp / p_atm * 1e6, color="C9", lw=1.2, ls="-.")
