@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import DesignError
+from .errors import DesignError, check_number
 from .material import Material
 from .mesh import TriMesh
 from .physics.ipam import natural_length_np, pressure_for_length_np
@@ -107,19 +107,21 @@ class Design:
             raise DesignError(
                 f"IPAM faces {a} and {b} share vertex {shared[0]}: an actuator between touching faces "
                 f"has a zero-length sub-spring; join faces that share no vertex")
-        for name, value in (("stiffness", stiffness), ("area", area), ("damping", damping)):
-            if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value)):
-                raise DesignError(f"IPAM {name} must be a finite number, got {value!r}")
+        stiffness, area, damping = (check_number(v, f"IPAM {name}") for name, v in
+                                    (("stiffness", stiffness), ("area", area), ("damping", damping)))
+        if free_length is not None:
+            free_length = check_number(free_length, "IPAM free_length")
         if stiffness <= 0 or area <= 0:
             raise DesignError(f"IPAM stiffness and area must be > 0 (N/m, m^2), got {stiffness}, {area}")
         if damping < 0:
             raise DesignError(f"IPAM damping must be >= 0 N s/m, got {damping}")
         try:
-            lo, hi = (float(p) for p in pressure_limits)
+            lo, hi = (check_number(p, "pressure_limits") for p in pressure_limits)
         except (TypeError, ValueError):
-            raise DesignError(f"pressure_limits must be a pair (P_min, P_max) in Pa, got {pressure_limits!r}") from None
+            raise DesignError(f"pressure_limits must be a pair of finite numbers (P_min, P_max) in Pa gauge, "
+                              f"got {pressure_limits!r}") from None
         p_atm = self.material.atmospheric_pressure
-        if not (math.isfinite(lo) and math.isfinite(hi)) or lo > hi:
+        if lo > hi:
             raise DesignError(f"pressure_limits must satisfy P_min <= P_max, got ({lo}, {hi})")
         if lo < -p_atm:
             raise DesignError(f"pressure_limits P_min = {lo} Pa is below full vacuum (-{p_atm} Pa gauge)")
@@ -149,7 +151,10 @@ class Design:
         with ``shared`` True: a model holding alternative actuator sets (designer candidates, each
         world masking out all but its own) may hold cells that share faces; ``face_cell`` keeps the
         first cell of a shared face."""
-        arr = np.unique(np.asarray(faces).reshape(-1))
+        try:
+            arr = np.unique(np.asarray(faces).reshape(-1))
+        except (ValueError, TypeError) as exc:  # ragged nesting, unorderable objects
+            raise DesignError(f"cell faces must be a flat list of integer face indices, got {faces!r} ({exc})") from None
         if arr.size == 0:
             raise DesignError("a jamming cell needs at least one face")
         if not np.issubdtype(arr.dtype, np.integer):

@@ -59,7 +59,7 @@ def numeric_array(value, name: str, error=None):
         raise error(f"{name} must be an array of numbers, got {type(value).__name__} ({exc})") from None
     if a.dtype.kind not in "iuf":
         what = "bools" if a.dtype.kind == "b" else f"{a.dtype} values"
-        raise error(f"{name} must be an array of numbers (float, SI units), got {what}: "
+        raise error(f"{name} must be an array of numbers, got {what}: "
                     f"{np.array2string(a.reshape(-1)[:3], threshold=3)}")
     return a.astype(np.float64)
 

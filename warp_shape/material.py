@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
+import numpy as np
+
 from .errors import DesignError
 
 __all__ = ["Material", "GAS_CONSTANT"]
@@ -51,8 +53,10 @@ class Material:
         at_least_one = ("jam_stretch_factor", "jam_bend_factor")
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(value):
                 raise DesignError(f"Material.{f.name} must be a finite number, got {value!r}")
+            object.__setattr__(self, f.name, float(value))
         for name in positive:
             if getattr(self, name) <= 0:
                 raise DesignError(f"Material.{name} must be > 0 (SI units), got {getattr(self, name)!r}")
@@ -79,4 +83,6 @@ class Material:
         unknown = sorted(set(d) - known)
         if unknown:
             raise DesignError(f"unknown Material field(s) {unknown}; known fields are {sorted(known)}")
-        return cls(**{k: float(v) for k, v in d.items()})
+        if not isinstance(d, dict):
+            raise DesignError(f"Material.from_dict needs a dict {{field: value}}, got {type(d).__name__}")
+        return cls(**dict(d))

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MeshError
+from .errors import MeshError, numeric_array
 
 __all__ = ["TriMesh", "EdgeTopology", "icosphere", "edge_topology"]
 
@@ -130,6 +130,14 @@ def _components(nv: int, edges: np.ndarray) -> int:
     return int(np.unique(parent).size)
 
 
+def _int_array(value) -> bool:
+    """Whether ``value`` is (converts to) an array of integers (kept exact: no float round trip)."""
+    try:
+        return np.asarray(value).dtype.kind in "iu"
+    except (ValueError, TypeError):
+        return False
+
+
 class TriMesh:
     """A validated closed triangle mesh.
 
@@ -139,15 +147,19 @@ class TriMesh:
     """
 
     def __init__(self, vertices, faces, *, validate: bool = True):
-        v = np.array(vertices, dtype=np.float64, copy=True)
-        f = np.array(faces, copy=True)
+        v = numeric_array(vertices, "vertices", MeshError).copy()
+        f = numeric_array(faces, "faces", MeshError) if not _int_array(faces) else np.array(faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3:
             raise MeshError(f"vertices must have shape (V, 3), got {v.shape}")
         if f.ndim != 2 or f.shape[1] != 3:
             raise MeshError(f"faces must have shape (F, 3), got {f.shape}")
         if f.size and not np.issubdtype(f.dtype, np.integer):
-            if not np.all(np.equal(np.mod(f, 1), 0)):
+            if not np.all(np.isfinite(f)) or not np.all(np.equal(np.mod(f, 1), 0)):
                 raise MeshError("faces must hold integer vertex indices")
+        if f.size and (f.min() < 0 or f.max() > np.iinfo(np.int32).max):  # checked before the int32 cast wraps
+            fi = int(np.flatnonzero((f < 0).any(1) | (f > np.iinfo(np.int32).max).any(1))[0])
+            raise MeshError(f"face {fi} {f[fi].astype(np.int64).tolist()} indexes a vertex outside "
+                            f"0..{v.shape[0] - 1}")
         self.vertices = v
         self.faces = f.astype(np.int32)
         self.vertices.setflags(write=False)
@@ -169,11 +181,21 @@ class TriMesh:
         except ImportError as exc:  # pragma: no cover - trimesh is a dependency
             raise MeshError("reading mesh files needs trimesh (pip install trimesh)") from exc
         try:
-            loaded = trimesh.load(str(path), force="mesh", process=process)
+            loaded = trimesh.load(str(path), force="mesh", process=False)
+            if not hasattr(loaded, "faces") or len(getattr(loaded, "faces", [])) == 0:
+                raise MeshError(f"{path} holds no triangles")
+            raw = np.asarray(loaded.vertices, dtype=np.float64)
+            finite = np.all(np.isfinite(raw), axis=1)
+            if not np.all(finite):  # before processing, which would drop it and report an open mesh
+                i = int(np.flatnonzero(~finite)[0])
+                raise MeshError(f"{path}: vertex {i} is not finite ({raw[i]}); every coordinate must be a "
+                                f"finite number")
+            if process:
+                loaded = trimesh.Trimesh(loaded.vertices, loaded.faces, process=True)
+        except MeshError:
+            raise
         except Exception as exc:  # trimesh raises many types for unreadable files
             raise MeshError(f"could not read mesh file {path}: {exc}") from exc
-        if not hasattr(loaded, "faces") or len(getattr(loaded, "faces", [])) == 0:
-            raise MeshError(f"{path} holds no triangles")
         try:
             mesh = cls(np.asarray(loaded.vertices), np.asarray(loaded.faces))
         except MeshError as exc:
@@ -209,6 +231,10 @@ class TriMesh:
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
         """Check the mesh (see the class docstring); raises ``MeshError`` naming the defect."""
+        with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates: reported as a degenerate mesh
+            self._validate()
+
+    def _validate(self) -> None:
         v, f = self.vertices, self.faces
         nv = v.shape[0]
         if nv < 4 or f.shape[0] < 4:

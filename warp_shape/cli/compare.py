@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 
 import numpy as np
 
@@ -56,11 +57,13 @@ def format_comparison(res, *, scan: str = "", reference: str = "") -> str:
         ("PCC", f"{res.pcc:.4f}"),
         ("MARE", f"{res.mare * 1e3:.3f} mm"),
         ("MPRE", f"{res.mpre:.2f} %"),
-        ("covered", f"{100 * res.covered_fraction:.1f} % of the reference surface"),
+        ("covered", f"{100 * res.covered_fraction:.1f} % of the reference surface (within "
+                    f"{getattr(res, 'coverage_radius', 0.0) * 1e3:.2f} mm of the scan)"),
         ("uncovered", "nothing" if res.uncovered_direction is None
          else f"mostly toward {_vec(res.uncovered_direction)} from the reference centroid"),
-        ("ICP", f"{res.iterations} iteration{'s' if res.iterations != 1 else ''}, rms {res.rms * 1e3:.3f} mm, "
-                f"{res.n_inliers} of {res.n_points} scan points inliers"),
+        ("ICP", f"{res.iterations} iteration{'s' if res.iterations != 1 else ''}"
+                f"{'' if getattr(res, 'converged', True) else ' (iteration limit: not converged)'}, "
+                f"rms {res.rms * 1e3:.3f} mm, {res.n_inliers} of {res.n_points} scan points inliers"),
         ("rotation", f"{angle:.2f} deg about {_vec(axis)}"),
         ("translation", _vec(res.transform[:3, 3] * 1e3, "{:+.2f}") + " mm"),
     ]
@@ -73,14 +76,21 @@ def run(args) -> int:
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING  # the output is the table (or JSON) alone, no Warp banner
-    from ..scan import compare_scan
+    from ..scan import IcpConvergenceWarning, compare_scan
 
     try:
-        res = compare_scan(args.scan, args.reference, device=args.device, method=args.method,
-                           max_iterations=args.max_iterations)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", IcpConvergenceWarning)
+            res = compare_scan(args.scan, args.reference, device=args.device, method=args.method,
+                               max_iterations=args.max_iterations)
     except WarpShapeError as exc:
         print(f"warp-shape compare: error: {exc}", file=sys.stderr)
         return 2
+    for w in caught:
+        if issubclass(w.category, IcpConvergenceWarning):
+            print(f"warp-shape compare: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if args.json:
         out = res.to_dict()
         out.update(scan=str(args.scan), reference=str(args.reference))

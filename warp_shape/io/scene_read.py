@@ -16,6 +16,7 @@ from ..design import Design
 from ..errors import DesignError, MeshError, SceneError
 from ..material import Material
 from ..mesh import TriMesh
+from ..settings import SimulationSettings
 from .scene_registry import resolve_scene
 from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, IPAM_ATTRIBUTES, IPAMS, MATERIAL_ATTRIBUTES,
                            MEMBRANE, NS, REST_POINTS, ROOT_NAME, SCENE_FORMAT_VERSION, SETTINGS, TARGET_POINTS,
@@ -77,6 +78,8 @@ class _Reader:
         if v is None:
             return None
         a = np.array(v, dtype=np.int64)
+        if a.size % width:
+            raise self.error(prim, name, f"has {a.size} numbers, not a whole number of {what} elements")
         return a.reshape(-1) if width == 1 else a.reshape(-1, width)
 
     def float_array(self, prim, name, required=True, width=1):
@@ -90,7 +93,7 @@ class _Reader:
         a = np.array(v, dtype=np.float64)
         a = a.reshape(-1) if width == 1 else a.reshape(-1, width)
         if not np.all(np.isfinite(a)):
-            i = int(np.flatnonzero(~np.isfinite(a.reshape(a.shape[0], -1)).any(axis=1))[0])
+            i = int(np.flatnonzero((~np.isfinite(a.reshape(a.shape[0], -1))).any(axis=1))[0])
             raise self.error(prim, name, f"element {i} is not finite: {a[i]}")
         return a
 
@@ -134,19 +137,71 @@ class _Reader:
         return mesh, used
 
 
-def _open_stage(path: Path):
-    """Open a scene file as a stage; unreadable files and composition errors raise ``SceneError``."""
-    pxr = load_pxr()
-    Sdf, Usd, Tf = pxr.Sdf, pxr.Usd, pxr.Tf
-    # a layer still open elsewhere under this identifier would be served stale: reload it
-    existing = Sdf.Layer.Find(str(path))
-    if existing:
-        existing.Reload(force=True)
+def _message(exc: BaseException) -> str:
+    """The text of an exception from USD, whatever bytes it holds (non-UTF-8 file content)."""
     try:
+        text = str(exc)
+    except Exception:  # its message is not decodable text
+        text = f"{type(exc).__name__} with a message that is not UTF-8 text (binary or mis-encoded content)"
+    return " ".join(text.split())[:500]
+
+
+#: the most a compressed crate section can expand (LZ4's worst ratio is ~255)
+CRATE_EXPANSION = 256
+#: the most elements a crate section's byte can hold (2-bit integer codes, then LZ4)
+CRATE_ELEMENTS_PER_BYTE = 4 * CRATE_EXPANSION
+
+
+def check_crate(path: Path) -> None:
+    """Refuse a binary (crate) USD file whose table of contents or element counts cannot be true for
+    its size: USD believes such counts and allocates for them (a corrupt count of 1.5e9 tokens in a
+    7 kB file took 40 s and 12 GB before USD reported it)."""
+    import struct
+
+    data = Path(path).read_bytes()
+    if not data.startswith(b"PXR-USDC"):
+        return
+    size = len(data)
+
+    def bad(what: str) -> SceneError:
+        return SceneError(f"{path}: not a readable USD file (corrupt crate data: {what})")
+
+    if size < 88:
+        raise bad("shorter than its header")
+    toc = struct.unpack_from("<q", data, 16)[0]
+    if not 88 <= toc <= size - 8:
+        raise bad(f"table of contents at byte {toc} of {size}")
+    n = struct.unpack_from("<Q", data, toc)[0]
+    if n > (size - toc - 8) // 32:
+        raise bad(f"{n} sections in a table of {size - toc - 8} bytes")
+    for i in range(n):
+        name, start, length = struct.unpack_from("<16sqq", data, toc + 8 + 32 * i)
+        name = name.rstrip(b"\0").decode("ascii", "replace")
+        if start < 0 or length < 8 or start + length > size:
+            raise bad(f"section {name} at bytes {start}..{start + length} of {size}")
+        count = struct.unpack_from("<Q", data, start)[0]
+        if count > CRATE_ELEMENTS_PER_BYTE * length:
+            raise bad(f"section {name} claims {count} elements in {length} bytes")
+        if name == "TOKENS" and length >= 24:
+            _, raw, packed = struct.unpack_from("<QQQ", data, start)
+            if count > raw or packed > length or raw > CRATE_EXPANSION * packed + 64:
+                raise bad(f"{count} tokens in {raw} bytes, packed into {packed} of {length}")
+
+
+def _open_stage(path: Path, allow_outside: bool = False):
+    """Open a scene file as a stage; unreadable files, composition errors and (unless
+    ``allow_outside``) layers composed from outside the scene's folder raise ``SceneError``."""
+    pxr = load_pxr()
+    Sdf, Usd = pxr.Sdf, pxr.Usd
+    # a layer still open elsewhere under this identifier would be served stale: reload it
+    check_crate(path)
+    try:
+        existing = Sdf.Layer.Find(str(path))
+        if existing:
+            existing.Reload(force=True)
         stage = Usd.Stage.Open(str(path))
-    except Tf.ErrorException as exc:
-        msg = " ".join(str(exc).split())
-        raise SceneError(f"{path}: not a readable USD file (truncated or corrupt?): {msg}") from None
+    except Exception as exc:  # Tf.ErrorException, or undecodable bytes in a text layer
+        raise SceneError(f"{path}: not a readable USD file (truncated or corrupt?): {_message(exc)}") from None
     if stage is None:
         raise SceneError(f"{path}: USD could not open the file")
     errors = stage.GetCompositionErrors() if hasattr(stage, "GetCompositionErrors") else []
@@ -154,16 +209,36 @@ def _open_stage(path: Path):
         first = " ".join(str(errors[0]).split())
         raise SceneError(f"{path}: {len(errors)} composition error(s), first: {first} (a referenced file is "
                          f"missing? shipped problem scenes reference the target_<name>.usda files next to them)")
+    if not allow_outside:
+        _check_layers_inside(stage, path)
     return stage
+
+
+def _check_layers_inside(stage, path: Path) -> None:
+    """Refuse a scene that composes a layer (sublayer, reference, payload) from outside its own folder."""
+    folder = Path(path).resolve().parent
+    for layer in stage.GetUsedLayers():
+        real = getattr(layer, "realPath", "") or ""
+        if not real or layer.anonymous:
+            continue
+        try:
+            Path(real).resolve().relative_to(folder)
+        except ValueError:
+            raise SceneError(f"{path}: composes {real}, outside the scene's folder {folder}; copy it next to the "
+                             f"scene, or load with allow_outside=True if it is trusted") from None
 
 
 def read_stage(stage, source: str = "<stage>") -> Scene:
     """Read a warp_shape scene from an open USD stage (see ``load_scene``)."""
+    Tf = load_pxr().Tf
     r = _Reader(source)
-    root = _scene_root(stage, r)
-    design = _read_design(r, root)
-    targets, names = _read_targets(r, root)
-    settings = _read_settings(r, root)
+    try:
+        root = _scene_root(stage, r)
+        design = _read_design(r, root)
+        targets, names = _read_targets(r, root)
+        settings = _read_settings(r, root)
+    except (Tf.ErrorException, UnicodeDecodeError) as exc:  # a value USD cannot read (corrupt crate data)
+        raise SceneError(f"{source}: a value could not be read (corrupt file?): {_message(exc)}") from None
     try:
         return Scene(design=design, targets=targets, target_names=names, settings=settings)
     except SceneError as exc:
@@ -326,17 +401,49 @@ def _read_settings(r: _Reader, root) -> dict:
         tn = str(a.GetTypeName())
         if tn not in SETTING_READERS:
             raise r.error(prim, name, f"has type {tn}; settings are bool, int64, double or string")
-        settings.setdefault(parts[1], {})[parts[2]] = SETTING_READERS[tn](a.Get())
+        value = a.Get() if a.HasAuthoredValue() else None
+        if value is None:
+            raise r.error(prim, name, "is declared without a value; give it one or remove it")
+        settings.setdefault(parts[1], {})[parts[2]] = SETTING_READERS[tn](value)
+    _check_setting_groups(r, prim, settings)
     return settings
 
 
-def load_scene(path_or_name) -> Scene:
+def _check_setting_groups(r: _Reader, prim, settings: dict) -> None:
+    """The groups this build reads, checked as they will be used: ``simulation`` as SimulationSettings
+    (unknown keys and bad values), ``designer`` keys of DesignSettings and ``actuators`` by type."""
+    from ..designer import DesignSettings
+
+    try:
+        SimulationSettings.from_dict(settings.get("simulation", {}))
+    except DesignError as exc:
+        raise r.error(prim, f"{NS}:simulation:*", str(exc)) from None
+    designer = settings.get("designer", {})
+    actuators = designer.get("actuators", 1)
+    if isinstance(actuators, bool) or not isinstance(actuators, int) or actuators < 1:
+        raise r.error(prim, f"{NS}:designer:actuators", f"must be an integer >= 1 (int64), got {actuators!r}")
+    known = {k: v for k, v in designer.items() if k in DesignSettings.__dataclass_fields__}
+    for key, value in known.items():
+        default = getattr(DesignSettings(), key)
+        if isinstance(default, (int, float)) and not isinstance(default, bool) and \
+                (isinstance(value, (bool, str)) or not math.isfinite(value)):
+            raise r.error(prim, f"{NS}:designer:{key}", f"must be a finite number, got {value!r}")
+        if isinstance(default, (bool, str)) and type(value) is not type(default):
+            raise r.error(prim, f"{NS}:designer:{key}", f"must be a {type(default).__name__}, got {value!r}")
+    try:
+        DesignSettings(**known)
+    except (DesignError, TypeError) as exc:
+        raise r.error(prim, f"{NS}:designer:*", str(exc)) from None
+
+
+def load_scene(path_or_name, *, allow_outside: bool = False) -> Scene:
     """Load a scene file, or a shipped scene by name (``list_scenes()``), validating everything.
 
-    Errors are ``SceneError`` naming the file, the prim path and the attribute.
+    Errors are ``SceneError`` naming the file, the prim path and the attribute. Sublayers,
+    references and payloads must lie in the scene's folder (or below it) unless ``allow_outside``.
     """
     path = resolve_scene(path_or_name)
-    stage = _open_stage(path)
+    stage = _open_stage(path, allow_outside)
     return read_stage(stage, str(path))
 
 

@@ -12,8 +12,13 @@
   ``primvars:displayColor`` (jammed cells darker): a sample at the first frame and wherever the
   jam state changes (jamming is held between samples), plus ``warpShape:cellJammed`` (bool per cell).
 
-Time codes are ``times * timeCodesPerSecond``; ``timeCodesPerSecond`` (and ``framesPerSecond``)
-default to the frame rate of the simulated time, so content tools play the run in real time.
+Time codes: the stage's ``timeCodesPerSecond`` and ``framesPerSecond`` are both ``FRAME_RATE``
+(24), the rate content tools play at, so a tool that applies only one of them still plays in real
+time. Frame k's time code is ``24 * (times[k] - times[0])``: the stage starts at 0 and ends at
+24 x the sequence's duration. ``duration`` stretches the times to last that many seconds.
+``playback_times`` gives a control result's times either as simulated or re-timed to its valve
+schedule (``io.valve``: slew-limited, seconds of the physical device), the default for the
+``actuation_<target>.usdc`` files, so a sequence plays as long as the valves take.
 """
 
 from __future__ import annotations
@@ -27,20 +32,41 @@ from ..design import Design
 from ..errors import SceneError
 from .scene_schema import IPAMS, MEMBRANE, NS, ROOT_NAME, Scene
 from .scene_write import build_stage, write_stage_atomic
-from .usd_common import check_extension, face_colors, ipam_endpoints, load_pxr
+from .usd_common import FRAME_RATE, check_extension, face_colors, ipam_endpoints, load_pxr
 
-__all__ = ["export_animation"]
+__all__ = ["export_animation", "playback_times", "PLAYBACKS"]
+
+#: how a control result's sequence is timed in its animation (``playback_times``)
+PLAYBACKS = ("valve", "simulated")
+
+
+def playback_times(result, playback: str = "valve", *, max_slew_kpa_s: float | None = None) -> np.ndarray:
+    """(n_rows,) seconds from 0 of each control step of ``result``: ``"valve"`` the valve schedule's
+    (re-timed to ``max_slew_kpa_s``, default ``io.valve.DEFAULT_MAX_SLEW_KPA_S``), ``"simulated"``
+    the simulator's clock."""
+    from .valve import DEFAULT_MAX_SLEW_KPA_S, row_times
+
+    if playback not in PLAYBACKS:
+        raise SceneError(f"playback must be one of {', '.join(PLAYBACKS)}, got {playback!r}")
+    if playback == "simulated":
+        t = np.asarray(result.history["time"], dtype=np.float64)
+        return t - t[0]
+    return row_times(result, DEFAULT_MAX_SLEW_KPA_S if max_slew_kpa_s is None else max_slew_kpa_s)
 
 
 def export_animation(path, design: Design, frames, times, *, ipam_pressures=None, ipam_forces=None, jammed=None,
-                     targets=None, target_names=None, settings=None, time_codes_per_second: float | None = None) -> Path:
+                     targets=None, target_names=None, settings=None, time_codes_per_second: float = FRAME_RATE,
+                     duration: float | None = None, playback: dict | None = None) -> Path:
     """Write an animated stage of a run to ``path`` (``.usda`` text, ``.usdc`` / ``.usd`` binary), atomically.
 
     ``frames``: (F, V, 3) membrane positions in m. ``times``: (F,) strictly increasing times in s.
     ``ipam_pressures`` / ``ipam_forces``: optional (F, n_ipam) gauge Pa / axial N per frame.
     ``jammed``: optional (F, n_cell) bool jam state per frame. ``targets`` / ``target_names`` /
-    ``settings``: stored as in a ``Scene``. ``time_codes_per_second``: default 1 / median frame spacing.
-    Returns the path.
+    ``settings``: stored as in a ``Scene``. ``time_codes_per_second``: the stage's time codes and
+    frames per second (default 24). ``duration``: play the sequence over this many seconds (the
+    times stretched linearly), default ``times[-1] - times[0]``. ``playback``: how the times were
+    made (e.g. ``{"timing": "valve", "simulated_duration_s": 0.29}``), stored in the root layer's
+    ``customLayerData`` under ``warpShape:playback`` with the duration. Returns the path.
     """
     path = Path(path)
     check_extension(path)
@@ -51,7 +77,7 @@ def export_animation(path, design: Design, frames, times, *, ipam_pressures=None
     pressures = _per_frame(ipam_pressures, nfr, design.n_ipams, "ipam_pressures", np.float64)
     forces = _per_frame(ipam_forces, nfr, design.n_ipams, "ipam_forces", np.float64)
     jam = _per_frame(jammed, nfr, design.n_cells, "cell_jammed", bool)
-    tcps, codes = _time_codes(t, time_codes_per_second)
+    tcps, codes = _time_codes(t, time_codes_per_second, duration)
 
     scene = Scene(design=design, targets=list(targets or []), target_names=target_names, settings=settings)
     stage = build_stage(scene)
@@ -59,6 +85,11 @@ def export_animation(path, design: Design, frames, times, *, ipam_pressures=None
     stage.SetFramesPerSecond(tcps)
     stage.SetStartTimeCode(float(codes[0]))
     stage.SetEndTimeCode(float(codes[-1]))
+    layer = stage.GetRootLayer()
+    data = dict(layer.customLayerData)
+    data[f"{NS}:playback"] = {**{k: v for k, v in (playback or {}).items() if v is not None},
+                              "duration_s": float(codes[-1] / tcps)}
+    layer.customLayerData = data
     tc = [load_pxr().Usd.TimeCode(float(c)) for c in codes]
     _animate_membrane(stage, x, tc)
     if design.n_ipams:
@@ -99,19 +130,17 @@ def _per_frame(a, nfr: int, n: int, what: str, dtype):
     return np.ascontiguousarray(a, dtype=dtype)
 
 
-def _frames_rate(times: np.ndarray) -> float:
-    if times.size < 2:
-        return 24.0
-    step = float(np.median(np.diff(times)))
-    return float(f"{1.0 / step:.6g}")
-
-
-def _time_codes(t: np.ndarray, time_codes_per_second) -> tuple[float, np.ndarray]:
-    """Time codes per second (default: the frame rate of the simulated time) and each frame's code."""
-    tcps = float(time_codes_per_second) if time_codes_per_second is not None else _frames_rate(t)
+def _time_codes(t: np.ndarray, time_codes_per_second, duration=None) -> tuple[float, np.ndarray]:
+    """Time codes per second and each frame's code, from 0 (times stretched to ``duration`` s)."""
+    tcps = float(time_codes_per_second)
     if not (math.isfinite(tcps) and tcps > 0):
         raise SceneError(f"time_codes_per_second must be a positive number, got {time_codes_per_second!r}")
-    codes = np.round(t * tcps, 9)
+    rel = t - t[0]
+    if duration is not None:
+        if not (math.isfinite(duration) and duration > 0) or t.size < 2:
+            raise SceneError(f"duration must be a positive number of seconds for 2 or more frames, got {duration!r}")
+        rel = rel * (float(duration) / rel[-1])
+    codes = np.round(rel * tcps, 9)
     if np.any(np.diff(codes) <= 0):
         raise SceneError("frames are closer than 1e-9 time codes apart; raise time_codes_per_second")
     return tcps, codes

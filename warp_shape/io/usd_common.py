@@ -14,9 +14,12 @@ from ..design import Design
 from ..errors import SceneError
 from .scene_schema import SCENE_EXTENSIONS
 
-__all__ = ["load_pxr", "check_extension", "extent", "face_colors", "ipam_endpoints", "author_mesh",
+__all__ = ["FRAME_RATE", "load_pxr", "check_extension", "extent", "face_colors", "ipam_endpoints", "author_mesh",
            "author_attribute", "MEMBRANE_COLOR", "TARGET_COLOR", "TARGET_OPACITY", "IPAM_COLOR"]
 
+#: time codes per second and frames per second of every animated stage: the film rate content tools
+#: (Blender, usdview, Omniverse) play at, so a second of time codes is a second of playback
+FRAME_RATE = 24.0
 MEMBRANE_COLOR = (0.86, 0.80, 0.74)  # unjammed silicone
 TARGET_COLOR = (0.35, 0.60, 0.90)
 TARGET_OPACITY = 0.35

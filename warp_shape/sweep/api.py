@@ -123,6 +123,9 @@ def _execute(kind, problem, plist, tasks, folder: Path, *, backend, workers, add
         if bar is not None:
             bar.update(1)
 
+    if backend == "ray" and str(device).startswith("cuda"):
+        for task in todo:  # Ray gives each task one GPU, visible to it as cuda:0
+            task.device = "cuda"
     t0 = time.perf_counter()
     startup = 0.0
     try:

@@ -35,10 +35,17 @@ def _settings(task: RunTask):
     return designer, control, material, dict(s.get("design", {}))
 
 
+def _head(task: RunTask) -> dict:
+    """The columns naming a run: id, targets, actuator count and the swept values."""
+    row = dict(run_id=task.run_id, targets=" ".join(task.target_names), actuators=task.actuators)
+    row.update({k: v for k, v in task.swept.items() if k != "actuators"})
+    return row
+
+
 def row_of(task: RunTask, result, wall: float) -> dict:
     """A finished run's row: the mean fit objective over its targets, per target PCC, MARE (m) and
     MPRE (%) of the final design."""
-    row = dict(run_id=task.run_id, targets=" ".join(task.target_names), actuators=task.actuators, **task.swept)
+    row = _head(task)
     finals = result.results
     row["objective"] = float(np.mean([r.objective for r in finals]))
     for name, r in zip(task.target_names, finals):
@@ -51,7 +58,7 @@ def row_of(task: RunTask, result, wall: float) -> dict:
 
 def error_row(task: RunTask, error: str, wall: float = 0.0) -> dict:
     """The row of a run that failed: its error (type and message) and no numbers."""
-    row = dict(run_id=task.run_id, targets=" ".join(task.target_names), actuators=task.actuators, **task.swept)
+    row = _head(task)
     row.update(wall_s=round(wall, 3), status="error", error=" ".join(str(error).split())[:500])
     return row
 
