@@ -237,19 +237,29 @@ def test_progress_counts_finished_work_and_is_quiet_off_a_terminal():
     from warp_shape.cli.progress import ControlProgress, DesignProgress
 
     term = Terminal()
-    bar = DesignProgress(5, stream=term)
+    bar = DesignProgress(5, n_targets=2, stream=term)
     seen = []
     on_round = bar.wrap_round(lambda i, d, r: seen.append(i))
-    for i in range(3):
-        bar.update(i, 4, 17, 300, 1, 2)
-        on_round(i, None, None)
-    assert bar.tqdm.n == 3 and seen == [0, 1, 2]
-    on_round(2, None, None)  # a round controlled again (early stop) is not counted twice
-    assert bar.tqdm.n == 3
+    bar.update(0, 4, 17, 300, 1, 2)
+    on_round(0, None, None)
+    assert bar.tqdm.n == 0  # round 0 is done with its placement, when round 1 starts
+    bar.update(0, 4, 5, 300, 0, 8)  # 8 worlds for 2 targets: 4 candidate sets
+    bar.tqdm.refresh()
+    assert "round 0/4: 4 candidate sets, step 5" in term.getvalue()
+    for i in (1, 2, 3, 4):
+        bar.update(i, 4, 3, 300, 0, 2)
+        assert bar.tqdm.n == i
+    bar._drawn = 0.0
+    bar.update(4, 4, 24, 300, 2, 2)
+    assert "round 4/4: refining the final control" in term.getvalue()
+    on_round(4, None, None)
+    assert bar.tqdm.n == 5 and seen == [0, 4]
     bar.close()
     text = term.getvalue()
-    assert "3/5" in text and "round" in text and "<" in text  # count, unit, ETA
-    assert "control step 17, 1/2 targets done" in text
+    assert "5/5 rounds" in text and "ETA 0:" in text  # count, unit, ETA
+    with DesignProgress(5, stream=Terminal()) as early:  # a design that stops early ends complete
+        early.update(2, 4, 3, 300, 0, 1)
+    assert early.tqdm.n == 5
     quiet = io.StringIO()  # not a terminal: nothing drawn
     with ControlProgress(stream=quiet) as steps:
         steps.update(40, 300, 0, 2)
