@@ -57,3 +57,80 @@ def test_write_figures_for_control_results(tmp_path):
     paths = write_figures([res], tmp_path, target_names=["cube"])
     assert [p.name for p in paths] == ["control_cube.png"]
     _check_png(paths[0])
+
+
+def _synthetic_result():
+    """A 20-step record at 10 ms: inflation for the first 5 steps, IPAM 1 passive, cell 0 jams at 12."""
+    from types import SimpleNamespace
+
+    n = 20
+    t = 0.3 + 0.01 * np.arange(n)  # a record need not start at 0
+    ramp = np.minimum(np.arange(n) / 10.0, 1.0)
+    h = {"step": np.arange(n), "time": t, "phase": np.where(np.arange(n) < 5, 1, 2),
+         "volume_m3": 2e-4 + 5e-5 * ramp, "target_volume_m3": np.full(n, 2.5e-4),
+         "pressure_pa": 800.0 * ramp, "air_mol": 0.009 + 0.001 * ramp, "pcc": 0.5 + 0.4 * ramp}
+    for i, p in enumerate((60e3, 4e3)):
+        h[f"ipam{i}_pressure_pa"] = p * ramp
+        h[f"ipam{i}_length_m"] = 0.08 + 0.01 * ramp
+        h[f"ipam{i}_target_length_m"] = np.full(n, 0.09)
+    h["cell0_kappa_m"], h["cell0_kappa_target_m"] = 0.002 * ramp, np.full(n, 0.002)
+    h["cell0_jammed"] = (np.arange(n) >= 12).astype(int)
+    return SimpleNamespace(history=h, pcc=0.9, jam_steps=np.array([12]), passive_ipams=np.array([1]), design=None)
+
+
+def test_control_figure_has_seconds_pressures_passive_and_named_inflation(tmp_path):
+    from matplotlib.colors import to_rgba
+
+    from warp_shape.io.figures import INFLATION_LABEL, build_control_figure
+
+    res = _synthetic_result()
+    fig = build_control_figure(res, "heart")
+    axes = {ax.get_title().split(" ")[0]: ax for ax in fig.axes if ax.get_title()}
+    assert {"(a)", "(b)", "(c)", "(d)", "(e)", "(f)"} <= set(axes)
+    # a seconds axis from 0: the lines end at the record's duration, 0.19 s, not at step 19
+    for key in ("(e)", "(f)"):
+        assert axes[key].get_xlabel().startswith("time (s")
+    e = axes["(e)"]
+    assert "kPa" in e.get_ylabel()
+    lines = {ln.get_label(): ln for ln in e.get_lines() if not ln.get_label().startswith("_")}
+    assert max(ln.get_xdata()[-1] for ln in lines.values()) == pytest.approx(0.19)
+    # IPAM 0 drawn in kPa, IPAM 1 passive: grey, dashed, labelled so, in both the pressure and length panels
+    assert lines["IPAM 0"].get_ydata()[-1] == pytest.approx(60.0) and lines["IPAM 0"].get_linestyle() == "-"
+    for ax in (e, axes["(b)"]):
+        passive = [ln for ln in ax.get_lines() if "passive" in ln.get_label()]
+        assert len(passive) == 1 and passive[0].get_label() == "IPAM 1 (passive, held neutral)"
+        assert passive[0].get_linestyle() == "--" and to_rgba(passive[0].get_color()) == to_rgba("0.55")
+    assert not [ln for ln in axes["(b)"].get_lines() if "IPAM 0" in ln.get_label() and ln.get_linestyle() == "--"]
+    # the grey band is named: a labelled patch spanning the 5 inflation steps and a text inside it
+    a = axes["(a)"]
+    band = [p for p in a.patches if p.get_label() == INFLATION_LABEL]
+    assert len(band) == 1 and band[0].get_x() == pytest.approx(0.0) and band[0].get_width() == pytest.approx(0.04)
+    assert "inflation" in [tx.get_text() for tx in a.texts]
+    assert "grey band: inflation" in fig._suptitle.get_text()
+    _check_png(control_figure(res, tmp_path / "c.png"))
+
+
+def test_report_gives_ipam_ends_and_cells_in_mm_and_a_glossary():
+    from types import SimpleNamespace
+
+    from warp_shape.io.report import lab_sections
+    from warp_shape.scenarios import cube_fig6_design
+
+    d = cube_fig6_design(subdivisions=2)
+    results = [SimpleNamespace(passive_ipams=np.array([], int)), SimpleNamespace(passive_ipams=np.array([2]))]
+    text = "\n".join(lab_sections(SimpleNamespace(design=d, target_names=["cube", "egg"], results=results)))
+    c = d.rest.face_centroids()
+    ip = d.ipams[2]
+    row = next(line for line in text.splitlines() if line.startswith("| 2 |"))
+    # IPAM 2's ends as rest-shape coordinates in mm (a 35 mm-radius design: tens of mm, not 0.0x)
+    for f in (ip.face_a, ip.face_b):
+        assert "(" + ", ".join(f"{v * 1e3:+.1f}" for v in c[f]) + ")" in row
+    assert np.max(np.abs(c[ip.face_a])) * 1e3 > 10.0
+    assert f"| {ip.rest_length * 1e3:.1f} |" in row and row.endswith("| cube |")  # egg holds it neutral
+    cells = text.split("## Jamming cells")[1].split("## Glossary")[0]
+    assert len([line for line in cells.splitlines() if line.startswith("| ") and line[2].isdigit()]) == d.n_cells
+    assert "IPAM 0 a" in cells
+    glossary = text.split("## Glossary")[1]
+    for term in ("**objective**", "**PCC**", "**MARE**", "**MPRE**", "**max scaled error**"):
+        assert term in glossary
+    assert "(R - r) / V_t^(1/3)" in glossary

@@ -122,6 +122,37 @@ def test_interrupt_keeps_the_whole_output_steps_already_taken(monkeypatch):
     np.testing.assert_array_equal(sim.positions, ref.positions)
 
 
+def test_deferred_blowup_check_undoes_the_whole_call(monkeypatch):
+    """The GPU path reads blow-up codes at the end of a call: a failed or interrupted call is undone
+    whole (the state, step count and time before it), never left part-way."""
+    from warp_shape.integrators import BlowupWatch
+
+    d = ws.Design(_sphere())
+    sim = ws.Simulator(d)
+    sim.blowup_watch = BlowupWatch(sim.solver.status, deferred=True)
+    sim.step(2)
+    x2, v2 = sim.positions, sim.velocities
+    sim.velocities = _runaway(sim)
+    with pytest.raises(ws.SimulationError, match="blew up at output step 3 .*ran away"):
+        sim.step(4)
+    assert sim.step_count == 2 and not sim.blowup_watch.pending
+    np.testing.assert_array_equal(sim.positions, x2)
+    sim.velocities = v2
+    run, calls = sim.plan.run, []
+
+    def interrupted(count):
+        calls.append(count)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        run(count)
+
+    monkeypatch.setattr(sim.plan, "run", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        sim.step(5)
+    assert sim.step_count == 2 and sim.time == pytest.approx(2 * sim.dt)
+    np.testing.assert_array_equal(sim.positions, x2)
+
+
 # --------------------------------------------------------------------------- inputs in their storage precision
 
 
@@ -325,6 +356,25 @@ def test_loader_non_utf8_and_corrupt_crate(tmp_path):
         load_scene(c)
 
 
+def test_crate_counts_that_cannot_fit_the_file_are_refused_before_usd_reads_them(tmp_path):
+    """USD believes a crate's element counts: 1.5e9 tokens claimed in a 7 kB file took it 40 s and 12 GB
+    before it reported the error. The counts are checked against the file size first."""
+    import struct
+
+    from warp_shape.io.scene_read import load_scene
+
+    c = _scene_file(tmp_path, name="s.usdc")
+    data = bytearray(c.read_bytes())
+    toc = struct.unpack_from("<q", data, 16)[0]
+    for i in range(struct.unpack_from("<Q", data, toc)[0]):
+        name, start, _ = struct.unpack_from("<16sqq", data, toc + 8 + 32 * i)
+        if name.rstrip(b"\0") == b"TOKENS":
+            struct.pack_into("<Q", data, start, 1543503964)
+    c.write_bytes(bytes(data))
+    with pytest.raises(ws.SceneError, match="corrupt crate data: section TOKENS claims 1543503964 elements"):
+        load_scene(c)
+
+
 def test_loader_checks_the_settings(tmp_path):
     from warp_shape.io.scene_read import load_scene
 
@@ -402,3 +452,43 @@ def test_control_applies_the_scene_simulation_settings(monkeypatch, tmp_path, ca
     assert "unknown integrator 'foo'" in capsys.readouterr().err
     assert _control_settings(monkeypatch, tmp_path, {"dt": -1.0}) == 2
     assert "dt must be a positive number" in capsys.readouterr().err
+
+
+def test_a_huge_output_step_is_named_as_the_cause():
+    with pytest.raises(ws.StabilityError, match=r"output step of 1e\+30 s .* the output step dt = 1e\+30 s itself"):
+        ws.Simulator(ws.Design(_sphere()), dt=1e30)
+    with pytest.raises(ws.DesignError, match="substeps = 20000 is more than max_substeps = 10000"):
+        ws.Simulator(ws.Design(_sphere()), substeps=20000)
+
+
+def test_ipam_values_that_do_not_fit_the_precision_are_refused():
+    d = ws.Design(_sphere())
+    far = int(np.argmin(d.rest.face_centroids() @ d.rest.face_centroids()[0]))
+    d.add_ipam(0, far, stiffness=1e39)
+    with pytest.raises(ws.DesignError, match=r"Design.add_ipam stiffness = 1e\+39 .* does not fit in float32"):
+        ws.Simulator(d)
+    with pytest.raises(ws.StabilityError, match=r"most likely from an IPAM stiffness of 1e\+39 N/m"):
+        ws.Simulator(d, precision="float64")  # fits float64, and is refused by the step limit
+
+
+def test_interrupted_jam_is_undone_whole(monkeypatch):
+    import warp_shape.simulator as simulator
+
+    d = ws.Design(_sphere())
+    d.add_cell(np.arange(10))
+    sim = ws.Simulator(d)
+    edge = sim.state.edge.numpy().copy()
+
+    def jam_then_interrupt(model, state, cell, mask, launch):
+        real(model, state, cell, mask, launch)
+        raise KeyboardInterrupt
+
+    real = simulator.eval_jam
+    monkeypatch.setattr(simulator, "eval_jam", jam_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        sim.jam(0)
+    np.testing.assert_array_equal(sim.state.edge.numpy(), edge)
+    assert not sim.jammed.any() and not sim.state.jammed.numpy().any()
+    monkeypatch.setattr(simulator, "eval_jam", real)
+    sim.jam(0)
+    assert sim.jammed.all() and not np.array_equal(sim.state.edge.numpy(), edge)

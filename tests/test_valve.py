@@ -90,3 +90,22 @@ def test_written_csv_and_sidecar(tmp_path):
     assert side["columns"]["ipam0_pressure_kpa"] == "kPa gauge"
     assert side["duration_s"] == pytest.approx(float(rows[-1]["time_s"]))
     assert side["simulated_duration_s"] == pytest.approx(0.05)
+
+
+@pytest.mark.slow
+def test_export_writes_valve_files_at_the_requested_pace(tmp_path, capsys):
+    from warp_shape.cli import main
+
+    rc = main(["export", "cube_fig6", "--what", "control", "--targets", "cube", "--out", str(tmp_path),
+               "--rate", "10", "--max-slew", "40"])
+    assert rc == 0
+    with open(tmp_path / "valve_cube.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    t = np.array([float(r["time_s"]) for r in rows])
+    assert t[0] == 0.0 and np.allclose(np.diff(t)[:-1], 0.1)  # 10 Hz
+    for col in [c for c in rows[0] if c.endswith("_pressure_kpa")]:
+        p = np.array([float(r[col]) for r in rows])
+        assert np.max(np.abs(np.diff(p)) / np.diff(t)) <= 40.05, col  # 6 significant digits in the CSV
+    side = json.loads((tmp_path / "valve_cube.json").read_text())
+    assert side["rate_hz"] == 10.0 and side["max_slew_kpa_s"] == 40.0
+    assert side["duration_s"] > 5 * side["simulated_duration_s"]

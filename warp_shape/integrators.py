@@ -142,10 +142,13 @@ def blowup_error(status: np.ndarray, step: int, time: float, h: float, dt_stable
     w = int(np.argmax(status))
     safe = 0.5 * min(dt_stable, h)
     what = BLOWUP_CODES[int(status[w])]
+    within = (" (within the estimate of the state it was made at: the state changed faster than the estimate "
+              "followed, e.g. a violent motion at very high pressure; automatic substeps retry such steps "
+              "shorter)") if h <= dt_stable else ""
     return SimulationError(
         f"simulation blew up at output step {step} (t = {time:.6g} s, world {w}): "
         f"{what} with internal step {h:.4g} s; stable estimate "
-        f"{dt_stable:.4g} s. Try a smaller step, e.g. dt = {safe:.3g} s with substeps=1, "
+        f"{dt_stable:.4g} s{within}. Try a smaller step, e.g. dt = {safe:.3g} s with substeps=1, "
         f"or check the inputs (air, pressures, stiffness) for extreme values",
         step=step, quantity=what.split(" ")[0], safe_dt=safe, world=w)
 

@@ -231,6 +231,10 @@ class TriMesh:
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
         """Check the mesh (see the class docstring); raises ``MeshError`` naming the defect."""
+        with np.errstate(over="ignore", invalid="ignore"):  # huge coordinates: reported as a degenerate mesh
+            self._validate()
+
+    def _validate(self) -> None:
         v, f = self.vertices, self.faces
         nv = v.shape[0]
         if nv < 4 or f.shape[0] < 4:

@@ -86,6 +86,9 @@ class SimulationSettings:
         if not _is_int(self.max_substeps) or self.max_substeps < 1:
             raise DesignError(f"max_substeps must be an integer >= 1 (internal steps per output step), "
                               f"got {self.max_substeps!r}")
+        if self.substeps is not None and self.substeps > self.max_substeps:
+            raise DesignError(f"substeps = {self.substeps} is more than max_substeps = {self.max_substeps}; use fewer "
+                              f"substeps (a longer internal step) or raise max_substeps")
         for name in ("substeps", "reestimate_every", "max_substeps"):
             value = getattr(self, name)
             if value is not None:

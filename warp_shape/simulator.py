@@ -116,6 +116,7 @@ class Simulator:
         self._checkpoint = Checkpoint(self.state.xv)
         self._broken: SimulationError | None = None
         self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
+        self._volume_cmd = None  # recorded volume launch of the chamber check (immediate mode)
         self._update_plan()
 
     # ------------------------------------------------------------------ world helpers
@@ -269,9 +270,17 @@ class Simulator:
                 mask[w] = 1
         if not mask.any():
             return
-        eval_jam(m, self.state, cell, wp.array(mask, dtype=wp.int32, device=self.device), self._direct)
-        self.state.cell_jammed[mask.astype(bool), cell] = True
-        self.state.cell_jam_time[mask.astype(bool), cell] = self.time
+        edge, jammed = wp.clone(self.state.edge), wp.clone(self.state.jammed)  # undone whole if interrupted
+        try:
+            eval_jam(m, self.state, cell, wp.array(mask, dtype=wp.int32, device=self.device), self._direct)
+            self.state.cell_jammed[mask.astype(bool), cell] = True
+            self.state.cell_jam_time[mask.astype(bool), cell] = self.time
+        except BaseException:
+            wp.copy(self.state.edge, edge)
+            wp.copy(self.state.jammed, jammed)
+            self.state.cell_jammed[mask.astype(bool), cell] = False
+            self.state.cell_jam_time[mask.astype(bool), cell] = np.nan
+            raise
         self._dirty = True
 
     # ------------------------------------------------------------------ read-outs
@@ -420,7 +429,15 @@ class Simulator:
     def _check_chamber(self) -> None:
         """A membrane turned inside out or collapsed (volume <= 0) by the last output step is a
         blow-up of that step (found where the host reads state anyway: immediate mode)."""
-        vol = self._volumes()
+        if self._volume_cmd is None:  # a recorded launch: no Python launch path per output step
+            cmds = []
+            eval_volume(self.model, self.state.x, self._vol_probe,
+                        lambda k, dim, inputs: cmds.append(wp.launch(k, dim, inputs, device=self.device,
+                                                                     record_cmd=True)))
+            self._volume_cmd = cmds[0]
+        self._vol_probe.zero_()
+        self._volume_cmd.launch()
+        vol = self._vol_probe.numpy()
         if np.all(vol > 0):
             return
         w = int(np.argmin(vol))

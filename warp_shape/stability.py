@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from .design import DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_STIFFNESS
 from .errors import DesignError, SimulationError, StabilityError
 from .material import GAS_CONSTANT, Material
 from .model import Model, host_model
@@ -237,7 +238,8 @@ def check_chamber(x: np.ndarray, faces: np.ndarray, dtype=np.float64, edge: floa
                 f"positions up to {far:.3g} m from the origin: {np.dtype(dtype).name} resolves them only to "
                 f"{spacing:.2g} m, too coarse for edges of {edge:.3g} m; keep the membrane near the origin "
                 f"or use precision='float64'")
-    vol = volumes_np(x, faces)
+    with np.errstate(over="ignore", invalid="ignore"):
+        vol = volumes_np(x, faces)
     if not np.all(vol > 0):
         w = int(np.argmin(vol))
         raise DesignError(
@@ -254,15 +256,20 @@ def check_storable(design, precision: str) -> None:
               1.0 / h.mass, "areal_density (vertex mass)": h.mass,
               "bending_stiffness x jam_bend_factor": mat.bending_stiffness * mat.jam_bend_factor,
               "spring_damping": mat.spring_damping, "viscous_damping": mat.viscous_damping,
-              "youngs_modulus x thickness x jam_stretch_factor": h.edge_stiffness * mat.jam_stretch_factor}
+              "youngs_modulus x thickness x jam_stretch_factor": h.edge_stiffness * mat.jam_stretch_factor,
+              "(IPAM) stiffness": h.ipam_stiffness, "(IPAM) area / stiffness": h.ipam_area_over_k,
+              "(IPAM) free_length": h.ipam_free_length, "(IPAM) damping": h.ipam_damping,
+              "(IPAM) natural length at its pressure limits": h.ipam_free_length[:, None]
+              + h.ipam_area_over_k[:, None] * h.ipam_limits}
     with np.errstate(all="ignore"):
         for what, v in values.items():
             v = np.asarray(v, dtype=np.float64)
             kept = v.astype(dtype)
             if not np.all(np.isfinite(v)) or not np.all(np.isfinite(kept)) or np.any((kept == 0) & (v != 0)):
+                owner = "Design.add_ipam" if what.startswith("(IPAM)") else "Material"
                 raise DesignError(
-                    f"Material {what} = {float(np.abs(v).max()):.3g} (SI) does not fit in {precision}; use "
-                    f"realistic material values or precision='float64'")
+                    f"{owner} {what.removeprefix('(IPAM) ')} = {float(np.abs(v).max()):.3g} (SI) does not fit in "
+                    f"{precision}; use realistic values or precision='float64'")
 
 
 def _suspects(design, term: str, air: float, x: np.ndarray) -> list:
@@ -272,10 +279,14 @@ def _suspects(design, term: str, air: float, x: np.ndarray) -> list:
     air0 = mat.atmospheric_pressure * rest.volume() / (GAS_CONSTANT * mat.temperature)
     out = [(base.areal_density / mat.areal_density, f"areal_density = {mat.areal_density:.3g} kg/m^2 (light "
                                                     f"vertices move fast)")]
+    k_ipam = max((ip.stiffness for ip in design.ipams), default=0.0)
+    c_ipam = max((ip.damping for ip in design.ipams), default=0.0)
     if term == "damping":
         out += [(mat.spring_damping / base.spring_damping, f"spring_damping = {mat.spring_damping:.3g} N s/m"),
-                (mat.viscous_damping / base.viscous_damping, f"viscous_damping = {mat.viscous_damping:.3g} N s/m")]
+                (mat.viscous_damping / base.viscous_damping, f"viscous_damping = {mat.viscous_damping:.3g} N s/m"),
+                (c_ipam / DEFAULT_IPAM_DAMPING, f"an IPAM damping of {c_ipam:.3g} N s/m")]
     elif term == "elastic":
+        out += [(k_ipam / DEFAULT_IPAM_STIFFNESS, f"an IPAM stiffness of {k_ipam:.3g} N/m")]
         out += [(mat.stretch_modulus / base.stretch_modulus, f"youngs_modulus x thickness = "
                                                              f"{mat.stretch_modulus:.3g} N/m"),
                 (mat.bending_stiffness / base.bending_stiffness * mat.jam_bend_factor / base.jam_bend_factor,
@@ -301,6 +312,8 @@ def substeps_error(design, model: Model, edge_jammed: np.ndarray, air: np.ndarra
                  "gas": math.sqrt(max(gas_eig[w], 0.0)), "damping": float(damp[w].max())}
         term = max(terms, key=lambda k: terms[k] if math.isfinite(terms[k]) else math.inf)
         ratio, cause = max(_suspects(design, term, float(air[w]), x[w]), key=lambda t: t[0])
+    if not ratio > 10.0:  # every value near normal: the output step itself is what is long
+        cause = f"the output step dt = {dt:.4g} s itself (material and state look ordinary); use a shorter dt"
     needed = dt / dt_stable
     return StabilityError(
         f"an output step of {dt:.4g} s needs {needed:.3g} internal steps of the stable step {dt_stable:.3g} s, "

@@ -34,10 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DesignError, ShapeError
+from .errors import DesignError, MeshError, ShapeError
 from .mesh import TriMesh, icosphere
 
-__all__ = ["TARGET_NAMES", "DEFAULT_VOLUME", "DEFAULT_RESOLUTION", "target", "write_targets", "centred_targets"]
+__all__ = ["TARGET_NAMES", "DEFAULT_VOLUME", "DEFAULT_RESOLUTION", "target", "write_targets", "centred_targets",
+           "load_target", "check_mesh_file", "suggest"]
 
 TARGET_NAMES = ("oval", "pear", "heart", "cube")
 DEFAULT_VOLUME = 4.0 / 3.0 * np.pi * 0.04**3  # m^3, a 4 cm radius sphere (~2.68e-4)
@@ -192,3 +193,81 @@ def write_targets(directory, *, fmt: str = "ply", resolution: int = DEFAULT_RESO
         target(name, resolution=resolution).to_trimesh().export(str(path))
         paths.append(path)
     return paths
+
+
+def suggest(name: str, known) -> str:
+    """" (did you mean 'oval'?)" for the known name closest to ``name``, or ""."""
+    import difflib
+
+    close = difflib.get_close_matches(str(name).strip().lower(), [str(k) for k in known], n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _stl_problem(data: bytes) -> str | None:
+    if len(data) >= 84:
+        n = int.from_bytes(data[80:84], "little")
+        if len(data) == 84 + 50 * n and n > 0:
+            return None  # binary STL
+    head = data[:512].lstrip().lower()
+    if head.startswith(b"solid") and b"\0" not in data[:4096] and b"facet" in data:
+        return None  # ASCII STL
+    if len(data) >= 84:
+        n = int.from_bytes(data[80:84], "little")
+        return (f"neither binary STL (84 + 50 x {n} triangles = {84 + 50 * n} bytes expected, the file has "
+                f"{len(data)}) nor ASCII STL ('solid' ... 'facet' text)")
+    return f"too short for an STL file ({len(data)} bytes)"
+
+
+def _text_problem(data: bytes, kind: str, keys: tuple) -> str | None:
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        try:
+            text = data.decode("latin-1") if b"\0" not in data else None
+        except UnicodeDecodeError:
+            text = None
+        if text is None:
+            return f"not a text {kind} file (binary bytes at offset {exc.start})"
+    if not any(line.lstrip().startswith(keys) for line in text.splitlines()):
+        return f"no {kind} vertex lines ({' / '.join(k.strip() for k in keys)}) found"
+    return None
+
+
+def check_mesh_file(path) -> None:
+    """A clear ``MeshError`` for a mesh file that is missing, empty or cannot be a mesh of its format
+    (STL: binary size or ASCII text; OBJ: text with vertex lines); other formats are left to trimesh."""
+    path = Path(path)
+    if not path.exists():
+        raise MeshError(f"mesh file not found: {path}")
+    if path.is_dir():
+        raise MeshError(f"{path} is a folder, not a mesh file")
+    data = path.read_bytes()
+    if not data:
+        raise MeshError(f"could not parse mesh file {path}: the file is empty")
+    ext = path.suffix.lower()
+    problem = None
+    if ext == ".stl":
+        problem = _stl_problem(data)
+    elif ext == ".obj":
+        problem = _text_problem(data, "OBJ", ("v ",))
+    if problem:
+        raise MeshError(f"could not parse {ext[1:].upper()} file {path}: {problem}")
+
+
+def load_target(spec: str) -> tuple[str, TriMesh]:
+    """(name, mesh) of a target given by name (``TARGET_NAMES``) or as a mesh file, centred on its
+    volume centroid; an unknown name that is no file says which names there are and the closest."""
+    key = str(spec).strip().lower()
+    if key in TARGET_NAMES:
+        return key, target(key)
+    path = Path(spec)
+    if not path.exists() and not path.suffix:
+        raise ShapeError(f"unknown target {spec!r}{suggest(spec, TARGET_NAMES)}; give a target name "
+                         f"({', '.join(TARGET_NAMES)}) or a mesh file (STL, OBJ, PLY, ...)")
+    check_mesh_file(path)
+    try:
+        return path.stem, TriMesh.load(path, center=True)
+    except MeshError as exc:
+        if "could not read" in str(exc):
+            raise MeshError(f"could not parse mesh file {path}: {str(exc.__cause__ or exc).splitlines()[0]}") from None
+        raise

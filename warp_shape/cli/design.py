@@ -1,25 +1,39 @@
-"""``warp-shape design``: the main job, design a display for target shapes and write every output."""
+"""``warp-shape design``: the main job, design a display for target shapes and write every output.
+
+Every input is checked before any work (the scene, the targets, every designer setting, the device,
+``--out`` and the recording path). The outputs are staged in ``<out>.partial`` (each finished
+round's design in ``rounds.json``, its report and control sequences) and swapped into ``<out>``
+whole when the run finishes, with a ``manifest.json`` of every file: ``<out>`` never mixes two
+runs, and a failed or killed run leaves the previous set there untouched.
+"""
 
 from __future__ import annotations
 
 import json
-import sys
 import time
-from pathlib import Path
 
-from .options import add_common_args, control_progress, load_targets, open_recorder, quiet_warp
+from .options import (add_common_args, check_device, check_out, check_rerun, load_scene_named, load_targets,
+                      open_recorder, print_outputs, quiet_warp, run_progress)
 
 __all__ = ["register", "run"]
 
 
 def register(subparsers) -> None:
     """Add the ``design`` subcommand."""
-    d = subparsers.add_parser("design", help="design a display for target shapes (default: oval + heart, 4 IPAMs)")
+    d = subparsers.add_parser("design", help="design a display for target shapes (default: oval + heart, 4 IPAMs)",
+                              description="Design a shape display for target shapes (Algorithm 1) and write the "
+                                          "design, control sequences, molds, figures and reports.")
     d.add_argument("scene", nargs="?", default=None, help="design problem: a shipped scene name or .usda file "
-                   "(default oval_heart)")
-    d.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files")
-    d.add_argument("--actuators", type=int, default=None, help="number of IPAMs to place")
-    d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m")
+                   "(default: oval_heart)")
+    d.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files "
+                   "(default: the scene's targets)")
+    d.add_argument("--actuators", type=int, default=None, help="number of IPAMs to place (default: the scene's, "
+                   "else 4)")
+    d.add_argument("--subdivisions", type=int, default=None,
+                   help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 3: 642) "
+                        "instead of the scene's base mesh; finer meshes fit more actuators")
+    d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m (default: the "
+                   "scene's, else 0.012)")
     d.add_argument("--placement", choices=["paper", "simulated"], default=None,
                    help="actuator placement: simulated candidate sets (default) or the paper's Algorithm 1")
     d.add_argument("--candidates", type=int, default=None, help="simulated placement: candidate sets per round (K)")
@@ -30,79 +44,154 @@ def register(subparsers) -> None:
     d.set_defaults(func=run)
 
 
-def _problem(args):
-    """(base mesh, [(name, target)], actuators, DesignSettings) from the scene and the flags; every
-    input is checked here, before anything is written."""
+def _designer_options(scene, args) -> tuple[int, dict]:
+    """(actuators, DesignSettings keywords) from the scene's ``designer`` settings and the flags;
+    unknown setting names are an error."""
     from ..designer import DesignSettings
     from ..errors import DesignError
-    from ..mesh import icosphere
-    from ..io.scene_read import load_scene
 
-    scene = load_scene(args.scene or "oval_heart")
-    base = scene.design.rest if scene.design is not None else icosphere(3, 0.035)
-    named = list(zip(scene.target_names, scene.targets))
-    if args.targets:
-        named = load_targets(args.targets)
-    if not named:
-        raise DesignError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
     opts = dict((scene.settings or {}).get("designer", {}))
-    actuators = int(args.actuators if args.actuators is not None else opts.pop("actuators", 4))
-    opts.pop("actuators", None)
+    actuators = opts.pop("actuators", 4)
+    if args.actuators is not None:
+        actuators = args.actuators
+    unknown = sorted(set(opts) - set(DesignSettings.__dataclass_fields__) - {"initialize"})
+    if unknown:
+        raise DesignError(f"unknown designer setting(s) {unknown} in the scene; known: "
+                          f"{sorted(set(DesignSettings.__dataclass_fields__) - {'initialize'})}")
+    opts.pop("initialize", None)
     if args.cell_radius is not None:
         opts["cell_radius"] = args.cell_radius
     for key in ("placement", "candidates"):
         if getattr(args, key, None) is not None:
             opts[key] = getattr(args, key)
-    settings = DesignSettings(**{k: v for k, v in opts.items() if k in DesignSettings.__dataclass_fields__},
-                              initialize=not args.keep_rest)
+    if isinstance(actuators, bool) or not isinstance(actuators, int) or actuators < 1:
+        raise DesignError(f"the number of actuators must be a whole number >= 1, got {actuators!r}")
+    return actuators, opts
+
+
+def _problem(args):
+    """(base mesh, [(name, target)], actuators, DesignSettings) from the scene and the flags; every
+    input is checked here, before anything runs or is written."""
+    from ..designer import DesignSettings
+    from ..errors import DesignError
+    from ..mesh import icosphere
+
+    scene = load_scene_named(args.scene or "oval_heart")
+    base = scene.design.rest if scene.design is not None else icosphere(3, 0.035)
+    if args.subdivisions is not None:
+        if not 1 <= args.subdivisions <= 6:
+            raise DesignError(f"--subdivisions takes 1..6 (42..40962 vertices), got {args.subdivisions}")
+        radius = float(base.volume() * 3 / (4 * 3.141592653589793)) ** (1 / 3)
+        base = icosphere(args.subdivisions, radius)
+    named = list(zip(scene.target_names, scene.targets))
+    if args.targets:
+        named = load_targets(args.targets)
+    if not named:
+        raise DesignError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
+    actuators, opts = _designer_options(scene, args)
+    settings = DesignSettings(**opts, initialize=not args.keep_rest)
     return base, named, actuators, settings
 
 
-def _design_keeping_rounds(args, base, named, actuators, settings, out: Path):
-    """Run the designer, writing each finished round as it completes (an interrupted run keeps them);
-    a run that fails otherwise removes what it wrote."""
+def _run_designer(args, base, named, actuators, settings, staged):
+    """Run the designer; each finished round is written to the staging folder as it completes.
+    Ctrl-C keeps the finished rounds (in ``<out>`` where it holds no finished run, else in
+    ``<out>.partial``); any other failure removes the staging folder."""
     from ..designer import design
-    from ..io.outputs import write_round_outputs
+    from ..errors import DesignError
+    from ..io.outputs import round_record, write_round_outputs
 
     names = [n for n, _ in named]
-    written: list[Path] = []
-    rounds_seen: list = []
-
-    def progress(i, p, step, total, done, worlds):
-        control_progress(step, total, done, worlds, prefix=f"round {i}/{p}: ")
+    records, rounds = [], []
 
     def on_round(i, d_i, results):
-        rounds_seen.append(results)
-        written.extend(write_round_outputs(out, i, names, rounds_seen))
+        if records and records[-1]["round"] == i:  # a round controlled again as the last (early stop)
+            records.pop(), rounds.pop()
+        records.append(round_record(i, d_i, results, names))
+        rounds.append(results)
+        write_round_outputs(staged.path, names, records, rounds)
+        staged.seal(False, command="design")
 
+    bar = run_progress(actuators + 1, names)
     try:
-        with open_recorder(args) as rec:
+        with open_recorder(args) as rec, bar:
             return design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
-                          settings=settings, progress=progress, on_round=on_round, recorder=rec)
-    except Exception:
-        if not isinstance(sys.exc_info()[1], KeyboardInterrupt):
-            for path in written:  # a failed run leaves no partial outputs
-                path.unlink(missing_ok=True)
+                          settings=settings, progress=bar.update, on_round=bar.wrap_round(on_round), recorder=rec)
+    except KeyboardInterrupt:
+        _keep_interrupted(staged, len(records))
         raise
+    except DesignError as exc:
+        staged.discard()
+        hint = _cell_room_hint(str(exc), args)
+        if hint:
+            raise DesignError(f"{exc}{hint}") from None
+        raise
+    except BaseException:
+        staged.discard()
+        raise
+
+
+def _cell_room_hint(message: str, args) -> str:
+    """For the designer's "no room for the cells" error: the cell radius that fits, and what
+    ``--subdivisions`` can do (cells cover a fixed share of the surface whatever the mesh; a finer
+    mesh helps only where a cell is smaller than a face)."""
+    import math
+    import re
+
+    m = re.search(r"need about (\d+) faces of jamming cells \(radius ([\d.]+) mm\) but the membrane has (\d+)", message)
+    if not m:
+        return ""
+    need, radius_mm, have = int(m.group(1)), float(m.group(2)), int(m.group(3))
+    fit_mm = math.floor(10 * radius_mm * math.sqrt(have / max(need, 1))) / 10
+    sub = (args.subdivisions or 3) + 1
+    return (f". With these actuators, --cell-radius {fit_mm / 1e3:g} (m) fits; a finer base mesh "
+            f"(--subdivisions {sub}) helps only where a cell is smaller than a face")
+
+
+def _keep_interrupted(staged, rounds_done: int) -> None:
+    import sys
+
+    if not rounds_done:
+        staged.discard()
+        print(f"\nno design round had finished; {staged.out} is unchanged", file=sys.stderr)
+    elif staged.holds_complete_set():
+        print(f"\n{rounds_done} finished round(s) kept in {staged.partial} ({staged.out} still holds the previous "
+              f"finished run)", file=sys.stderr)
+    else:
+        staged.commit(False, command="design")
+        print(f"\n{rounds_done} finished round(s) kept in {staged.out} (report.json says complete: false)",
+              file=sys.stderr)
 
 
 def run(args) -> int:
     """Design, then write the scene, control sequences, USD animations, molds, figures and reports."""
-    quiet_warp(args.verbose)
-    from ..io.outputs import write_design_outputs
+    quiet_warp(args.verbose, args.device)
+    from ..io.outputs import is_run_output, write_design_outputs
     from ..io.report import design_markdown
+    from ..io.atomic import StagedFolder
 
+    staged = StagedFolder(args.out, owned=is_run_output)
+    check_out(staged)
+    check_device(args.device)
+    check_rerun(args)
     base, named, actuators, settings = _problem(args)
-    out = Path(args.out)
     t0 = time.perf_counter()
-    res = _design_keeping_rounds(args, base, named, actuators, settings, out)
+    res = _run_designer(args, base, named, actuators, settings, staged)
     wall = time.perf_counter() - t0
-    write_design_outputs(res, out, marker_height=args.marker_height, layer_thickness=args.layer_thickness,
-                         extra_report=dict(complete=True, wall_seconds=wall, device=args.device))
+    try:
+        write_design_outputs(res, staged.path, marker_height=args.marker_height, layer_thickness=args.layer_thickness,
+                             extra_report=dict(complete=True, wall_seconds=wall, device=args.device),
+                             kept=["rounds.json", "manifest.json"])
+        out = staged.commit(True, command="design")
+    except BaseException:
+        staged.discard()
+        raise
     report = json.loads((out / "report.json").read_text())
     if args.json:
         print(json.dumps(report, indent=2))
     else:
         print(design_markdown(res))
-        print(f"wall time {wall:.1f} s; outputs in {out}/: {', '.join(report['outputs'])}")
+        print(f"wall time {wall:.1f} s")
+        print_outputs(out, report["outputs"], args, next_step=f"print the molds (mold_*_mm.stl); re-control the saved design: warp-shape "
+                      f"control {out / 'design.usda'} --out {out / 'control'}")
     return 0

@@ -1,28 +1,37 @@
-"""Options and helpers shared by the subcommands: common flags, progress display, Warp quieting, targets."""
+"""Options and helpers shared by the subcommands: common flags, checks made before any work, Warp
+quieting, progress, targets and scenes by name, the closing list of outputs."""
 
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 from pathlib import Path
 
+from .progress import Bar, ControlProgress, DesignProgress
+
 __all__ = ["add_common_args", "add_rerun_args", "open_recorder", "quiet_warp", "progress", "control_progress",
-           "load_targets", "resolve_design_and_targets", "actuator_selection"]
+           "load_targets", "load_scene_named", "resolve_design_and_targets", "actuator_selection", "check_device",
+           "check_out", "check_rerun", "print_outputs", "run_progress", "Bar", "ControlProgress"]
+
+CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
 
 
-def add_common_args(sp, rerun: bool = True) -> None:
-    """``--device``, ``--out``, ``--json``, ``--verbose`` and (with ``rerun``) the rerun flags."""
+def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:
+    """``--device``, ``--out`` (default ``out``), ``--json``, ``--verbose`` and (with ``rerun``) the
+    rerun flags."""
     sp.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
-    sp.add_argument("--out", default="out", help="output directory")
+    sp.add_argument("--out", default=out, help="output folder")
     sp.add_argument("--json", action="store_true", help="print machine-readable results")
-    sp.add_argument("--verbose", action="store_true", help="show Warp's compile messages")
+    sp.add_argument("--verbose", action="store_true", help="show Warp's start-up and compile messages")
     if rerun:
         add_rerun_args(sp)
 
 
 def add_rerun_args(sp) -> None:
     """``--rerun FILE.rrd``, ``--rerun-spawn`` and ``--rerun-every``."""
-    sp.add_argument("--rerun", metavar="FILE.rrd", default=None, help="write a rerun recording (open: rerun FILE.rrd)")
+    sp.add_argument("--rerun", metavar="FILE.rrd", default=None,
+                    help="write a rerun recording (open it with: warp-shape view FILE.rrd)")
     sp.add_argument("--rerun-spawn", action="store_true", help="stream to a live rerun viewer (needs a display)")
     sp.add_argument("--rerun-every", type=int, default=1, help="log every k-th control step (the last is always logged)")
 
@@ -36,41 +45,115 @@ def open_recorder(args):
     return Recorder(args.rerun, spawn=args.rerun_spawn, every=args.rerun_every)
 
 
-def quiet_warp(verbose: bool = False) -> None:
-    """Silence Warp's banner and compile messages unless ``verbose``."""
+@contextlib.contextmanager
+def _without_cuda_driver_note():
+    """Run Warp's start-up with the C-level stderr held: Warp 1.19 prints its CUDA-driver note from
+    native code with no setting to turn it off. Everything else it printed is passed on."""
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            rest = [ln for ln in held.read().splitlines(keepends=True) if CUDA_DRIVER_NOTE not in ln]
+            if rest:
+                sys.stderr.write(b"".join(rest).decode(errors="replace"))
+                sys.stderr.flush()
+
+
+def quiet_warp(verbose: bool = False, device: str | None = None) -> None:
+    """Silence Warp's banner and compile messages unless ``verbose`` (``wp.config.log_level``); on a
+    CPU run, start Warp without its note that no CUDA driver was found."""
     import warp as wp
 
-    wp.config.quiet = not verbose
-    if not verbose:
-        wp.config.log_level = wp.LOG_WARNING
+    if verbose:
+        return
+    wp.config.log_level = wp.LOG_WARNING
+    if device is not None and str(device).startswith("cpu"):
+        with _without_cuda_driver_note():
+            wp.init()  # a no-op once Warp has started
+
+
+def check_device(device: str) -> str:
+    """The Warp name of ``device``; a clear error (listing the devices here) where it is absent."""
+    from ..model import check_device as check
+
+    return check(device)
+
+
+def check_out(staged) -> None:
+    """``--out`` checked before any work (a file in its place, a folder that cannot be written)."""
+    staged.check()
+
+
+def check_rerun(args) -> None:
+    """``--rerun FILE.rrd`` checked before any work: rerun-sdk installed, the folder writable."""
+    path = getattr(args, "rerun", None)
+    if not (path or getattr(args, "rerun_spawn", False)):
+        return
+    from ..errors import DesignError
+
+    try:
+        import rerun  # noqa: F401
+    except ImportError:
+        raise DesignError("--rerun needs rerun-sdk: pip install 'warp-shape[rerun]'") from None
+    if path:
+        p = Path(path).expanduser().absolute()
+        if p.is_dir():
+            raise DesignError(f"--rerun {path} is a folder; give a file name such as {p / 'run.rrd'}")
+        folder = p.parent
+        while not folder.exists():
+            folder = folder.parent
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise DesignError(f"--rerun {path}: {folder} is not writable")
 
 
 def progress(done: int, total: int, label: str, stream=sys.stderr) -> None:
-    """A one-line progress bar on a terminal; a line per 10 % in logs."""
-    if stream.isatty():
-        stream.write(f"\r{label}: {done}/{total} ({100.0 * done / total:5.1f} %)" + ("\n" if done == total else ""))
-    elif done == total or done % max(1, total // 10) == 0:
+    """One progress line per 10 % (kept for callers that report done / total themselves)."""
+    if done == total or done % max(1, total // 10) == 0:
         stream.write(f"{label}: {done}/{total} ({100.0 * done / total:5.1f} %)\n")
-    stream.flush()
+        stream.flush()
 
 
 def control_progress(step, total, done, worlds, prefix: str = "") -> None:
-    """Progress of a control run over several targets; complete once every target is done."""
-    progress(total if done == worlds else step, total, f"{prefix}control ({done}/{worlds} targets done)")
+    """Progress of a control run over several targets (a line per finished target, in logs)."""
+    if done == worlds and step == total:
+        sys.stderr.write(f"{prefix}control: {done}/{worlds} targets done\n")
+
+
+def run_progress(rounds: int, names) -> DesignProgress:
+    """The design run's progress bar (``rounds`` rounds, the targets ``names``)."""
+    return DesignProgress(rounds, n_targets=len(names))
 
 
 def load_targets(specs) -> list:
-    """Target names (oval pear heart cube) or mesh files -> [(name, TriMesh)]."""
-    from ..mesh import TriMesh
-    from ..targets import TARGET_NAMES, target
+    """Target names (oval pear heart cube) or mesh files -> [(name, TriMesh)]; an unknown name gets
+    the list of names and the closest one, an unreadable file a parse error."""
+    from ..targets import load_target
 
-    out = []
-    for spec in specs:
-        if spec in TARGET_NAMES:
-            out.append((spec, target(spec)))
-        else:
-            out.append((Path(spec).stem, TriMesh.load(spec, center=True)))
-    return out
+    return [load_target(spec) for spec in specs]
+
+
+def load_scene_named(scene):
+    """A scene file or shipped scene name; an unknown name gets the closest shipped name."""
+    from ..errors import SceneError
+    from ..io.scene_read import load_scene
+    from ..io.scene_registry import list_scenes
+    from ..targets import suggest
+
+    try:
+        return load_scene(scene)
+    except SceneError as exc:
+        if str(exc).startswith("unknown scene"):
+            raise SceneError(f"unknown scene {scene!r}{suggest(scene, list_scenes())}; shipped scenes: "
+                             f"{', '.join(list_scenes())} (or give a .usda file)") from None
+        raise
 
 
 def resolve_design_and_targets(scene: str | None, target_names):
@@ -82,9 +165,7 @@ def resolve_design_and_targets(scene: str | None, target_names):
     if scene in (None, "cube_fig6", "fig6"):
         design, targets, settings = cube_fig6_design(), [("cube", target("cube"))], {}
     else:
-        from ..io.scene_read import load_scene
-
-        sc = load_scene(scene)
+        sc = load_scene_named(scene)
         design, settings = sc.design, sc.settings or {}
         targets = list(zip(sc.target_names, sc.targets))
     if target_names:
@@ -102,3 +183,16 @@ def actuator_selection(args, scene_settings, names) -> dict:
         return {}
     ipams, cells = selection_from_settings(scene_settings, names)
     return dict(passive_ipams=ipams, passive_cells=cells) if any(ipams) or any(cells) else {}
+
+
+def print_outputs(out, names, args, next_step: str = "") -> None:
+    """The closing lines of a run: where every output and the recording went, and what to do next."""
+    out = Path(out)
+    print(f"outputs in {out}/:")
+    for name in names:
+        print(f"  {out / name}")
+    rrd = getattr(args, "rerun", None)
+    if rrd:
+        print(f"recording: {Path(rrd).absolute()}   (open it: warp-shape view {rrd})")
+    if next_step:
+        print(f"next: {next_step}")

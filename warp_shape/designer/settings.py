@@ -68,6 +68,23 @@ class DesignSettings:
             raise DesignError(f"min_gain must be a relative gain in [0, 1) (e.g. 0.005), got {self.min_gain}")
         if not 0 < self.min_angle_deg < 180:
             raise DesignError(f"min_angle_deg must be in (0, 180), got {self.min_angle_deg}")
+        self._check_ipam_properties()
+
+    def _check_ipam_properties(self) -> None:
+        """The added IPAMs' properties, checked before any round runs (as ``Design.add_ipam`` would)."""
+        for name in ("ipam_stiffness", "ipam_area", "ipam_damping"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or v < 0 or (v == 0 and name != "ipam_damping"):
+                raise DesignError(f"{name} must be a finite number {'>= 0' if name == 'ipam_damping' else '> 0'}, "
+                                  f"got {v!r}")
+        try:
+            lo, hi = (float(p) for p in self.ipam_pressure_limits)
+        except (TypeError, ValueError):
+            raise DesignError(f"ipam_pressure_limits must be a pair (P_min, P_max) in Pa gauge, "
+                              f"got {self.ipam_pressure_limits!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise DesignError(f"ipam_pressure_limits must be finite with P_min <= P_max, got ({lo}, {hi})")
 
     def replace(self, **changes) -> "DesignSettings":
         """A copy with some settings changed; unknown names raise ``DesignError``."""

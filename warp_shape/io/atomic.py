@@ -1,15 +1,31 @@
-"""Atomic file writes: a temporary file in the target directory, then a rename.
+"""Atomic file writes (a temporary file in the target directory, then a rename) and whole output
+folders (``StagedFolder``: a run's outputs staged beside the output folder and swapped in at once,
+with a ``manifest.json`` of every file).
 
-A crash or an error never leaves a half-written output (nor the temporary file)."""
+A crash or an error never leaves a half-written output (nor the temporary file), and an output
+folder never mixes the files of two runs."""
 
 from __future__ import annotations
 
+import ctypes
+import errno
+import hashlib
+import json
 import os
+import shutil
 import tempfile
+import time
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_write", "atomic_target", "finalize_permissions"]
+from ..errors import WarpShapeError
+
+__all__ = ["atomic_write", "atomic_target", "finalize_permissions", "MANIFEST", "file_digest", "read_manifest",
+           "manifest_problems", "StagedFolder", "OutputError"]
+
+
+class OutputError(WarpShapeError, OSError):
+    """An output folder cannot be written: a file in its place, no write permission."""
 
 
 def finalize_permissions(path) -> None:
@@ -42,3 +58,178 @@ def atomic_write(path, data: bytes | str) -> Path:
     with atomic_target(path) as tmp:
         tmp.write_bytes(data.encode() if isinstance(data, str) else data)
     return Path(path)
+
+
+# ------------------------------------------------------------------------------------ whole output folders
+MANIFEST = "manifest.json"
+RENAME_EXCHANGE = 2  # linux/fs.h
+AT_FDCWD = -100
+
+
+def file_digest(path) -> str:
+    """The SHA-256 of a file, hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def read_manifest(folder) -> dict | None:
+    """The ``manifest.json`` of an output folder, or None where there is none (or it is unreadable)."""
+    try:
+        data = json.loads((Path(folder) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and isinstance(data.get("files"), dict) else None
+
+
+def manifest_problems(folder) -> list[str]:
+    """What keeps ``folder`` from being the whole set its manifest lists: a missing manifest, a listed
+    file missing or changed (size, SHA-256). Empty when the folder holds exactly what was written."""
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    if manifest is None:
+        return [f"{folder} has no readable {MANIFEST}"]
+    problems = []
+    for name, info in manifest["files"].items():
+        p = folder / name
+        if not p.is_file():
+            problems.append(f"{name} is listed in {MANIFEST} but missing")
+        elif p.stat().st_size != info.get("bytes") or file_digest(p) != info.get("sha256"):
+            problems.append(f"{name} differs from the {MANIFEST} record (size or SHA-256)")
+    return problems
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two directories in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False where the
+    system or file system cannot."""
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    if fn(AT_FDCWD, os.fsencode(a), AT_FDCWD, os.fsencode(b), RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _link_tree(src: Path, dst: Path) -> None:
+    """``dst`` as a copy of ``src`` made of hard links where the file system allows (copies otherwise)."""
+    def link(s, d):
+        try:
+            os.link(s, d)
+        except OSError:
+            shutil.copy2(s, d)
+
+    if src.is_dir() and not src.is_symlink():
+        shutil.copytree(src, dst, symlinks=True, copy_function=link)
+    elif src.is_symlink():
+        os.symlink(os.readlink(src), dst)
+    else:
+        link(src, dst)
+
+
+def _probe_writable(folder: Path, what: str) -> None:
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".warp-shape-probe.", dir=folder)
+    except OSError as exc:
+        raise OutputError(f"{what} {folder} is not writable ({exc.strerror}); give --out a folder you can "
+                          f"write to") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+class StagedFolder:
+    """The outputs of one run, written into ``<out>.partial`` and swapped into ``<out>`` whole.
+
+    ``<out>`` only ever holds one whole set of outputs, listed with sizes and SHA-256 in its
+    ``manifest.json``: the previous set until ``commit()`` exchanges the two folders in one rename
+    (Linux; elsewhere two renames), the new set after. Files of the previous set that the new run
+    does not write are gone with it; other files in ``<out>`` (not in its manifest and not named as
+    ``owned`` says outputs of this kind are named) are carried over as hard links. A run that is
+    killed leaves ``<out>`` as it was and its finished part in ``<out>.partial``.
+    """
+
+    def __init__(self, out, owned=lambda name: False):
+        self.out = Path(os.path.abspath(os.path.expanduser(str(out))))
+        if self.out.is_symlink():
+            self.out = self.out.resolve()
+        self.partial = self.out.with_name(self.out.name + ".partial")
+        self.owned = owned
+        self._begun = False
+
+    def check(self) -> None:
+        """A clear ``OutputError`` now, before any work, where the outputs could not be written."""
+        for p, what in ((self.out, "--out"), (self.partial, "the staging folder")):
+            if p.exists() and not p.is_dir():
+                raise OutputError(f"{what} {p} is a file, not a folder; give --out a folder (new or holding "
+                                  f"earlier outputs)")
+        parent = self.out.parent
+        while not parent.exists():
+            parent = parent.parent
+        if not parent.is_dir():
+            raise OutputError(f"--out {self.out}: {parent} is a file, not a folder")
+        _probe_writable(parent, "the folder holding --out")
+        if self.out.is_dir():
+            _probe_writable(self.out, "--out")
+
+    @property
+    def path(self) -> Path:
+        """The staging folder, created (empty) on first use."""
+        if not self._begun:
+            if self.partial.exists():
+                shutil.rmtree(self.partial)  # an earlier run's unfinished outputs
+            self.partial.mkdir(parents=True)
+            self._begun = True
+        return self.partial
+
+    def seal(self, complete: bool, **info) -> Path:
+        """Write the staging folder's ``manifest.json``: every file in it with size and SHA-256."""
+        folder = self.path
+        files = {p.name: dict(bytes=p.stat().st_size, sha256=file_digest(p))
+                 for p in sorted(folder.iterdir()) if p.is_file() and p.name != MANIFEST
+                 and not p.name.startswith(".")}
+        data = dict(format=1, complete=bool(complete), written=time.strftime("%Y-%m-%dT%H:%M:%S%z"), files=files)
+        data.update(info)
+        return atomic_write(folder / MANIFEST, json.dumps(data, indent=1) + "\n")
+
+    def holds_complete_set(self) -> bool:
+        """Whether ``<out>`` holds a finished run's outputs (its manifest says complete)."""
+        m = read_manifest(self.out)
+        return bool(m and m.get("complete"))
+
+    def _carry_foreign(self) -> None:
+        if not self.out.is_dir():
+            return
+        previous = set((read_manifest(self.out) or {}).get("files", {}))
+        for entry in self.out.iterdir():
+            name = entry.name
+            if name == MANIFEST or name in previous or self.owned(name) or (self.partial / name).exists():
+                continue
+            _link_tree(entry, self.partial / name)
+
+    def commit(self, complete: bool = True, **info) -> Path:
+        """Seal the staging folder and make it ``<out>`` in one step; the previous set is removed."""
+        self.seal(complete, **info)
+        self._carry_foreign()
+        if not self.out.exists():
+            os.rename(self.partial, self.out)
+        elif _exchange(self.partial, self.out):
+            shutil.rmtree(self.partial)
+        else:
+            old = self.out.with_name(f".{self.out.name}.old-{os.getpid()}")
+            os.rename(self.out, old)
+            os.rename(self.partial, self.out)
+            shutil.rmtree(old)
+        self._begun = False
+        return self.out
+
+    def discard(self) -> None:
+        """Remove the staging folder (a failed run leaves nothing behind)."""
+        if self._begun:
+            shutil.rmtree(self.partial, ignore_errors=True)
+            self._begun = False

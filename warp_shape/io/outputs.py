@@ -19,7 +19,19 @@ import numpy as np
 from .atomic import atomic_write
 
 __all__ = ["write_json", "control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
-           "write_stl", "write_molds", "write_round_outputs", "write_figures_or_skip", "write_design_outputs"]
+           "write_stl", "write_molds", "round_record", "write_round_outputs", "write_figures_or_skip",
+           "write_design_outputs", "is_run_output", "RUN_OUTPUT_PREFIXES", "RUN_OUTPUT_NAMES"]
+
+#: How the files a design or control run writes are named (a file in an output folder named so is
+#: part of a run's set, even in a folder written before manifests existed). Add new outputs here.
+RUN_OUTPUT_NAMES = ("design.usda", "report.json", "report.md", "rounds.json", "pcc_by_round.png", "manifest.json")
+RUN_OUTPUT_PREFIXES = ("control_", "actuation_", "mold_", "molds_", "valve_")
+
+
+def is_run_output(name: str) -> bool:
+    """Whether a file name is one a design or control run writes (``RUN_OUTPUT_NAMES`` and
+    ``RUN_OUTPUT_PREFIXES``); an output folder's other files are kept when a new run replaces it."""
+    return name in RUN_OUTPUT_NAMES or name.startswith(RUN_OUTPUT_PREFIXES)
 
 
 def write_json(path, data) -> Path:
@@ -99,16 +111,30 @@ def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float
     return written + [write_json(out / f"molds_{units}.json", molds.info)]
 
 
-def write_round_outputs(out_dir, round_index: int, names, rounds) -> list[Path]:
-    """What a finished design round leaves behind, so an interrupted run keeps its rounds: a partial
-    ``report.json`` (``complete`` false, PCC and fit objective by round so far) and the round's control
-    sequences.
-    ``rounds``: every finished round's control results, this round last."""
+def round_record(round_index: int, design, results, names) -> dict:
+    """One finished design round as JSON-ready data: the design it controlled (the faces every IPAM
+    joins with its properties, the faces of every jamming cell) and each target's fit."""
+    ipams = [dict(face_a=int(ip.face_a), face_b=int(ip.face_b), stiffness_n_per_m=float(ip.stiffness),
+                  area_m2=float(ip.area), free_length_m=float(ip.free_length),
+                  pressure_limits_pa=[float(p) for p in ip.pressure_limits], damping_n_s_per_m=float(ip.damping))
+             for ip in design.ipams]
+    return dict(round=int(round_index), ipams=ipams, cells=[[int(f) for f in c.faces] for c in design.cells],
+                pcc={n: float(r.pcc) for n, r in zip(names, results)},
+                objective={n: float(r.objective) for n, r in zip(names, results)},
+                passive_ipams={n: [int(i) for i in r.passive_ipams] for n, r in zip(names, results)})
+
+
+def write_round_outputs(out_dir, names, records, rounds) -> list[Path]:
+    """What finished design rounds leave behind, so an interrupted run keeps them: ``rounds.json``
+    (every finished round's design and fit, see ``round_record``), a partial ``report.json``
+    (``complete`` false, PCC and fit objective by round so far) and the last round's control sequences.
+    ``records``: ``round_record`` of every finished round; ``rounds``: their control results, in order."""
     out = Path(out_dir)
-    report = dict(complete=False, rounds_done=round_index + 1, targets=list(names),
+    report = dict(complete=False, rounds_done=len(records), targets=list(names),
                   pcc_by_round=[[r.pcc for r in rs] for rs in rounds],
                   objective_by_round=[[r.objective for r in rs] for rs in rounds])
-    return [write_json(out / "report.json", report)] + write_control_outputs(rounds[-1], names, out)
+    return [write_json(out / "rounds.json", dict(targets=list(names), rounds=list(records))),
+            write_json(out / "report.json", report)] + write_control_outputs(rounds[-1], names, out)
 
 
 def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
@@ -123,11 +149,13 @@ def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
 
 
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
-                         extra_report: dict | None = None) -> list[Path]:
+                         extra_report: dict | None = None, kept=()) -> list[Path]:
     """Every output of a finished design: ``design.usda`` (the design, its targets, its settings and
     each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
-    sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures, ``report.md`` and ``report.json`` (the
-    result's report, ``extra_report`` entries and the list of outputs), written last."""
+    sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures,
+    ``report.md`` and ``report.json`` (the result's report, ``extra_report`` entries and the list of
+    outputs, with the names in ``kept``: files of the run already in ``out_dir`` such as
+    ``rounds.json``), written last."""
     from .scene_schema import Scene
     from .scene_write import save_scene
     from .report import design_markdown
@@ -146,7 +174,7 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     written += write_figures_or_skip(result, out)
     report = result.report()
     report.update(extra_report or {})
-    report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"})
+    report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"} | set(kept))
     written.append(atomic_write(out / "report.md", design_markdown(result)))
     written.append(write_json(out / "report.json", report))
     return written

@@ -1,10 +1,11 @@
 """The Markdown design report: PCC by round, actuators added, placement (method, K, candidate scores
 per round, a bad start), final fit (objective, PCC, MARE, MPRE,
-saturation, convergence) and actuator needs."""
+saturation, convergence) and actuator needs; for the builder, IPAM ends and jamming cells in mm on
+the rest shape, and a glossary of the fit measures (``lab_sections``)."""
 
 from __future__ import annotations
 
-__all__ = ["design_markdown"]
+__all__ = ["design_markdown", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
 
 
 def _pcc_table(result) -> list[str]:
@@ -83,11 +84,86 @@ def _placement_section(result) -> list[str]:
             lines.append(f"| {k}{mark} | {names[c['target']]} | {c['face_a']}-{c['face_b']} | "
                          f"{c['rest_angle_deg']:.0f} deg | " + " | ".join(f"{v:.4f}" for v in c["objective"])
                          + f" | {c['score']:.4f} | {100 * c['gain']:+.2f} % |")
+        if rnd.get("escalated"):
+            lines.append(f"\nNo gain: {rnd['escalated']}.")
         if rnd.get("left_out_for"):
             lines.append(f"\nThe kept set is held neutral for {', '.join(rnd['left_out_for'])} (it does not help there).")
     if info.get("stopped"):
         lines += ["", f"Stopped early: {info['stopped']}."]
     return lines
+
+
+def _xyz(p) -> str:
+    return "(" + ", ".join(f"{v * 1e3:+.1f}" for v in p) + ")"
+
+
+def ipam_geometry_section(result) -> list[str]:
+    """Where each IPAM is attached: its end-face centroids in mm on the rest shape (the frame of
+    ``design.usda`` and of ``mold_core_mm.stl``), its rest length, and the targets that use it."""
+    d = result.design
+    cent = d.rest.face_centroids()
+    names = list(result.target_names)
+    lines = ["## IPAM ends (rest shape, mm)", "",
+             "End = centroid of the attachment face on the rest shape, in the coordinates of `design.usda` "
+             "and `mold_core_mm.stl` (whose bosses mark these faces); x, y, z in mm.", "",
+             "| IPAM | face a | end a (x, y, z) | face b | end b (x, y, z) | rest length (mm) | used by |",
+             "|---|---|---|---|---|---|---|"]
+    for i, ip in enumerate(d.ipams):
+        users = [n for n, r in zip(names, result.results)
+                 if i not in {int(k) for k in getattr(r, "passive_ipams", [])}]
+        lines.append(f"| {i} | {ip.face_a} | {_xyz(cent[ip.face_a])} | {ip.face_b} | {_xyz(cent[ip.face_b])} | "
+                     f"{ip.rest_length * 1e3:.1f} | {', '.join(users) or '- (held neutral for every target)'} |")
+    return lines
+
+
+def cell_extent_section(result) -> list[str]:
+    """Each jamming cell on the rest shape: its faces, area, centre and size in mm, and the IPAM
+    end it surrounds (where its silicone boundary goes)."""
+    d = result.design
+    rest = d.rest
+    cent, area = rest.face_centroids(), rest.face_areas()
+    ends = {f: f"IPAM {i} {e}" for i, ip in enumerate(d.ipams) for e, f in (("a", ip.face_a), ("b", ip.face_b))}
+    lines = ["## Jamming cells (rest shape, mm)", "",
+             "Centre = area-weighted centroid of the cell's faces; radius = farthest cell vertex from it; "
+             "size = bounding box (dx, dy, dz).", "",
+             "| cell | faces | area (cm^2) | centre (x, y, z) | radius (mm) | size (dx, dy, dz) | around |",
+             "|---|---|---|---|---|---|---|"]
+    for j, cell in enumerate(d.cells):
+        f = cell.faces
+        c = (cent[f] * area[f, None]).sum(axis=0) / area[f].sum()
+        v = rest.vertices[rest.faces[f].reshape(-1)]
+        radius = float(max(((v - c) ** 2).sum(axis=1)) ** 0.5)
+        around = ", ".join(ends[k] for k in f.tolist() if k in ends) or "-"
+        lines.append(f"| {j} | {len(f)} | {area[f].sum() * 1e4:.2f} | {_xyz(c)} | {radius * 1e3:.1f} | "
+                     f"{_xyz(v.max(axis=0) - v.min(axis=0)).replace('+', '')} | {around} |")
+    return lines
+
+
+def glossary_section() -> list[str]:
+    """What the report's fit measures mean."""
+    return ["## Glossary", "",
+            "Radial sampling: from the target's centroid, the ray through each membrane point meets the "
+            "target at radius R; the membrane point lies at radius r. V_t is the target's volume, so "
+            "V_t^(1/3) is its size.", "",
+            "- **objective**: the area-weighted RMS of the scaled radial error (R - r) / V_t^(1/3) over the "
+            "membrane; unitless, 0 is a perfect fit, 0.01 is a radial error of about 1 % of the target's size. "
+            "The controller and the designer minimise it.",
+            "- **PCC**: Pearson correlation coefficient of r and R over the sampled points (eq. 10): 1 is the "
+            "same shape; it ignores a uniform scale or offset of the radii, so read it with MARE.",
+            "- **MARE**: mean absolute radial error, mean |R - r|, in mm.",
+            "- **MPRE**: mean percent radial error, 100 x mean(|R - r| / R), in %.",
+            "- **max scaled error** (actuators added): the scaled radial error e = (R - r) / V_t^(1/3) at the "
+            "face where the new IPAM's first end was placed, the largest |e| over the free faces of every "
+            "target in that round. e > 0: the membrane lies inside the target there (it must move out); "
+            "e < 0: outside. +0.05 means 5 % of the target's size.",
+            "- **volume error**: (V - V_t) / V_t of the achieved membrane.",
+            "- **saturated**: an IPAM at a pressure limit while the fit asks for more; **converged**: at rest, "
+            "within the deadbands, nothing saturated."]
+
+
+def lab_sections(result) -> list[str]:
+    """The sections a builder reads: IPAM ends, jamming cells, glossary."""
+    return ipam_geometry_section(result) + [""] + cell_extent_section(result) + [""] + glossary_section()
 
 
 def design_markdown(result) -> str:
@@ -99,4 +175,5 @@ def design_markdown(result) -> str:
              f"{d.rest.n_vertices}-vertex membrane (rest volume {d.rest.volume() * 1e6:.1f} cm^3).", ""]
     lines += _pcc_table(result) + [""] + _added_table(result) + [""] + _placement_section(result) + [""] \
         + _fit_table(result) + [""] + _actuator_needs(result)
+    lines += [""] + lab_sections(result)
     return "\n".join(lines) + "\n"

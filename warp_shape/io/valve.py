@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DesignError
+from ..material import GAS_CONSTANT
 from .atomic import atomic_write
 
 __all__ = ["DEFAULT_RATE_HZ", "DEFAULT_MAX_SLEW_KPA_S", "row_times", "valve_schedule", "valve_csv_text",
@@ -89,8 +90,6 @@ def _lab_columns(result, passive: str) -> dict:
         p = np.asarray(h[f"ipam{i}_pressure_pa"], dtype=np.float64) / 1e3
         cols[f"ipam{i}_pressure_kpa"] = np.zeros_like(p) if (passive == "zero" and i in passive_set) else p
     cols["chamber_pressure_kpa"] = np.asarray(h["pressure_pa"], dtype=np.float64) / 1e3
-    from ..material import GAS_CONSTANT
-
     air_ml = np.asarray(h["air_mol"], dtype=np.float64) * GAS_CONSTANT * temp / p_atm * 1e6
     cols["chamber_air_ml"] = air_ml
     cols["chamber_air_added_ml"] = air_ml - air_ml[0]

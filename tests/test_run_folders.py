@@ -1,0 +1,210 @@
+"""Output folders of runs: every input checked before the first write, outputs staged and swapped in
+whole with a manifest, finished rounds recorded, and a folder that always holds one whole set, even
+when a run into it is killed at any point."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from warp_shape.cli import main
+from warp_shape.io.atomic import MANIFEST, StagedFolder, file_digest, manifest_problems, read_manifest
+from warp_shape.io.outputs import is_run_output
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = ["--subdivisions", "2", "--actuators", "1", "--placement", "paper"]
+
+
+def snapshot(folder: Path) -> dict:
+    """{name: SHA-256} of every entry in a folder (folders as 'dir')."""
+    return {p.name: (file_digest(p) if p.is_file() else "dir") for p in sorted(folder.iterdir())}
+
+
+def ipam_columns(csv_path: Path) -> int:
+    with open(csv_path, newline="") as f:
+        header = next(csv.reader(f))
+    return len({c.split("_")[0] for c in header if c.startswith("ipam")})
+
+
+def assert_whole_set(folder: Path, foreign=()) -> dict:
+    """``folder`` holds exactly one run's set: the files its manifest lists, unchanged, and nothing
+    else of a run; rounds, report, control sequences and design agree. Returns the report."""
+    assert manifest_problems(folder) == []
+    manifest = read_manifest(folder)
+    names = {p.name for p in folder.iterdir()} - set(foreign)
+    assert names == set(manifest["files"]) | {MANIFEST}, names ^ (set(manifest["files"]) | {MANIFEST})
+    report = json.loads((folder / "report.json").read_text())
+    rounds = json.loads((folder / "rounds.json").read_text())
+    assert report["complete"] == manifest["complete"]
+    assert rounds["targets"] == report["targets"]
+    last = rounds["rounds"][-1]
+    assert [r["round"] for r in rounds["rounds"]] == list(range(len(rounds["rounds"])))
+    if not report["complete"]:
+        assert report["rounds_done"] == len(rounds["rounds"])
+    controls = {p.name for p in folder.glob("control_*.csv")}
+    assert controls == {f"control_{t}.csv" for t in report["targets"]}
+    for t in report["targets"]:
+        assert ipam_columns(folder / f"control_{t}.csv") == len(last["ipams"]), t
+    if report["complete"]:
+        from warp_shape.io.scene_read import load_scene
+
+        design = load_scene(folder / "design.usda").design
+        assert [(ip.face_a, ip.face_b) for ip in design.ipams] == [(i["face_a"], i["face_b"]) for i in last["ipams"]]
+        assert [sorted(c.faces.tolist()) for c in design.cells] == [sorted(c) for c in last["cells"]]
+        assert report["actuators"] == len(last["ipams"])
+    return report
+
+
+def bad_scene(tmp_path: Path, line: str) -> Path:
+    """The shipped oval_heart problem with one more designer setting line."""
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    for p in (ROOT / "scenes").glob("target_*.usda"):
+        shutil.copy(p, folder / p.name)
+    text = (ROOT / "scenes" / "oval_heart.usda").read_text()
+    anchor = "custom double warpShape:designer:cell_radius"
+    assert anchor in text
+    (folder / "bad.usda").write_text(text.replace(anchor, f"{line}\n        {anchor}", 1))
+    return folder / "bad.usda"
+
+
+def fake_previous_set(out: Path) -> dict:
+    staged = StagedFolder(out, owned=is_run_output)
+    (staged.path / "report.json").write_text(json.dumps({"complete": True, "targets": ["heart"]}))
+    (staged.path / "control_heart.csv").write_text("step,time\n0,0\n")
+    staged.commit(True)
+    return snapshot(out)
+
+
+@pytest.mark.parametrize("line, message", [
+    ("custom double warpShape:designer:ipam_stiffness = -1", "ipam_stiffness must be a finite number > 0"),
+    ("custom double warpShape:designer:ipam_area = 0", "ipam_area must be a finite number > 0"),
+    ("custom double warpShape:designer:cell_radiuss = 0.01", "unknown designer setting(s) ['cell_radiuss']"),
+    ("custom double warpShape:designer:volume_scale = 2", "volume_scale must be in (0, 1]"),
+])
+def test_bad_setting_fails_before_anything_runs_or_is_written(tmp_path, monkeypatch, capsys, line, message):
+    import warp_shape.designer.loop as designer_loop
+
+    def no_control(*args, **kwargs):
+        raise AssertionError("a control round ran before the settings were checked")
+
+    monkeypatch.setattr(designer_loop, "control_many", no_control)
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    rc = main(["design", str(bad_scene(tmp_path, line)), "--out", str(out)])
+    assert rc == 2 and message in capsys.readouterr().err
+    assert snapshot(out) == before
+    assert not (tmp_path / "out.partial").exists()
+
+
+def test_staged_folder_replaces_the_previous_set_whole(tmp_path):
+    out = tmp_path / "out"
+    fake_previous_set(out)
+    (out / "notes.txt").write_text("mine")  # not a run output: kept
+    (out / "sub").mkdir()
+    (out / "sub" / "scan.ply").write_text("ply")
+    staged = StagedFolder(out, owned=is_run_output)
+    (staged.path / "report.json").write_text(json.dumps({"complete": True, "targets": ["oval"]}))
+    (staged.path / "control_oval.csv").write_text("step,time\n0,0\n")
+    assert snapshot(out)["control_heart.csv"]  # nothing changes before the commit
+    staged.commit(True)
+    assert set(snapshot(out)) == {"report.json", "control_oval.csv", MANIFEST, "notes.txt", "sub"}
+    assert (out / "notes.txt").read_text() == "mine" and (out / "sub" / "scan.ply").read_text() == "ply"
+    assert manifest_problems(out) == [] and not (tmp_path / "out.partial").exists()
+    # a run that fails leaves the set as it was
+    before = snapshot(out)
+    staged = StagedFolder(out, owned=is_run_output)
+    (staged.path / "report.json").write_text("{}")
+    staged.discard()
+    assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
+
+
+def test_interrupt_keeps_the_previous_finished_run(tmp_path, monkeypatch, capsys):
+    """Ctrl-C in round 1 into a folder holding a finished run: the folder is untouched, round 0 is
+    kept whole in <out>.partial (rounds.json records it)."""
+    import warp_shape.designer.loop as designer_loop
+
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    real, calls = designer_loop.control_many, {"n": 0}
+
+    def interrupt_second_round(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(designer_loop, "control_many", interrupt_second_round)
+    rc = main(["design", "--out", str(out), *SMALL, "--targets", "oval", "pear"])
+    assert rc == 130 and "out.partial" in capsys.readouterr().err
+    assert snapshot(out) == before
+    partial = tmp_path / "out.partial"
+    report = assert_whole_set(partial)
+    assert report["complete"] is False and report["rounds_done"] == 1
+    assert json.loads((partial / "rounds.json").read_text())["rounds"][0]["ipams"] == []
+
+
+KILLER = r"""
+import os, shutil, signal, sys
+import warp_shape.io.atomic as atomic
+k, log = int(sys.argv[1]), sys.argv[2]
+count = [0]
+def counted(name, fn):
+    def wrapper(*a, **kw):
+        count[0] += 1
+        with open(log, "a") as f:
+            f.write(f"{count[0]} {name}\n")
+        if count[0] == k:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return fn(*a, **kw)
+    return wrapper
+for name in ("replace", "rename", "unlink", "rmdir", "link", "mkdir"):
+    setattr(os, name, counted(name, getattr(os, name)))
+atomic._exchange = counted("exchange", atomic._exchange)
+from warp_shape.cli import main
+sys.exit(main(sys.argv[3:]))
+"""
+
+
+def run_killed_at(k: int, log: Path, args) -> int:
+    log.unlink(missing_ok=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-c", KILLER, str(k), str(log), "design", *args], env=env,
+                          capture_output=True, text=True, timeout=300).returncode
+
+
+@pytest.mark.slow
+def test_sigkill_at_ten_points_leaves_one_whole_set(tmp_path):
+    """A design run into a folder holding a different finished run, SIGKILLed at 10 points (file
+    writes, renames, the folder swap, the removal of the old set): the folder holds one whole set
+    every time, the old one until the swap, the new one after."""
+    out, ref, log = tmp_path / "out", tmp_path / "ref", tmp_path / "events.log"
+    assert main(["design", "--out", str(out), *SMALL, "--targets", "oval", "heart"]) == 0
+    old = snapshot(out)
+    shutil.copytree(out, ref)
+    new_args = [*SMALL, "--targets", "pear"]
+    assert run_killed_at(0, log, [*new_args, "--out", str(ref)]) == 0  # the same run, whole, counting its events
+    events = log.read_text().split("\n")[:-1]
+    swap = next(i for i, e in enumerate(events, 1) if e.endswith("exchange"))
+    points = sorted({*(round(1 + j * (swap - 2) / 6) for j in range(7)), swap, swap + 1, swap + 3})
+    assert len(points) == 10 and points[-1] < len(events)
+    for k in points:
+        shutil.rmtree(tmp_path / "out.partial", ignore_errors=True)  # the same events in every run
+        rc = run_killed_at(k, log, [*new_args, "--out", str(out)])
+        assert rc == -signal.SIGKILL, (k, rc)
+        report = assert_whole_set(out)
+        if k <= swap:
+            assert snapshot(out) == old, k
+        else:
+            assert report["targets"] == ["pear"] and report["complete"], k
+    assert run_killed_at(0, log, [*new_args, "--out", str(out)]) == 0  # past a killed run's leftovers
+    assert assert_whole_set(out)["targets"] == ["pear"]
+    assert not list(out.glob("*heart*")) and not (tmp_path / "out.partial").exists()
