@@ -113,6 +113,7 @@ def _run_designer(args, base, named, actuators, settings, staged):
         staged.seal(False, command="design")
 
     bar = run_progress(actuators + 1, names)
+    staged.lock()
     try:
         with open_recorder(args) as rec, bar:
             return design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
@@ -155,6 +156,7 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
         staged.discard()
         print(f"\nno design round had finished; {staged.out} is unchanged", file=sys.stderr)
     elif staged.holds_complete_set():
+        staged.unlock()
         print(f"\n{rounds_done} finished round(s) kept in {staged.partial} ({staged.out} still holds the previous "
               f"finished run)", file=sys.stderr)
     else:
