@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import io
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from warp_shape.cli import main
+from warp_shape.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +48,7 @@ def test_readme_example_runs():
 
 
 def test_control_command_writes_sequences(tmp_path, capsys):
-    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "60", "--method", "paper"])
+    rc = main(["control", "--targets", "cube", "--out", str(tmp_path), "--max-steps", "60", "--method", "paper"])
     assert rc == 0
     data = json.loads((tmp_path / "control_cube.json").read_text())
     rows = (tmp_path / "control_cube.csv").read_text().strip().splitlines()
@@ -54,15 +59,209 @@ def test_control_command_writes_sequences(tmp_path, capsys):
     assert "cube" in out and "IPAM 4" in out
 
 
-def test_control_command_records_rerun(tmp_path):
+def test_control_command_records_rerun(tmp_path, capsys):
     from warp_shape.io.recording_read import read_recording
 
     rrd = tmp_path / "run.rrd"
-    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "15", "--method", "paper",
+    rc = main(["control", "--target", "cube", "--out", str(tmp_path), "--max-steps", "15", "--method", "paper",  # former spelling
                "--rerun", str(rrd)])
     assert rc == 0 and rrd.stat().st_size > 1000
+    assert f"recording: {rrd}" in capsys.readouterr().out  # where it went, and how to open it
     rec = read_recording(rrd)
     data = json.loads((tmp_path / "control_cube.json").read_text())
     membrane = rec["entities"]["/control/cube/membrane"]
     assert len(membrane["times"]["control_step"]) == len(data["rows"])
     assert (tmp_path / "control_cube.png").exists()
+
+
+# ------------------------------------------------------------------------------- answers to bad input
+def no_work(monkeypatch):
+    """Make any control run fail loudly: the checks must come before any work."""
+    import warp_shape.designer.loop as designer_loop
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("work started before the inputs were checked")
+
+    monkeypatch.setattr(designer_loop, "control_many", forbidden)
+
+
+def error_of(capsys, argv) -> str:
+    assert main(argv) == 2, argv
+    err = capsys.readouterr().err
+    assert err.startswith("warp-shape: error: ") and "Traceback" not in err
+    return err
+
+
+def test_unknown_target_and_scene_suggest_the_closest_name(tmp_path, monkeypatch, capsys):
+    no_work(monkeypatch)
+    err = error_of(capsys, ["design", "--targets", "ovl", "--out", str(tmp_path)])
+    assert "unknown target 'ovl' (did you mean 'oval'?)" in err and "oval, pear, heart, cube" in err
+    err = error_of(capsys, ["design", "oval_hart", "--out", str(tmp_path)])
+    assert "unknown scene 'oval_hart' (did you mean 'oval_heart'?)" in err and "four_targets_5" in err
+    err = error_of(capsys, ["control", "--targets", "hart", "--out", str(tmp_path)])
+    assert "did you mean 'heart'?" in err
+
+
+def test_absent_device_is_a_clear_error(tmp_path, monkeypatch, capsys):
+    no_work(monkeypatch)
+    err = error_of(capsys, ["design", "--device", "cuda:9", "--out", str(tmp_path / "out")])
+    assert "device 'cuda:9' is not available" in err and "devices here: cpu" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_out_is_checked_before_any_work(tmp_path, monkeypatch, capsys):
+    no_work(monkeypatch)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    for command in (["design"], ["control"], ["simulate"], ["bench", "sim"]):
+        err = error_of(capsys, [*command, "--out", str(a_file)])
+        assert f"--out {a_file} is a file, not a folder" in err, command
+    err = error_of(capsys, ["design", "--out", str(a_file / "sub")])
+    assert "is a file, not a folder" in err
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    if os.geteuid() == 0:  # root writes into read-only folders: the file system's refusal, as a user meets it
+        import warp_shape.io.atomic as atomic
+
+        def refuse(*args, dir=None, **kwargs):
+            raise PermissionError(13, "Permission denied")
+
+        monkeypatch.setattr(atomic.tempfile, "mkstemp", refuse)
+    try:
+        err = error_of(capsys, ["design", "--out", str(ro / "out")])
+        assert f"the folder holding --out {ro} is not writable (Permission denied)" in err
+    finally:
+        ro.chmod(0o755)
+
+
+@pytest.mark.parametrize("suffix, data, message", [
+    (".stl", b"solid? no\x00\xff\xfe garbage" * 9, "could not parse STL file"),
+    (".stl", b"", "the file is empty"),
+    (".obj", b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe", "could not parse OBJ file"),
+    (".obj", b"# only a comment\n", "no OBJ vertex lines"),
+])
+def test_unreadable_mesh_is_a_parse_error(tmp_path, monkeypatch, capsys, suffix, data, message):
+    no_work(monkeypatch)
+    path = tmp_path / f"scan{suffix}"
+    path.write_bytes(data)
+    err = error_of(capsys, ["design", "--targets", str(path), "--out", str(tmp_path / "out")])
+    assert message in err and str(path) in err and "charset_normalizer" not in err
+
+
+def test_simulate_refuses_a_step_that_takes_no_steps(tmp_path, capsys):
+    err = error_of(capsys, ["simulate", "--dt", "1", "--out", str(tmp_path)])
+    assert "--dt 1 s takes no step of --inflate-time 0.4 s" in err and "give --dt at most 0.4 s" in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_too_many_actuators_names_the_options_that_fit_them(tmp_path, monkeypatch, capsys):
+    no_work(monkeypatch)
+    err = error_of(capsys, ["design", "--actuators", "30", "--subdivisions", "2", "--out", str(tmp_path / "o")])
+    assert "30 actuators need about" in err and "--cell-radius 0.0097 (m) fits" in err
+    assert "--subdivisions 3" in err
+    m = re.search(r"--cell-radius ([\d.]+)", err)
+    with pytest.raises(AssertionError, match="work started"):  # the suggested radius fits: round 0 starts
+        main(["design", "--actuators", "30", "--subdivisions", "2", "--cell-radius", m.group(1), "--out",
+              str(tmp_path / "o")])
+
+
+def test_version_and_defaults_in_help(capsys):
+    from warp_shape import __version__
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"warp-shape {__version__}"
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices
+    design_help = sub["design"].format_help()
+    assert "(default: 0.005)" in design_help and "(default: out)" in design_help
+    assert "--subdivisions" in design_help
+    control_help = sub["control"].format_help()
+    assert "--targets" in control_help and "--target " not in control_help  # one spelling shown
+    assert "(default: 300)" in control_help and "(default: out/control)" in control_help
+    assert parser.parse_args(["control", "--target", "cube"]).targets == ["cube"]  # the former spelling
+    assert parser.parse_args(["simulate"]).out == "out/simulate"  # not the design's folder
+    assert parser.parse_args(["design"]).out == "out"
+
+
+def test_each_bench_writes_its_own_file(tmp_path, monkeypatch, capsys):
+    import warp_shape.benchmarks.design as design_bench
+
+    row = {c: 1 for c in design_bench.DESIGN_COLUMNS}
+    monkeypatch.setattr(design_bench, "bench_design", lambda **kw: [row])
+    assert main(["bench", "sim", "--subdivisions", "1", "--repeats", "1", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr()
+    assert printed.err.startswith("bench sim: internal steps per second")  # says what it does, then does it
+    assert str(tmp_path / "bench_sim.json") in printed.out
+    assert main(["bench", "design", "--out", str(tmp_path)]) == 0
+    sim = json.loads((tmp_path / "bench_sim.json").read_text())
+    design = json.loads((tmp_path / "bench_design.json").read_text())
+    assert sim["sim"] and sim["sim"][0]["vertices"] == 42 and design["design"] == [row]
+    assert not (tmp_path / "bench.json").exists()
+
+
+def test_view_opens_a_recording_or_says_why_not(tmp_path, monkeypatch, capsys):
+    import warp_shape.cli.view as view
+
+    err = error_of(capsys, ["view", str(tmp_path / "none.rrd")])
+    assert "no recording at" in err and "--rerun" in err
+    rrd = tmp_path / "run.rrd"
+    rrd.write_bytes(b"RRF2")
+    calls = []
+    monkeypatch.setattr(view.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    assert main(["view", str(rrd)]) == 0
+    assert calls == [[sys.executable, "-m", "rerun", str(rrd)]] and "opening" in capsys.readouterr().err
+    monkeypatch.setitem(sys.modules, "rerun", None)  # rerun-sdk not installed
+    err = error_of(capsys, ["view", str(rrd)])
+    assert "pip install 'warp-shape[rerun]'" in err
+
+
+def test_cuda_driver_note_is_not_printed_on_cpu_runs(tmp_path):
+    raw = subprocess.run([sys.executable, "-c", "import warp; warp.init()"], capture_output=True, text=True)
+    if "Could not find or load the NVIDIA CUDA driver" not in raw.stderr:
+        pytest.skip("this machine has a CUDA driver: Warp prints no note")
+    run = subprocess.run([sys.executable, "-m", "warp_shape.cli", "simulate", "--inflate-time", "0.01",
+                          "--actuate-time", "0.01", "--subdivisions", "1", "--out", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "CUDA driver" not in run.stderr and "Fig. 6 sphere" in run.stdout
+
+
+class Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_progress_counts_finished_work_and_is_quiet_off_a_terminal():
+    from warp_shape.cli.progress import ControlProgress, DesignProgress
+
+    term = Terminal()
+    bar = DesignProgress(5, n_targets=2, stream=term)
+    seen = []
+    on_round = bar.wrap_round(lambda i, d, r: seen.append(i))
+    bar.update(0, 4, 17, 300, 1, 2)
+    on_round(0, None, None)
+    assert bar.tqdm.n == 0  # round 0 is done with its placement, when round 1 starts
+    bar.update(0, 4, 5, 300, 0, 8)  # 8 worlds for 2 targets: 4 candidate sets
+    bar.tqdm.refresh()
+    assert "round 0/4: 4 candidate sets, step 5" in term.getvalue()
+    for i in (1, 2, 3, 4):
+        bar.update(i, 4, 3, 300, 0, 2)
+        assert bar.tqdm.n == i
+    bar._drawn = 0.0
+    bar.update(4, 4, 24, 300, 2, 2)
+    assert "round 4/4: refining the final control" in term.getvalue()
+    on_round(4, None, None)
+    assert bar.tqdm.n == 5 and seen == [0, 4]
+    bar.close()
+    text = term.getvalue()
+    assert "5/5 rounds" in text and "ETA 0:" in text  # count, unit, ETA
+    with DesignProgress(5, stream=Terminal()) as early:  # a design that stops early ends complete
+        early.update(2, 4, 3, 300, 0, 1)
+    assert early.tqdm.n == 5
+    quiet = io.StringIO()  # not a terminal: nothing drawn
+    with ControlProgress(stream=quiet) as steps:
+        steps.update(40, 300, 0, 2)
+        assert steps.tqdm.total is None  # counted, never against the step limit
+    assert quiet.getvalue() == ""

@@ -81,7 +81,7 @@ def test_bench_sim_worlds_option(tmp_path, capsys):
                  "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     assert "worlds" in printed.splitlines()[0] and "vertex_steps_per_s" in printed.splitlines()[0]
-    rows = json.loads((tmp_path / "bench.json").read_text())["sim"]
+    rows = json.loads((tmp_path / "bench_sim.json").read_text())["sim"]
     assert sorted({(r["worlds"], r["integrator"], r["precision"]) for r in rows}) == sorted(
         (w, i, p) for w in (1, 2) for i in ("rk4", "semi_implicit") for p in ("float32", "float64"))
     for r in rows:

@@ -152,6 +152,23 @@ def test_interrupt_keeps_the_previous_finished_run(tmp_path, monkeypatch, capsys
     assert json.loads((partial / "rounds.json").read_text())["rounds"][0]["ipams"] == []
 
 
+def test_a_second_run_into_the_same_folder_is_refused(tmp_path, monkeypatch, capsys):
+    import fcntl
+
+    import warp_shape.designer.loop as designer_loop
+
+    monkeypatch.setattr(designer_loop, "control_many", lambda *a, **k: pytest.fail("the second run started"))
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    with open(tmp_path / ".out.lock", "w") as held:  # the first run, still running
+        fcntl.flock(held, fcntl.LOCK_EX)
+        held.write("4242")
+        held.flush()
+        assert main(["design", "--out", str(out), *SMALL]) == 2
+    assert "another run (process 4242) is writing to" in capsys.readouterr().err
+    assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
+
+
 KILLER = r"""
 import os, shutil, signal, sys
 import warp_shape.io.atomic as atomic

@@ -1,7 +1,8 @@
 """The ``warp-shape`` command line: the parser of every subcommand and the entry point ``main``.
 
 Subcommands, one module each: ``simulate``, ``design`` (the main job), ``control``, ``export``,
-``bench``, ``compare``; ``options`` holds what they share.
+``bench``, ``compare``, ``sweep``, ``view``; ``options`` holds what they share, ``progress`` the
+progress bars. Every help text shows the defaults.
 """
 
 from __future__ import annotations
@@ -9,17 +10,40 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import bench, compare, control, design, export, simulate, sweep
+from . import bench, compare, control, design, export, simulate, sweep, view
 
 __all__ = ["main", "build_parser"]
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Help that ends each option with its default, except where there is none to show (None, a flag
+    that is off) or the text already names it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if action.default in (None, False, argparse.SUPPRESS) or "default" in text:
+            return text
+        return super()._get_help_string(action)
+
+
+def _with_defaults(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = DefaultsHelpFormatter
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                _with_defaults(child)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``warp-shape`` argument parser with every subcommand."""
+    from .. import __version__
+
     p = argparse.ArgumentParser(prog="warp-shape", description="Simulate and design soft 3-D haptic shape displays.")
+    p.add_argument("--version", action="version", version=f"warp-shape {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
-    for module in (simulate, design, control, export, bench, compare, sweep):
+    for module in (simulate, design, control, export, bench, compare, sweep, view):
         module.register(sub)
+    _with_defaults(p)
     return p
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .options import (actuator_selection, add_common_args, control_progress, open_recorder, quiet_warp,
-                      resolve_design_and_targets)
+import argparse
+
+from .options import (ControlProgress, actuator_selection, add_common_args, check_device, check_out, check_rerun,
+                      open_recorder, print_outputs, quiet_warp, resolve_design_and_targets)
 
 __all__ = ["register", "run"]
 
@@ -15,7 +17,9 @@ def register(subparsers) -> None:
     """Add the ``control`` subcommand."""
     c = subparsers.add_parser("control", help="drive a design to target shapes; writes the control sequences")
     c.add_argument("scene", nargs="?", default=None, help="problem: cube_fig6 (default) or a scene file/name")
-    c.add_argument("--target", nargs="+", help="target names (oval pear heart cube) or mesh files")
+    c.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files "
+                   "(default: the scene's targets)")
+    c.add_argument("--target", nargs="+", dest="targets", help=argparse.SUPPRESS)  # the former spelling
     c.add_argument("--integrator", default=None, choices=["rk4", "semi_implicit"],
                    help="overrides the scene's simulation:integrator (default rk4)")
     c.add_argument("--precision", default=None, choices=["float32", "float64"],
@@ -27,7 +31,7 @@ def register(subparsers) -> None:
     c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
     c.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
-    add_common_args(c)
+    add_common_args(c, out="out/control")
     c.set_defaults(func=run)
 
 
@@ -52,32 +56,37 @@ def _print_table(design, settings, names, results, args, out: Path) -> None:
             print(f"    IPAM {a['ipam']}: push {a['peak_push_n']:.3f} N, pull {a['peak_pull_n']:.3f} N, "
                   f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f}.."
                   f"{a['pressure_max_pa'] / 1e3:.1f} kPa")
-    print(f"control sequences written to {out}/control_<target>.csv|json")
 
 
 def run(args) -> int:
     """Control the design to every chosen target; write figures and ``control_<target>.csv|json``."""
-    quiet_warp(args.verbose)
+    quiet_warp(args.verbose, args.device)
     from ..controller import ControlSettings, control_many
+    from ..io.atomic import StagedFolder
     from ..io.outputs import write_control_outputs, write_figures_or_skip
     from ..settings import SimulationSettings
 
-    design, targets, scene_settings = resolve_design_and_targets(args.scene, args.target)
+    check_out(StagedFolder(args.out))
+    check_device(args.device)
+    check_rerun(args)
+    design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets)
     names = [n for n, _ in targets]
     # the scene's simulation settings (checked: unknown keys and bad values are errors), then the flags
     flags = {k: v for k, v in (("integrator", args.integrator), ("precision", args.precision)) if v is not None}
     simulation = SimulationSettings.from_dict(scene_settings.get("simulation", {})).replace(**flags)
     settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming, method=args.method,
                                simulation=simulation)
-    with open_recorder(args) as rec:
+    with open_recorder(args) as rec, ControlProgress(refine=args.method == "inverse") as bar:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
-                               progress=control_progress, recorder=rec, target_names=names,
+                               progress=bar.update, recorder=rec, target_names=names,
                                **actuator_selection(args, scene_settings, names))
     out = Path(args.out)
-    write_figures_or_skip(results, out, names)
-    write_control_outputs(results, names, out)
+    written = write_figures_or_skip(results, out, names) + write_control_outputs(results, names, out)
     if args.json:
         print(json.dumps({name: res.summary() for name, res in zip(names, results)}, indent=2))
         return 0
     _print_table(design, settings, names, results, args, out)
+    print_outputs(out, sorted(Path(p).name for p in written), args,
+                  next_step=f"look at {out / ('control_' + names[0] + '.png')}; the sequences (one row per control "
+                            f"step) are the control_<target>.csv files")
     return 0

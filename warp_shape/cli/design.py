@@ -113,6 +113,7 @@ def _run_designer(args, base, named, actuators, settings, staged):
         staged.seal(False, command="design")
 
     bar = run_progress(actuators + 1, names)
+    staged.lock()
     try:
         with open_recorder(args) as rec, bar:
             return design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
@@ -122,12 +123,30 @@ def _run_designer(args, base, named, actuators, settings, staged):
         raise
     except DesignError as exc:
         staged.discard()
-        if "finer base mesh" in str(exc):
-            raise DesignError(f"{exc} (warp-shape design --subdivisions {(args.subdivisions or 3) + 1})") from None
+        hint = _cell_room_hint(str(exc), args)
+        if hint:
+            raise DesignError(f"{exc}{hint}") from None
         raise
     except BaseException:
         staged.discard()
         raise
+
+
+def _cell_room_hint(message: str, args) -> str:
+    """For the designer's "no room for the cells" error: the cell radius that fits, and what
+    ``--subdivisions`` can do (cells cover a fixed share of the surface whatever the mesh; a finer
+    mesh helps only where a cell is smaller than a face)."""
+    import math
+    import re
+
+    m = re.search(r"need about (\d+) faces of jamming cells \(radius ([\d.]+) mm\) but the membrane has (\d+)", message)
+    if not m:
+        return ""
+    need, radius_mm, have = int(m.group(1)), float(m.group(2)), int(m.group(3))
+    fit_mm = math.floor(10 * radius_mm * math.sqrt(have / max(need, 1))) / 10
+    sub = (args.subdivisions or 3) + 1
+    return (f". With these actuators, --cell-radius {fit_mm / 1e3:g} (m) fits; a finer base mesh "
+            f"(--subdivisions {sub}) helps only where a cell is smaller than a face")
 
 
 def _keep_interrupted(staged, rounds_done: int) -> None:
@@ -137,6 +156,7 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
         staged.discard()
         print(f"\nno design round had finished; {staged.out} is unchanged", file=sys.stderr)
     elif staged.holds_complete_set():
+        staged.unlock()
         print(f"\n{rounds_done} finished round(s) kept in {staged.partial} ({staged.out} still holds the previous "
               f"finished run)", file=sys.stderr)
     else:
@@ -174,6 +194,6 @@ def run(args) -> int:
     else:
         print(design_markdown(res))
         print(f"wall time {wall:.1f} s")
-        print_outputs(out, report["outputs"], args, next_step=f"warp-shape control {out / 'design.usda'} "
-                      f"--out {out}_control   (re-control the saved design; open design.usda in usdview)")
+        print_outputs(out, report["outputs"], args, next_step=f"print the molds (mold_*_mm.stl); re-control the saved design: warp-shape "
+                      f"control {out / 'design.usda'} --out {out / 'control'}")
     return 0

@@ -128,8 +128,8 @@ def control_progress(step, total, done, worlds, prefix: str = "") -> None:
 
 
 def run_progress(rounds: int, names) -> DesignProgress:
-    """The design run's progress bar (``rounds`` rounds)."""
-    return DesignProgress(rounds)
+    """The design run's progress bar (``rounds`` rounds, the targets ``names``)."""
+    return DesignProgress(rounds, n_targets=len(names))
 
 
 def load_targets(specs) -> list:

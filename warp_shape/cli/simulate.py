@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import add_common_args, open_recorder, progress, quiet_warp
+from .options import Bar, add_common_args, check_device, check_out, check_rerun, open_recorder, print_outputs, quiet_warp
 
 __all__ = ["register", "run"]
 
@@ -23,15 +23,29 @@ def register(subparsers) -> None:
     s.add_argument("--air-scale", type=float, default=1.6, help="final air amount relative to the rest amount")
     s.add_argument("--inflate-time", type=float, default=0.4, help="s")
     s.add_argument("--actuate-time", type=float, default=0.4, help="s")
-    add_common_args(s)
+    add_common_args(s, out="out/simulate")
     s.set_defaults(func=run)
 
 
-def _drive(sim, design, args, rec) -> list[dict]:
+def _step_counts(args) -> tuple[int, int]:
+    """Output steps of the inflation and the actuation; a clear error for a step that takes none."""
+    from ..errors import StabilityError
+
+    for name, value in (("--dt", args.dt), ("--inflate-time", args.inflate_time), ("--actuate-time", args.actuate_time)):
+        if not (value > 0 and np.isfinite(value)):
+            raise StabilityError(f"{name} must be a positive number of seconds, got {value}")
+    n_inflate, n_actuate = int(round(args.inflate_time / args.dt)), int(round(args.actuate_time / args.dt))
+    if n_inflate < 1 or n_actuate < 1:
+        raise StabilityError(f"--dt {args.dt:g} s takes no step of --inflate-time {args.inflate_time:g} s or "
+                             f"--actuate-time {args.actuate_time:g} s; give --dt at most "
+                             f"{min(args.inflate_time, args.actuate_time):g} s (default 0.001)")
+    return n_inflate, n_actuate
+
+
+def _drive(sim, design, args, rec, bar) -> list[dict]:
     """Inflate in 20 chunks, jam every cell, then ramp the IPAMs; returns the rest, inflated and
     actuated rows."""
-    n_inflate = int(round(args.inflate_time / args.dt))
-    n_actuate = int(round(args.actuate_time / args.dt))
+    n_inflate, n_actuate = _step_counts(args)
     air0 = sim.air_moles
     rows = []
 
@@ -53,7 +67,7 @@ def _drive(sim, design, args, rec) -> list[dict]:
         sim.air_moles = air0 * (1.0 + (args.air_scale - 1.0) * frac)
         sim.step(min(chunk, n_inflate - i))
         frame()
-        progress(min(i + chunk, n_inflate), n_inflate + n_actuate, "simulate")
+        bar.to(min(i + chunk, n_inflate))
     record("inflated")
     for c in range(design.n_cells):
         sim.jam(c)
@@ -67,25 +81,31 @@ def _drive(sim, design, args, rec) -> list[dict]:
         sim.ipam_pressures = target * frac
         sim.step(min(chunk, n_actuate - i))
         frame()
-        progress(n_inflate + min(i + chunk, n_actuate), n_inflate + n_actuate, "simulate")
+        bar.to(n_inflate + min(i + chunk, n_actuate))
     record("actuated")
     return rows
 
 
 def run(args) -> int:
     """Run the Fig. 6 sequence; write ``simulate.json``; print a table (or the JSON)."""
-    quiet_warp(args.verbose)
+    quiet_warp(args.verbose, args.device)
+    from ..io.atomic import StagedFolder
     from ..io.outputs import write_json
     from ..scenarios import cube_fig6_design
     from ..simulator import Simulator
 
+    check_out(StagedFolder(args.out))
+    check_device(args.device)
+    check_rerun(args)
+    steps = sum(_step_counts(args))
     design = cube_fig6_design(subdivisions=args.subdivisions)
     sim = Simulator(design, device=args.device, integrator=args.integrator, dt=args.dt, precision=args.precision)
-    with open_recorder(args) as rec:  # closed (and the recording saved) even when the run fails
+    # the recorder is closed (and the recording saved) even when the run fails
+    with open_recorder(args) as rec, Bar(total=steps, desc="simulate", unit="step") as bar:
         if rec is not None:
             rec.begin_simulation(design)
         t0 = time.perf_counter()
-        rows = _drive(sim, design, args, rec)
+        rows = _drive(sim, design, args, rec, bar)
     wall = time.perf_counter() - t0
     result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
                   device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
@@ -100,5 +120,7 @@ def run(args) -> int:
         for r in rows:
             forces = " ".join(f"{f:+.3f}" for f in r["ipam_force"])
             print(f"{r['phase']:<10}{r['time']:8.3f}{r['volume'] * 1e6:11.2f}{r['pressure']:10.1f}   {forces}")
-        print(f"wall time {wall:.2f} s; written {out}")
+        print(f"wall time {wall:.2f} s")
+        print_outputs(out.parent, [out.name], args, next_step="warp-shape design   (the main job: design a display "
+                      "for target shapes)")
     return 0

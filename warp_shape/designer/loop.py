@@ -58,6 +58,16 @@ def _control_round(i: int, current: Design, targets, names, selection: Selection
     return results
 
 
+ESCALATED = ("no candidate helped under the paper's law, which can hide what an actuator does (a cube corner "
+             "IPAM alone); this round and the next are controlled by model-based control (round_control 'quick')")
+
+
+def _escalates(round_control: str, control_settings: ControlSettings) -> bool:
+    """Whether a simulated round that found no gain under the paper's law is tried again by model-based
+    control: the rounds were controlled by the paper's law and the design is controlled model-based."""
+    return round_control == "paper" and control_settings.method == "inverse"
+
+
 def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", target_names=None,
            settings: DesignSettings | None = None, control_settings: ControlSettings | None = None,
            material: Material | None = None, progress=None, on_round=None, recorder=None,
@@ -65,6 +75,10 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     """Design a shape display for ``targets`` with ``actuators`` IPAMs (Algorithm 1). Where each
     round's actuator set goes: ``placement`` ("simulated", the default: ``candidates`` sets tried in
     one batch of worlds, the best kept, early stop when none helps; "paper": Algorithm 1 as published).
+    Simulated placement with the rounds controlled by the paper's law (``round_control`` "paper")
+    and a model-based design controller: a round in which no candidate helps is controlled again,
+    with its candidates, by model-based control ("quick"), and so are the rounds after it; the design
+    stops early only when that finds no gain either (``result.placement["escalated_at"]``).
 
     ``progress(round, n_rounds, step, max_steps, done, worlds)`` is called during control runs;
     ``on_round(i, design_i, results_i)`` after each round (e.g. to write outputs as they finish).
@@ -89,10 +103,10 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     designs, rounds, added = [], [], []
     selection = Selection(len(targets))
     info = _placement_info(settings, names, _start_pcc(rest, sampler, len(targets)))
-    i, final = 0, False
+    i, final, round_control = 0, False, settings.round_control
     while True:
         final = final or i == actuators
-        round_settings = control_settings if final else round_control_settings(control_settings, settings.round_control)
+        round_settings = control_settings if final else round_control_settings(control_settings, round_control)
         results = _control_round(i, current, targets, names, selection, round_settings, designs, rounds, device=device,
                                  progress=progress, recorder=recorder, on_round=on_round, rounds_total=actuators)
         if final:
@@ -106,10 +120,15 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
             info["rounds"].append(record)
             if recorder is not None and hasattr(recorder, "log_design_candidates"):
                 recorder.log_design_candidates(i, record)
-            if record["chosen"] is None:  # nothing helps: this design is controlled again as the last round
-                info["stopped"] = record["stopped"]
+            if record["chosen"] is None:  # nothing helps: this round again, by model-based control or as the last
                 designs.pop(), rounds.pop()
-                final = True
+                if _escalates(round_control, control_settings):
+                    round_control = "quick"
+                    record["escalated"] = ESCALATED
+                    info["escalated_at"] = i
+                else:
+                    info["stopped"] = record["stopped"]
+                    final = True
                 continue
         added.append(record)
         i += 1

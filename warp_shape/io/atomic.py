@@ -161,6 +161,7 @@ class StagedFolder:
         self.partial = self.out.with_name(self.out.name + ".partial")
         self.owned = owned
         self._begun = False
+        self._lock_fd = None
 
     def check(self) -> None:
         """A clear ``OutputError`` now, before any work, where the outputs could not be written."""
@@ -176,6 +177,34 @@ class StagedFolder:
         _probe_writable(parent, "the folder holding --out")
         if self.out.is_dir():
             _probe_writable(self.out, "--out")
+
+    def lock(self) -> None:
+        """Hold ``<parent>/.<out>.lock`` for the rest of the run: a second run into the same ``<out>``
+        is refused (the lock goes with the process, even when it is killed)."""
+        import fcntl
+
+        if self._lock_fd is not None:
+            return
+        if not self.out.parent.exists():
+            self.out.parent.mkdir(parents=True)
+        path = self.out.parent / f".{self.out.name}.lock"
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise OutputError(f"another run (process {holder}) is writing to {self.out}; wait for it to finish "
+                              f"or give another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self._lock_fd = fd
+
+    def unlock(self) -> None:
+        """Let the next run into ``<out>`` start (done by ``commit`` and ``discard``)."""
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     @property
     def path(self) -> Path:
@@ -226,6 +255,7 @@ class StagedFolder:
             os.rename(self.partial, self.out)
             shutil.rmtree(old)
         self._begun = False
+        self.unlock()
         return self.out
 
     def discard(self) -> None:
@@ -233,3 +263,4 @@ class StagedFolder:
         if self._begun:
             shutil.rmtree(self.partial, ignore_errors=True)
             self._begun = False
+        self.unlock()

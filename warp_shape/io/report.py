@@ -84,6 +84,8 @@ def _placement_section(result) -> list[str]:
             lines.append(f"| {k}{mark} | {names[c['target']]} | {c['face_a']}-{c['face_b']} | "
                          f"{c['rest_angle_deg']:.0f} deg | " + " | ".join(f"{v:.4f}" for v in c["objective"])
                          + f" | {c['score']:.4f} | {100 * c['gain']:+.2f} % |")
+        if rnd.get("escalated"):
+            lines.append(f"\nNo gain: {rnd['escalated']}.")
         if rnd.get("left_out_for"):
             lines.append(f"\nThe kept set is held neutral for {', '.join(rnd['left_out_for'])} (it does not help there).")
     if info.get("stopped"):
