@@ -53,8 +53,12 @@ def test_blowup_restores_the_last_good_state():
 
 def test_state_corrupted_behind_the_api_refuses_every_further_step():
     """Where even the last good state is not finite, every further step repeats the clear error
-    until positions and velocities are set through the API."""
+    until positions and velocities are set through the API. (On the GPU path the last good state is
+    the one at the start of a call, here already corrupted.)"""
+    from warp_shape.integrators import BlowupWatch
+
     sim = ws.Simulator(ws.Design(_sphere()))
+    sim.blowup_watch = BlowupWatch(sim.solver.status, deferred=True)
     sim.step(1)
     x = sim.state.x.numpy()
     x[0, 3, 1] = np.nan
@@ -68,6 +72,23 @@ def test_state_corrupted_behind_the_api_refuses_every_further_step():
     sim.positions = sim.design.rest.vertices
     sim.step(2)
     assert sim.step_count == 3 and np.all(np.isfinite(sim.positions))
+
+
+def test_state_corrupted_between_calls_is_undone_on_cpu():
+    """On CPU the last good state is the one after the last whole output step: a corruption behind
+    the API's back after it is undone with the failed step, which is then taken again (automatic
+    substeps retry a blown-up step from the last good state) and continues the clean trajectory."""
+    d = ws.Design(_sphere())
+    clean = ws.Simulator(d)
+    clean.step(2)
+    sim = ws.Simulator(d)
+    sim.step(1)
+    x = sim.state.x.numpy()
+    x[0, 3, 1] = np.nan
+    sim.state.x.assign(x)
+    sim.step(1)
+    assert sim.step_count == 2 and np.all(np.isfinite(sim.positions))
+    np.testing.assert_allclose(sim.positions, clean.positions, atol=1e-5)  # (taken with shorter steps)
 
 
 def test_interrupt_inside_a_step_leaves_a_consistent_state(monkeypatch):
