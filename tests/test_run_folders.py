@@ -5,6 +5,7 @@ when a run into it is killed at any point."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import shutil
@@ -150,6 +151,27 @@ def test_interrupt_keeps_the_previous_finished_run(tmp_path, monkeypatch, capsys
     report = assert_whole_set(partial)
     assert report["complete"] is False and report["rounds_done"] == 1
     assert json.loads((partial / "rounds.json").read_text())["rounds"][0]["ipams"] == []
+
+
+def test_a_design_that_stops_early_records_each_round_once(tmp_path, monkeypatch):
+    """When no candidate set helps, the design is controlled again as the last round: rounds.json
+    holds that round once, matching the saved design."""
+    import warp_shape.designer.loop as designer_loop
+
+    real = designer_loop.simulated_placement
+
+    def stop_in_round_1(current, results, ctx, i, *args, **kwargs):
+        if i == 1:  # no candidate gains 99.9 %: the design stops
+            ctx = dataclasses.replace(ctx, settings=ctx.settings.replace(min_gain=0.999))
+        return real(current, results, ctx, i, *args, **kwargs)
+
+    monkeypatch.setattr(designer_loop, "simulated_placement", stop_in_round_1)
+    out = tmp_path / "out"
+    assert main(["design", "--out", str(out), "--subdivisions", "2", "--actuators", "3", "--candidates", "1",
+                 "--targets", "oval"]) == 0
+    report = assert_whole_set(out)
+    rounds = json.loads((out / "rounds.json").read_text())["rounds"]
+    assert [r["round"] for r in rounds] == [0, 1] and report["actuators"] == 1
 
 
 def test_a_second_run_into_the_same_folder_is_refused(tmp_path, monkeypatch, capsys):
