@@ -128,6 +128,24 @@ def test_staged_folder_replaces_the_previous_set_whole(tmp_path):
     assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
 
 
+def test_a_folder_that_is_not_a_run_folder_is_refused(tmp_path, monkeypatch, capsys):
+    import warp_shape.io.atomic as atomic
+
+    monkeypatch.chdir(tmp_path)
+    err = main(["design", "--out", ".", *SMALL]) == 2 and capsys.readouterr().err
+    assert "holds the current folder" in err and "--out out" in err
+    err = main(["design", "--out", str(tmp_path.parent), *SMALL]) == 2 and capsys.readouterr().err
+    assert "holds the current folder" in err
+    monkeypatch.setattr(atomic, "MAX_FOREIGN_ENTRIES", 5)
+    project = tmp_path / "project"
+    (project / "src").mkdir(parents=True)
+    for i in range(6):
+        (project / "src" / f"m{i}.py").write_text("")
+    before = snapshot(project)
+    err = main(["design", "--out", str(project), *SMALL]) == 2 and capsys.readouterr().err
+    assert "holds more than 5 files that are not outputs of a run" in err and snapshot(project) == before
+
+
 def test_interrupt_keeps_the_previous_finished_run(tmp_path, monkeypatch, capsys):
     """Ctrl-C in round 1 into a folder holding a finished run: the folder is untouched, round 0 is
     kept whole in <out>.partial (rounds.json records it)."""
