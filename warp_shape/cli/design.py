@@ -30,8 +30,8 @@ def register(subparsers) -> None:
     d.add_argument("--actuators", type=int, default=None, help="number of IPAMs to place (default: the scene's, "
                    "else 4)")
     d.add_argument("--subdivisions", type=int, default=None,
-                   help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 3: 642) "
-                        "instead of the scene's base mesh; finer meshes fit more actuators")
+                   help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 2: 162, 3: 642, "
+                        "4: 2562) instead of the scene's base mesh (default: the scene's, 642 vertices)")
     d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m (default: the "
                    "scene's, else 0.012)")
     d.add_argument("--placement", choices=["paper", "simulated"], default=None,
