@@ -226,6 +226,9 @@ def test_cuda_driver_note_is_not_printed_on_cpu_runs(tmp_path):
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "CUDA driver" not in run.stderr and "Fig. 6 sphere" in run.stdout
+    run = subprocess.run([sys.executable, "-m", "warp_shape.cli", "compare", str(ROOT / "scenes" / "targets" /
+                          "oval.ply"), "--to", "oval"], capture_output=True, text=True)  # every command
+    assert run.returncode == 0 and "CUDA driver" not in run.stderr and "PCC" in run.stdout
 
 
 class Terminal(io.StringIO):

@@ -450,8 +450,7 @@ class Simulator:
             step=self.step_count, quantity="volume", safe_dt=safe, world=w)
 
     # ------------------------------------------------------------------ last good state
-    _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at", "_dt_stable", "_substeps", "_elastic_cache",
-             "_dirty")
+    _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at")
 
     def _save(self) -> None:
         self._checkpoint.save(self.state.xv, {k: getattr(self, k) for k in self._KEPT})
@@ -465,14 +464,14 @@ class Simulator:
         for k, v in self._checkpoint.restore(self.state.xv).items():
             setattr(self, k, v)
         self.blowup_watch.reset()
-        if self._substeps is None or self.plan.h != self.dt / self._substeps:
-            self._dirty = True
+        self._dirty = True  # the stable step is estimated anew for the restored state
         if isinstance(exc, SimulationError) and not self._finite():
             self._broken = exc
 
     def _recover(self) -> None:
         """A state set through the API: shorter steps taken after a blow-up end, and a finite state
         lifts the refusal."""
+        self._checkpoint.current = False
         if self._refine != 1:
             self._refine, self._dirty = 1, True
         if self._broken is not None and self._finite():
@@ -495,7 +494,8 @@ class Simulator:
         target = self.step_count + int(n)
         first, refine = None, self._refine
         while True:
-            self._save()
+            if not self._checkpoint.current:  # else the save after the last output step still holds
+                self._save()
             try:
                 self._advance(target - self.step_count)
                 return
@@ -535,6 +535,7 @@ class Simulator:
             if self._dirty:
                 self._report(watch.poll())  # the estimate reads the state: a blown-up one is reported first
                 self._update_plan()
+            self._checkpoint.current = False
             self.plan.run(self._substeps)
             self._internal_steps += self._substeps
             self.step_count += 1

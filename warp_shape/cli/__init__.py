@@ -52,6 +52,12 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from ..errors import WarpShapeError
 
+    device = str(getattr(args, "device", "cpu"))
+    if args.command != "view" and device.startswith("cpu") and not getattr(args, "verbose", False):
+        from .options import quiet_warp
+
+        quiet_warp(False, device)  # Warp started without its note that this machine has no CUDA driver
+
     try:
         return int(args.func(args) or 0)
     except WarpShapeError as exc:

@@ -66,7 +66,7 @@ def run(args) -> int:
     from ..io.outputs import write_control_outputs, write_figures_or_skip
     from ..settings import SimulationSettings
 
-    check_out(StagedFolder(args.out))
+    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets)

@@ -87,9 +87,10 @@ def check_device(device: str) -> str:
     return check(device)
 
 
-def check_out(staged) -> None:
-    """``--out`` checked before any work (a file in its place, a folder that cannot be written)."""
-    staged.check()
+def check_out(staged, replaced: bool = True) -> None:
+    """``--out`` checked before any work (a file in its place, a folder that cannot be written; with
+    ``replaced``, a folder that is not the run's own)."""
+    staged.check(replaced)
 
 
 def check_rerun(args) -> None:
