@@ -513,3 +513,15 @@ def test_interrupted_jam_is_undone_whole(monkeypatch):
     monkeypatch.setattr(simulator, "eval_jam", real)
     sim.jam(0)
     assert sim.jammed.all() and not np.array_equal(sim.state.edge.numpy(), edge)
+
+
+def test_a_crash_of_usd_reading_a_binary_scene_is_a_scene_error(tmp_path, monkeypatch):
+    """USD can crash the process (segmentation fault) on corrupt crate data; a binary scene is read in
+    a child process first, and a crash there is a SceneError here."""
+    import warp_shape.io.scene_read as scene_read
+
+    c = _scene_file(tmp_path, name="s.usdc")
+    assert scene_read.load_scene(c).design is not None  # a sound binary scene passes the probe
+    monkeypatch.setattr(scene_read, "_PROBE", "import os, signal\nos.kill(os.getpid(), signal.SIGSEGV)\n")
+    with pytest.raises(ws.SceneError, match=r"USD crashed reading it \(signal 11; corrupt binary crate data\)"):
+        scene_read.load_scene(c)

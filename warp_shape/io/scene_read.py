@@ -188,6 +188,35 @@ def check_crate(path: Path) -> None:
                 raise bad(f"{count} tokens in {raw} bytes, packed into {packed} of {length}")
 
 
+#: the child process that reads a binary scene first: USD reads every attribute value of the stage
+_PROBE = ("import sys\nfrom pxr import Usd\nstage = Usd.Stage.Open(sys.argv[1])\n"
+          "for prim in stage.Traverse():\n    for a in prim.GetAttributes():\n        a.Get()\n")
+#: seconds the child may read a binary scene
+PROBE_TIMEOUT = 120.0
+
+
+def probe_binary(path: Path) -> None:
+    """Read a scene that is or composes binary (crate) USD in a child process first: USD can crash the
+    process on corrupt crate data (a segmentation fault, no exception), which then happens there and
+    becomes a ``SceneError``. Text-only scenes are not probed (USD parses text without crashing)."""
+    import re
+    import subprocess
+    import sys
+
+    data = Path(path).read_bytes()
+    if not data.startswith(b"PXR-USDC") and not re.search(rb"@[^@\n]*\.usd[c]?@", data):
+        return
+    try:
+        run = subprocess.run([sys.executable, "-c", _PROBE, str(path)], capture_output=True,
+                             timeout=PROBE_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        raise SceneError(f"{path}: USD did not finish reading the file in {PROBE_TIMEOUT:g} s (corrupt binary "
+                         f"data?)") from None
+    if run.returncode < 0:
+        raise SceneError(f"{path}: not a readable USD file: USD crashed reading it (signal {-run.returncode}; "
+                         f"corrupt binary crate data)")
+
+
 def _open_stage(path: Path, allow_outside: bool = False):
     """Open a scene file as a stage; unreadable files, composition errors and (unless
     ``allow_outside``) layers composed from outside the scene's folder raise ``SceneError``."""
@@ -195,6 +224,7 @@ def _open_stage(path: Path, allow_outside: bool = False):
     Sdf, Usd = pxr.Sdf, pxr.Usd
     # a layer still open elsewhere under this identifier would be served stale: reload it
     check_crate(path)
+    probe_binary(path)
     try:
         existing = Sdf.Layer.Find(str(path))
         if existing:
