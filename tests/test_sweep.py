@@ -7,6 +7,7 @@ import csv
 import json
 import os
 import signal
+import socket
 import sys
 import types
 
@@ -15,6 +16,7 @@ import pytest
 import warp_shape as ws
 from warp_shape.cli import main
 from warp_shape.sweep import SweepError, execute, parse_param
+from warp_shape.sweep.backends import check_address
 from warp_shape.sweep.plan import grid_plan, load_problem, subsets_plan
 
 #: a tiny run: 162-vertex base mesh, one IPAM, the paper's law, short control
@@ -57,6 +59,16 @@ def test_any_setting_can_be_swept_and_bad_names_or_values_are_refused_before_any
     rc = main(["sweep", "grid", "--param", "actuator=5,10", "--backend", "serial", "--out", str(tmp_path / "s")])
     assert rc == 2 and "did you mean actuators" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()  # refused before anything was written
+
+
+def test_an_address_where_no_cluster_listens_is_a_quick_clear_error():
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(SweepError, match=f"no Ray cluster answers at 127.0.0.1:{port}.*ray start --head"):
+        check_address(f"127.0.0.1:{port}")
+    with pytest.raises(SweepError, match="HOST:PORT"):
+        check_address("headnode")
 
 
 def test_sweep_without_ray_says_how_to_install_it(tmp_path, monkeypatch, capsys):
@@ -125,7 +137,7 @@ def test_a_failing_run_records_its_error_and_the_sweep_goes_on(tmp_path):
 @pytest.fixture(scope="module")
 def ray_local():
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="warning", log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="warning", log_to_driver=False)
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # run_fn below, on the workers
     yield ray
     ray.shutdown()
