@@ -100,12 +100,12 @@ def launched():
     wp.init()
     # nothing is launched, so the state stays zero: the simulator's inside-out check (a zero volume after
     # a step) would stop the drive after its first step
-    check, ws.Simulator._check_chamber = ws.Simulator._check_chamber, lambda self: None
+    check, ws.Simulator.check_volume = ws.Simulator.check_volume, lambda self: None
     try:
         with OverloadRecorder() as recorder:
             _drive(recorder)
     finally:
-        ws.Simulator._check_chamber = check
+        ws.Simulator.check_volume = check
     return recorder.launched
 
 

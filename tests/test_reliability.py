@@ -522,6 +522,19 @@ def test_a_crash_of_usd_reading_a_binary_scene_is_a_scene_error(tmp_path, monkey
 
     c = _scene_file(tmp_path, name="s.usdc")
     assert scene_read.load_scene(c).design is not None  # a sound binary scene passes the probe
-    monkeypatch.setattr(scene_read, "_PROBE", "import os, signal\nos.kill(os.getpid(), signal.SIGSEGV)\n")
+    monkeypatch.setattr(scene_read, "PROBE_SCRIPT", "import os, signal\nos.kill(os.getpid(), signal.SIGSEGV)\n")
     with pytest.raises(ws.SceneError, match=r"USD crashed reading it \(signal 11; corrupt binary crate data\)"):
+        scene_read.load_scene(c)
+
+
+def test_binary_scene_probe_is_memory_bounded(tmp_path, monkeypatch):
+    """A corrupt crate count can make USD allocate tens of GB; the child that reads a binary scene
+    first has a bounded address space, and its failure is a SceneError (the parent never reads it)."""
+    import warp_shape.io.scene_read as scene_read
+
+    c = _scene_file(tmp_path, name="s.usdc")
+    limited = scene_read.PROBE_SCRIPT.split("from pxr")[0]  # the probe's own memory limit, then a huge allocation
+    assert "RLIMIT_AS" in limited
+    monkeypatch.setattr(scene_read, "PROBE_SCRIPT", limited + "bytearray(limit + 2**30)\n")
+    with pytest.raises(ws.SceneError, match="not a readable USD file .*MemoryError"):
         scene_read.load_scene(c)

@@ -426,9 +426,10 @@ class Simulator:
             time = self.time - (self.step_count - step) * self.dt
             raise blowup_error(codes, step, time, self.plan.h, self._dt_stable)
 
-    def _check_chamber(self) -> None:
-        """A membrane turned inside out or collapsed (volume <= 0) by the last output step is a
-        blow-up of that step (found where the host reads state anyway: immediate mode)."""
+    def check_volume(self) -> None:
+        """Raise ``SimulationError`` when a world's chamber volume is not positive (membrane turned
+        inside out or collapsed). ``step`` calls it after each output step where the host reads the
+        state anyway (CPU): such a step is a blow-up of that step."""
         if self._volume_cmd is None:  # a recorded launch: no Python launch path per output step
             cmds = []
             eval_volume(self.model, self.state.x, self._vol_probe,
@@ -542,7 +543,7 @@ class Simulator:
             self.time += self.dt
             self._report(watch.after_step(self.step_count))
             if not watch.deferred:  # each whole output step with a chamber left is the new last good state
-                self._check_chamber()
+                self.check_volume()
                 self._save()
         self._report(watch.poll())
 

@@ -64,5 +64,5 @@ def main(argv=None) -> int:
         print(f"warp-shape: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("\nwarp-shape: interrupted; finished outputs were kept", file=sys.stderr)
+        print("\nwarp-shape: interrupted", file=sys.stderr)
         return 130

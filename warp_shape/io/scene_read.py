@@ -189,10 +189,15 @@ def check_crate(path: Path) -> None:
 
 
 #: the child process that reads a binary scene first: USD reads every attribute value of the stage
-_PROBE = ("import sys\nfrom pxr import Usd\nstage = Usd.Stage.Open(sys.argv[1])\n"
-          "for prim in stage.Traverse():\n    for a in prim.GetAttributes():\n        a.Get()\n")
+PROBE_SCRIPT = ("import resource, sys\nlimit = int(sys.argv[2])\n"
+                "resource.setrlimit(resource.RLIMIT_AS, (limit, limit))\n"
+                "from pxr import Usd\nstage = Usd.Stage.Open(sys.argv[1])\n"
+                "for prim in stage.Traverse():\n    for a in prim.GetAttributes():\n        a.Get()\n")
 #: seconds the child may read a binary scene
 PROBE_TIMEOUT = 120.0
+#: address space of that child: a base for Python and USD plus a multiple of the file's size (bytes)
+PROBE_MEMORY = 2 * 2**30
+PROBE_MEMORY_PER_BYTE = 256
 
 
 def probe_binary(path: Path) -> None:
@@ -206,8 +211,10 @@ def probe_binary(path: Path) -> None:
     data = Path(path).read_bytes()
     if not data.startswith(b"PXR-USDC") and not re.search(rb"@[^@\n]*\.usd[c]?@", data):
         return
+    # corrupt counts make USD allocate tens of GB: the child's memory is bounded (a 4 MB scene needs ~100 MB)
+    limit = PROBE_MEMORY + PROBE_MEMORY_PER_BYTE * len(data)
     try:
-        run = subprocess.run([sys.executable, "-c", _PROBE, str(path)], capture_output=True,
+        run = subprocess.run([sys.executable, "-c", PROBE_SCRIPT, str(path), str(limit)], capture_output=True,
                              timeout=PROBE_TIMEOUT)
     except subprocess.TimeoutExpired:
         raise SceneError(f"{path}: USD did not finish reading the file in {PROBE_TIMEOUT:g} s (corrupt binary "
@@ -215,6 +222,9 @@ def probe_binary(path: Path) -> None:
     if run.returncode < 0:
         raise SceneError(f"{path}: not a readable USD file: USD crashed reading it (signal {-run.returncode}; "
                          f"corrupt binary crate data)")
+    if run.returncode != 0:
+        lines = run.stderr.decode("utf-8", "replace").strip().splitlines() or ["(no message)"]
+        raise SceneError(f"{path}: not a readable USD file (corrupt?): {' '.join(lines[-1].split())[:400]}")
 
 
 def _open_stage(path: Path, allow_outside: bool = False):
