@@ -100,7 +100,8 @@ def api_case(rng):
     """One API call with an odd argument, then a step where the call made a simulator."""
     state = rng.bit_generator.state["state"]["state"]
     fn = _api_case(rng)
-    fn.desc = f"api case (rng state {state}) {fn.__code__.co_names[:4]} {[c.cell_contents for c in fn.__closure__ or [] if not hasattr(c.cell_contents, '__path__')]!r}"[:300]
+    values = [c.cell_contents for c in fn.__closure__ or [] if not hasattr(c.cell_contents, "__path__")]
+    fn.desc = f"api case (rng state {state}) {fn.__code__.co_names[:4]} {values!r}"[:300]  # what "other" names
     return fn
 
 
@@ -300,9 +301,12 @@ def mutate(rng, data: bytes, binary: bool) -> bytes:
                 lines[i] = lines[i].replace(a, b_, 1)
                 break
     else:
-        extra = [b"    custom double warpShape:simulation:dtt = 0.001", b"    custom int64 warpShape:simulation:integrator = 4",
-                 b'    custom string warpShape:designer:actuators = "four"', b"    custom double warpShape:simulation:dt",
-                 b"    subLayers = [@/etc/hostname@]", b"    custom double warpShape:simulation:dt = 1e-30"]
+        extra = [b"    custom double warpShape:simulation:dtt = 0.001",
+                 b"    custom int64 warpShape:simulation:integrator = 4",
+                 b'    custom string warpShape:designer:actuators = "four"',
+                 b"    custom double warpShape:simulation:dt",
+                 b"    subLayers = [@/etc/hostname@]",
+                 b"    custom double warpShape:simulation:dt = 1e-30"]
         lines.insert(i, _pick(rng, extra))
     return b"\n".join(lines)
 
