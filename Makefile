@@ -1,5 +1,6 @@
 # Two entry points: `make test` (installs everything into .venv, then runs the suite)
-# and `make demo` (runs the main job on the shipped default problem).
+# and `make demo` (installs the package with matplotlib, then runs the main job on the shipped
+# default problem: progress on the terminal, the list of outputs and the next step at the end).
 # `make gpu-check` runs the device check (docs/gpu.md) with .venv's Python where there is one, else
 # python3 (a CUDA machine without network installs from carried wheels); pass options in ARGS,
 # e.g. `make gpu-check ARGS="--device cpu --tiny"`.
@@ -10,22 +11,31 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: test demo install clean gpu-check
 
+DEMO_STAMP := $(VENV)/.installed-demo
+
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip >/dev/null
 	$(BIN)/pip install -e ".[test]"
-	touch $(STAMP)
+	touch $(STAMP) $(DEMO_STAMP)
+
+# the demo needs the package and matplotlib for its figures, not the test tools
+$(DEMO_STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --upgrade pip >/dev/null
+	$(BIN)/pip install -e ".[figures]"
+	touch $(DEMO_STAMP)
 
 install: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-demo: $(STAMP)
+demo: $(DEMO_STAMP)
 	$(BIN)/warp-shape design
 
 gpu-check:
 	PYTHON=$(if $(wildcard $(BIN)/python),$(BIN)/python,$(PYTHON)) bash scripts/gpu_check.sh $(ARGS)
 
 clean:
-	rm -rf $(VENV) build *.egg-info out
+	rm -rf $(VENV) build *.egg-info out out.partial .out.lock

@@ -100,7 +100,8 @@ def api_case(rng):
     """One API call with an odd argument, then a step where the call made a simulator."""
     state = rng.bit_generator.state["state"]["state"]
     fn = _api_case(rng)
-    fn.desc = f"api case (rng state {state}) {fn.__code__.co_names[:4]} {[c.cell_contents for c in fn.__closure__ or [] if not hasattr(c.cell_contents, '__path__')]!r}"[:300]
+    values = [c.cell_contents for c in fn.__closure__ or [] if not hasattr(c.cell_contents, "__path__")]
+    fn.desc = f"api case (rng state {state}) {fn.__code__.co_names[:4]} {values!r}"[:300]  # what "other" names
     return fn
 
 
@@ -108,7 +109,9 @@ def _api_case(rng):
     import warp_shape as ws
 
     w = _pick(rng, WEIRD)
-    kind = int(rng.integers(12))
+    kind = int(rng.integers(17))
+    if kind >= 12:
+        return _more_api_case(ws, rng, kind, w)
     if kind == 0:
         key = _pick(rng, SIM_KEYS)
         return lambda: _stepped(ws.Simulator(_design(ws), **{key: w}))
@@ -138,6 +141,45 @@ def _api_case(rng):
         return lambda: _mesh_from_arrays(ws, rng, w)
     face = _pick(rng, WEIRD)
     return lambda: _design(ws, ipam=False).add_ipam(w, face)
+
+
+def _more_api_case(ws, rng, kind, w):
+    """Settings, scenes, read-outs and sequences of calls."""
+    from warp_shape.io.scene_read import load_scene
+    from warp_shape.io.scene_schema import Scene
+
+    if kind == 12:
+        group = _pick(rng, ["simulation", "designer", "bad group", 3, None])
+        return lambda: Scene(design=_design(ws), settings={group: {_pick(rng, SIM_KEYS): w}}).simulation_settings
+    if kind == 13:
+        return lambda: ws.Material.from_dict({_pick(rng, MATERIAL_KEYS): w} if rng.random() < 0.7 else w)
+    if kind == 14:
+        return lambda: load_scene(w)
+    if kind == 15:
+        return lambda: ws.Simulator(_design(ws)).forces(w)
+    ops = [("air_moles", 3.0), ("jam", 0), ("ipam_pressures", [5e4]), ("step", 2), ("positions", 1.05)]
+    seq = [ops[int(rng.integers(len(ops)))] for _ in range(4)]
+    return lambda: _sequence(ws, seq, w)
+
+
+def _sequence(ws, seq, w):
+    """Calls in a row on one simulator (each possibly refused), then a step; an odd value in the middle."""
+    sim = ws.Simulator(_design(ws))
+    for i, (name, value) in enumerate(seq):
+        try:
+            if name == "step":
+                sim.step(value)
+            elif name == "jam":
+                sim.jam(value)
+            elif name == "positions":
+                sim.positions = sim.positions * value
+            elif name == "air_moles":
+                sim.air_moles = sim.air_moles * value if i != 2 else w
+            else:
+                sim.ipam_pressures = value if i != 2 else w
+        except ws.WarpShapeError:
+            pass
+    return _stepped(sim)
 
 
 def _ipam_design(ws, **kwargs):
@@ -259,9 +301,12 @@ def mutate(rng, data: bytes, binary: bool) -> bytes:
                 lines[i] = lines[i].replace(a, b_, 1)
                 break
     else:
-        extra = [b"    custom double warpShape:simulation:dtt = 0.001", b"    custom int64 warpShape:simulation:integrator = 4",
-                 b'    custom string warpShape:designer:actuators = "four"', b"    custom double warpShape:simulation:dt",
-                 b"    subLayers = [@/etc/hostname@]", b"    custom double warpShape:simulation:dt = 1e-30"]
+        extra = [b"    custom double warpShape:simulation:dtt = 0.001",
+                 b"    custom int64 warpShape:simulation:integrator = 4",
+                 b'    custom string warpShape:designer:actuators = "four"',
+                 b"    custom double warpShape:simulation:dt",
+                 b"    subLayers = [@/etc/hostname@]",
+                 b"    custom double warpShape:simulation:dt = 1e-30"]
         lines.insert(i, _pick(rng, extra))
     return b"\n".join(lines)
 

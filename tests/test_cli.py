@@ -140,6 +140,7 @@ def test_out_is_checked_before_any_work(tmp_path, monkeypatch, capsys):
     (".stl", b"", "the file is empty"),
     (".obj", b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe", "could not parse OBJ file"),
     (".obj", b"# only a comment\n", "no OBJ vertex lines"),
+    (".off", b"garbage\x00\xff\xfe\x01\x02", "not text in a known encoding"),
 ])
 def test_unreadable_mesh_is_a_parse_error(tmp_path, monkeypatch, capsys, suffix, data, message):
     no_work(monkeypatch)
@@ -226,6 +227,9 @@ def test_cuda_driver_note_is_not_printed_on_cpu_runs(tmp_path):
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "CUDA driver" not in run.stderr and "Fig. 6 sphere" in run.stdout
+    run = subprocess.run([sys.executable, "-m", "warp_shape.cli", "compare", str(ROOT / "scenes" / "targets" /
+                          "oval.ply"), "--to", "oval"], capture_output=True, text=True)  # every command
+    assert run.returncode == 0 and "CUDA driver" not in run.stderr and "PCC" in run.stdout
 
 
 class Terminal(io.StringIO):
@@ -237,19 +241,29 @@ def test_progress_counts_finished_work_and_is_quiet_off_a_terminal():
     from warp_shape.cli.progress import ControlProgress, DesignProgress
 
     term = Terminal()
-    bar = DesignProgress(5, stream=term)
+    bar = DesignProgress(5, n_targets=2, stream=term)
     seen = []
     on_round = bar.wrap_round(lambda i, d, r: seen.append(i))
-    for i in range(3):
-        bar.update(i, 4, 17, 300, 1, 2)
-        on_round(i, None, None)
-    assert bar.tqdm.n == 3 and seen == [0, 1, 2]
-    on_round(2, None, None)  # a round controlled again (early stop) is not counted twice
-    assert bar.tqdm.n == 3
+    bar.update(0, 4, 17, 300, 1, 2)
+    on_round(0, None, None)
+    assert bar.tqdm.n == 0  # round 0 is done with its placement, when round 1 starts
+    bar.update(0, 4, 5, 300, 0, 8)  # 8 worlds for 2 targets: 4 candidate sets
+    bar.tqdm.refresh()
+    assert "round 0/4: 4 candidate sets, step 5" in term.getvalue()
+    for i in (1, 2, 3, 4):
+        bar.update(i, 4, 3, 300, 0, 2)
+        assert bar.tqdm.n == i
+    bar._drawn = 0.0
+    bar.update(4, 4, 24, 300, 2, 2)
+    assert "round 4/4: refining the final control" in term.getvalue()
+    on_round(4, None, None)
+    assert bar.tqdm.n == 5 and seen == [0, 4]
     bar.close()
     text = term.getvalue()
-    assert "3/5" in text and "round" in text and "<" in text  # count, unit, ETA
-    assert "control step 17, 1/2 targets done" in text
+    assert "5/5 rounds" in text and "ETA 0:" in text  # count, unit, ETA
+    with DesignProgress(5, stream=Terminal()) as early:  # a design that stops early ends complete
+        early.update(2, 4, 3, 300, 0, 1)
+    assert early.tqdm.n == 5
     quiet = io.StringIO()  # not a terminal: nothing drawn
     with ControlProgress(stream=quiet) as steps:
         steps.update(40, 300, 0, 2)

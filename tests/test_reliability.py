@@ -53,8 +53,12 @@ def test_blowup_restores_the_last_good_state():
 
 def test_state_corrupted_behind_the_api_refuses_every_further_step():
     """Where even the last good state is not finite, every further step repeats the clear error
-    until positions and velocities are set through the API."""
+    until positions and velocities are set through the API. (On the GPU path the last good state is
+    the one at the start of a call, here already corrupted.)"""
+    from warp_shape.integrators import BlowupWatch
+
     sim = ws.Simulator(ws.Design(_sphere()))
+    sim.blowup_watch = BlowupWatch(sim.solver.status, deferred=True)
     sim.step(1)
     x = sim.state.x.numpy()
     x[0, 3, 1] = np.nan
@@ -68,6 +72,23 @@ def test_state_corrupted_behind_the_api_refuses_every_further_step():
     sim.positions = sim.design.rest.vertices
     sim.step(2)
     assert sim.step_count == 3 and np.all(np.isfinite(sim.positions))
+
+
+def test_state_corrupted_between_calls_is_undone_on_cpu():
+    """On CPU the last good state is the one after the last whole output step: a corruption behind
+    the API's back after it is undone with the failed step, which is then taken again (automatic
+    substeps retry a blown-up step from the last good state) and continues the clean trajectory."""
+    d = ws.Design(_sphere())
+    clean = ws.Simulator(d)
+    clean.step(2)
+    sim = ws.Simulator(d)
+    sim.step(1)
+    x = sim.state.x.numpy()
+    x[0, 3, 1] = np.nan
+    sim.state.x.assign(x)
+    sim.step(1)
+    assert sim.step_count == 2 and np.all(np.isfinite(sim.positions))
+    np.testing.assert_allclose(sim.positions, clean.positions, atol=1e-5)  # (taken with shorter steps)
 
 
 def test_interrupt_inside_a_step_leaves_a_consistent_state(monkeypatch):
@@ -492,3 +513,28 @@ def test_interrupted_jam_is_undone_whole(monkeypatch):
     monkeypatch.setattr(simulator, "eval_jam", real)
     sim.jam(0)
     assert sim.jammed.all() and not np.array_equal(sim.state.edge.numpy(), edge)
+
+
+def test_a_crash_of_usd_reading_a_binary_scene_is_a_scene_error(tmp_path, monkeypatch):
+    """USD can crash the process (segmentation fault) on corrupt crate data; a binary scene is read in
+    a child process first, and a crash there is a SceneError here."""
+    import warp_shape.io.scene_read as scene_read
+
+    c = _scene_file(tmp_path, name="s.usdc")
+    assert scene_read.load_scene(c).design is not None  # a sound binary scene passes the probe
+    monkeypatch.setattr(scene_read, "PROBE_SCRIPT", "import os, signal\nos.kill(os.getpid(), signal.SIGSEGV)\n")
+    with pytest.raises(ws.SceneError, match=r"USD crashed reading it \(signal 11; corrupt binary crate data\)"):
+        scene_read.load_scene(c)
+
+
+def test_binary_scene_probe_is_memory_bounded(tmp_path, monkeypatch):
+    """A corrupt crate count can make USD allocate tens of GB; the child that reads a binary scene
+    first has a bounded address space, and its failure is a SceneError (the parent never reads it)."""
+    import warp_shape.io.scene_read as scene_read
+
+    c = _scene_file(tmp_path, name="s.usdc")
+    limited = scene_read.PROBE_SCRIPT.split("from pxr")[0]  # the probe's own memory limit, then a huge allocation
+    assert "RLIMIT_AS" in limited
+    monkeypatch.setattr(scene_read, "PROBE_SCRIPT", limited + "bytearray(limit + 2**30)\n")
+    with pytest.raises(ws.SceneError, match="not a readable USD file .*MemoryError"):
+        scene_read.load_scene(c)

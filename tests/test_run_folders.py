@@ -5,6 +5,7 @@ when a run into it is killed at any point."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import shutil
@@ -127,6 +128,24 @@ def test_staged_folder_replaces_the_previous_set_whole(tmp_path):
     assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
 
 
+def test_a_folder_that_is_not_a_run_folder_is_refused(tmp_path, monkeypatch, capsys):
+    import warp_shape.io.atomic as atomic
+
+    monkeypatch.chdir(tmp_path)
+    err = main(["design", "--out", ".", *SMALL]) == 2 and capsys.readouterr().err
+    assert "holds the current folder" in err and "--out out" in err
+    err = main(["design", "--out", str(tmp_path.parent), *SMALL]) == 2 and capsys.readouterr().err
+    assert "holds the current folder" in err
+    monkeypatch.setattr(atomic, "MAX_FOREIGN_ENTRIES", 5)
+    project = tmp_path / "project"
+    (project / "src").mkdir(parents=True)
+    for i in range(6):
+        (project / "src" / f"m{i}.py").write_text("")
+    before = snapshot(project)
+    err = main(["design", "--out", str(project), *SMALL]) == 2 and capsys.readouterr().err
+    assert "holds more than 5 files that are not outputs of a run" in err and snapshot(project) == before
+
+
 def test_interrupt_keeps_the_previous_finished_run(tmp_path, monkeypatch, capsys):
     """Ctrl-C in round 1 into a folder holding a finished run: the folder is untouched, round 0 is
     kept whole in <out>.partial (rounds.json records it)."""
@@ -150,6 +169,44 @@ def test_interrupt_keeps_the_previous_finished_run(tmp_path, monkeypatch, capsys
     report = assert_whole_set(partial)
     assert report["complete"] is False and report["rounds_done"] == 1
     assert json.loads((partial / "rounds.json").read_text())["rounds"][0]["ipams"] == []
+
+
+def test_a_design_that_stops_early_records_each_round_once(tmp_path, monkeypatch):
+    """When no candidate set helps, the design is controlled again as the last round: rounds.json
+    holds that round once, matching the saved design."""
+    import warp_shape.designer.loop as designer_loop
+
+    real = designer_loop.simulated_placement
+
+    def stop_in_round_1(current, results, ctx, i, *args, **kwargs):
+        if i == 1:  # no candidate gains 99.9 %: the design stops
+            ctx = dataclasses.replace(ctx, settings=ctx.settings.replace(min_gain=0.999))
+        return real(current, results, ctx, i, *args, **kwargs)
+
+    monkeypatch.setattr(designer_loop, "simulated_placement", stop_in_round_1)
+    out = tmp_path / "out"
+    assert main(["design", "--out", str(out), "--subdivisions", "2", "--actuators", "3", "--candidates", "1",
+                 "--targets", "oval"]) == 0
+    report = assert_whole_set(out)
+    rounds = json.loads((out / "rounds.json").read_text())["rounds"]
+    assert [r["round"] for r in rounds] == [0, 1] and report["actuators"] == 1
+
+
+def test_a_second_run_into_the_same_folder_is_refused(tmp_path, monkeypatch, capsys):
+    import fcntl
+
+    import warp_shape.designer.loop as designer_loop
+
+    monkeypatch.setattr(designer_loop, "control_many", lambda *a, **k: pytest.fail("the second run started"))
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    with open(tmp_path / ".out.lock", "w") as held:  # the first run, still running
+        fcntl.flock(held, fcntl.LOCK_EX)
+        held.write("4242")
+        held.flush()
+        assert main(["design", "--out", str(out), *SMALL]) == 2
+    assert "another run (process 4242) is writing to" in capsys.readouterr().err
+    assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
 
 
 KILLER = r"""

@@ -7,6 +7,7 @@ import csv
 import json
 import os
 import signal
+import socket
 import sys
 import types
 
@@ -15,6 +16,7 @@ import pytest
 import warp_shape as ws
 from warp_shape.cli import main
 from warp_shape.sweep import SweepError, execute, parse_param
+from warp_shape.sweep.backends import check_address
 from warp_shape.sweep.plan import grid_plan, load_problem, subsets_plan
 
 #: a tiny run: 162-vertex base mesh, one IPAM, the paper's law, short control
@@ -59,6 +61,16 @@ def test_any_setting_can_be_swept_and_bad_names_or_values_are_refused_before_any
     assert not (tmp_path / "s").exists()  # refused before anything was written
 
 
+def test_an_address_where_no_cluster_listens_is_a_quick_clear_error():
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(SweepError, match=f"no Ray cluster answers at 127.0.0.1:{port}.*ray start --head"):
+        check_address(f"127.0.0.1:{port}")
+    with pytest.raises(SweepError, match="HOST:PORT"):
+        check_address("headnode")
+
+
 def test_sweep_without_ray_says_how_to_install_it(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
     rc = main(["sweep", "subsets", "--targets", "oval", "--out", str(tmp_path / "s")])
@@ -98,6 +110,25 @@ def test_serial_sweep_writes_one_row_per_run_with_the_design_outputs(serial_swee
     assert (out / "summary.md").read_text().count("| ok |") == 3 and (out / "summary.png").stat().st_size > 1000
 
 
+def test_a_run_is_the_design_command_with_the_same_settings(tmp_path):
+    """A sweep run and ``warp-shape design`` with the same problem and settings reach the same fit and
+    write the same files."""
+    assert main(["design", "--targets", "oval", "--actuators", "1", "--subdivisions", "2", "--placement", "paper",
+                 "--out", str(tmp_path / "design")]) == 0
+    res = ws.sweep("grid", targets=["oval"], params={"actuators": [1]}, fixed={"subdivisions": 2, "placement": "paper"},
+                   out=tmp_path / "sweep", backend="serial")
+    row = res.rows[0]
+    by_design = json.loads((tmp_path / "design" / "report.json").read_text())
+    by_sweep = json.loads((tmp_path / "sweep" / row["out_dir"] / "report.json").read_text())
+    assert row["pcc_oval"] == by_design["final"]["oval"]["pcc"] and row["mare_oval_m"] == by_design["final"]["oval"]["mare_m"]
+    timeless = lambda final: {k: v for k, v in final["oval"].items() if k != "refinement"}  # noqa: E731
+    assert timeless(by_sweep["final"]) == timeless(by_design["final"])
+    assert by_sweep["pcc_by_round"] == by_design["pcc_by_round"] and by_sweep["added"] == by_design["added"]
+    assert set(by_sweep["outputs"]) == set(by_design["outputs"])
+    for name in ("rounds.json", "control_oval.csv"):
+        assert (tmp_path / "sweep" / row["out_dir"] / name).read_bytes() == (tmp_path / "design" / name).read_bytes()
+
+
 def test_rerun_skips_finished_runs_and_a_different_sweep_is_refused(serial_sweep):
     out, first = serial_sweep
     again = tiny_sweep(out, backend="serial")  # the same sweep from Python: nothing left to run
@@ -125,7 +156,7 @@ def test_a_failing_run_records_its_error_and_the_sweep_goes_on(tmp_path):
 @pytest.fixture(scope="module")
 def ray_local():
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="warning", log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="warning", log_to_driver=False)
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # run_fn below, on the workers
     yield ray
     ray.shutdown()

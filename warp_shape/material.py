@@ -79,10 +79,10 @@ class Material:
     @classmethod
     def from_dict(cls, d: dict) -> "Material":
         """A Material from ``to_dict`` output; unknown fields raise ``DesignError``."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise DesignError(f"unknown Material field(s) {unknown}; known fields are {sorted(known)}")
         if not isinstance(d, dict):
             raise DesignError(f"Material.from_dict needs a dict {{field: value}}, got {type(d).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(str(k) for k in set(d) - known)
+        if unknown:
+            raise DesignError(f"unknown Material field(s) {unknown}; known fields are {sorted(known)}")
         return cls(**dict(d))

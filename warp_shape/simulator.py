@@ -426,9 +426,10 @@ class Simulator:
             time = self.time - (self.step_count - step) * self.dt
             raise blowup_error(codes, step, time, self.plan.h, self._dt_stable)
 
-    def _check_chamber(self) -> None:
-        """A membrane turned inside out or collapsed (volume <= 0) by the last output step is a
-        blow-up of that step (found where the host reads state anyway: immediate mode)."""
+    def check_volume(self) -> None:
+        """Raise ``SimulationError`` when a world's chamber volume is not positive (membrane turned
+        inside out or collapsed). ``step`` calls it after each output step where the host reads the
+        state anyway (CPU): such a step is a blow-up of that step."""
         if self._volume_cmd is None:  # a recorded launch: no Python launch path per output step
             cmds = []
             eval_volume(self.model, self.state.x, self._vol_probe,
@@ -450,8 +451,7 @@ class Simulator:
             step=self.step_count, quantity="volume", safe_dt=safe, world=w)
 
     # ------------------------------------------------------------------ last good state
-    _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at", "_dt_stable", "_substeps", "_elastic_cache",
-             "_dirty")
+    _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at")
 
     def _save(self) -> None:
         self._checkpoint.save(self.state.xv, {k: getattr(self, k) for k in self._KEPT})
@@ -465,14 +465,14 @@ class Simulator:
         for k, v in self._checkpoint.restore(self.state.xv).items():
             setattr(self, k, v)
         self.blowup_watch.reset()
-        if self._substeps is None or self.plan.h != self.dt / self._substeps:
-            self._dirty = True
+        self._dirty = True  # the stable step is estimated anew for the restored state
         if isinstance(exc, SimulationError) and not self._finite():
             self._broken = exc
 
     def _recover(self) -> None:
         """A state set through the API: shorter steps taken after a blow-up end, and a finite state
         lifts the refusal."""
+        self._checkpoint.current = False
         if self._refine != 1:
             self._refine, self._dirty = 1, True
         if self._broken is not None and self._finite():
@@ -495,7 +495,8 @@ class Simulator:
         target = self.step_count + int(n)
         first, refine = None, self._refine
         while True:
-            self._save()
+            if not self._checkpoint.current:  # else the save after the last output step still holds
+                self._save()
             try:
                 self._advance(target - self.step_count)
                 return
@@ -535,13 +536,14 @@ class Simulator:
             if self._dirty:
                 self._report(watch.poll())  # the estimate reads the state: a blown-up one is reported first
                 self._update_plan()
+            self._checkpoint.current = False
             self.plan.run(self._substeps)
             self._internal_steps += self._substeps
             self.step_count += 1
             self.time += self.dt
             self._report(watch.after_step(self.step_count))
             if not watch.deferred:  # each whole output step with a chamber left is the new last good state
-                self._check_chamber()
+                self.check_volume()
                 self._save()
         self._report(watch.poll())
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from .settings import LAUNCH_MODES
@@ -81,24 +82,36 @@ class StepPlan:
 
 
 class Checkpoint:
-    """The last good state of a simulator: a device copy of what a step changes (positions and
-    velocities, ``xv``) and the host values that go with it (counters, the stable-step estimate).
+    """The last good state of a simulator: a copy of what a step changes (positions and velocities,
+    ``xv``) and the host values that go with it (counters).
 
-    ``save`` copies on the device (no host transfer, cheap next to a step); ``restore`` copies back
-    and returns the host values saved with it.
+    ``save`` copies on the device (no host transfer; on CPU a plain memory copy of the array's own
+    memory), ``restore`` copies back and returns the host values saved with it. ``current`` is True
+    while the copy equals the state (a save, until the state is changed).
     """
 
     def __init__(self, xv: wp.array):
-        self.xv = wp.empty_like(xv)
-        wp.copy(self.xv, xv)
+        self.xv = wp.clone(xv)
+        self.cpu = xv.device.is_cpu
+        # on CPU both arrays are host memory: numpy views of them copy without a launch
+        self.views = (xv.numpy(), self.xv.numpy()) if self.cpu else None
         self.host: dict = {}
+        self.current = False
 
     def save(self, xv: wp.array, host: dict) -> None:
         """Keep ``xv`` (copied on its device) and ``host`` (a dict of plain values)."""
-        wp.copy(self.xv, xv)
+        if self.cpu:
+            np.copyto(self.views[1], self.views[0])
+        else:
+            wp.copy(self.xv, xv)
         self.host = dict(host)
+        self.current = True
 
     def restore(self, xv: wp.array) -> dict:
         """Copy the kept state back into ``xv``; return the host values kept with it."""
-        wp.copy(xv, self.xv)
+        if self.cpu:
+            np.copyto(self.views[0], self.views[1])
+        else:
+            wp.copy(xv, self.xv)
+        self.current = True
         return dict(self.host)

@@ -269,5 +269,15 @@ def load_target(spec: str) -> tuple[str, TriMesh]:
         return path.stem, TriMesh.load(path, center=True)
     except MeshError as exc:
         if "could not read" in str(exc):
-            raise MeshError(f"could not parse mesh file {path}: {str(exc.__cause__ or exc).splitlines()[0]}") from None
+            raise MeshError(f"could not parse mesh file {path}: {_reader_problem(exc.__cause__ or exc)}") from None
         raise
+
+
+def _reader_problem(exc: BaseException) -> str:
+    """What a mesh reader's exception says about the file, in words."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if isinstance(exc, ImportError) or "charset_normalizer" in text or isinstance(exc, UnicodeDecodeError):
+        return "not text in a known encoding and not a binary mesh of its format (corrupt or mislabelled file)"
+    if isinstance(exc, KeyError):
+        return f"a field the format needs is missing ({text})"
+    return text

@@ -52,11 +52,17 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from ..errors import WarpShapeError
 
+    device = str(getattr(args, "device", "cpu"))
+    if args.command != "view" and device.startswith("cpu") and not getattr(args, "verbose", False):
+        from .options import quiet_warp
+
+        quiet_warp(False, device)  # Warp started without its note that this machine has no CUDA driver
+
     try:
         return int(args.func(args) or 0)
     except WarpShapeError as exc:
         print(f"warp-shape: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("\nwarp-shape: interrupted; finished outputs were kept", file=sys.stderr)
+        print("\nwarp-shape: interrupted", file=sys.stderr)
         return 130

@@ -138,7 +138,7 @@ def run(args) -> int:
     from ..io.atomic import StagedFolder
     from ..io.outputs import write_json
 
-    check_out(StagedFolder(args.out))
+    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     names = list(ABOUT) if args.which == "all" else [args.which]
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M:%S"), device=args.device, machine=os.uname().nodename,

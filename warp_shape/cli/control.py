@@ -66,7 +66,7 @@ def run(args) -> int:
     from ..io.outputs import write_control_outputs, write_figures_or_skip
     from ..settings import SimulationSettings
 
-    check_out(StagedFolder(args.out))
+    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets)
@@ -76,7 +76,7 @@ def run(args) -> int:
     simulation = SimulationSettings.from_dict(scene_settings.get("simulation", {})).replace(**flags)
     settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming, method=args.method,
                                simulation=simulation)
-    with open_recorder(args) as rec, ControlProgress() as bar:
+    with open_recorder(args) as rec, ControlProgress(refine=args.method == "inverse") as bar:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
                                progress=bar.update, recorder=rec, target_names=names,
                                **actuator_selection(args, scene_settings, names))

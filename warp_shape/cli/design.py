@@ -30,8 +30,8 @@ def register(subparsers) -> None:
     d.add_argument("--actuators", type=int, default=None, help="number of IPAMs to place (default: the scene's, "
                    "else 4)")
     d.add_argument("--subdivisions", type=int, default=None,
-                   help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 3: 642) "
-                        "instead of the scene's base mesh; finer meshes fit more actuators")
+                   help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 2: 162, 3: 642, "
+                        "4: 2562) instead of the scene's base mesh (default: the scene's, 642 vertices)")
     d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m (default: the "
                    "scene's, else 0.012)")
     d.add_argument("--placement", choices=["paper", "simulated"], default=None,
@@ -113,6 +113,7 @@ def _run_designer(args, base, named, actuators, settings, staged):
         staged.seal(False, command="design")
 
     bar = run_progress(actuators + 1, names)
+    staged.lock()
     try:
         with open_recorder(args) as rec, bar:
             return design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
@@ -155,6 +156,7 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
         staged.discard()
         print(f"\nno design round had finished; {staged.out} is unchanged", file=sys.stderr)
     elif staged.holds_complete_set():
+        staged.unlock()
         print(f"\n{rounds_done} finished round(s) kept in {staged.partial} ({staged.out} still holds the previous "
               f"finished run)", file=sys.stderr)
     else:

@@ -87,9 +87,10 @@ def check_device(device: str) -> str:
     return check(device)
 
 
-def check_out(staged) -> None:
-    """``--out`` checked before any work (a file in its place, a folder that cannot be written)."""
-    staged.check()
+def check_out(staged, replaced: bool = True) -> None:
+    """``--out`` checked before any work (a file in its place, a folder that cannot be written; with
+    ``replaced``, a folder that is not the run's own)."""
+    staged.check(replaced)
 
 
 def check_rerun(args) -> None:
@@ -128,8 +129,8 @@ def control_progress(step, total, done, worlds, prefix: str = "") -> None:
 
 
 def run_progress(rounds: int, names) -> DesignProgress:
-    """The design run's progress bar (``rounds`` rounds)."""
-    return DesignProgress(rounds)
+    """The design run's progress bar (``rounds`` rounds, the targets ``names``)."""
+    return DesignProgress(rounds, n_targets=len(names))
 
 
 def load_targets(specs) -> list:

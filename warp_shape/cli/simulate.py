@@ -94,7 +94,7 @@ def run(args) -> int:
     from ..scenarios import cube_fig6_design
     from ..simulator import Simulator
 
-    check_out(StagedFolder(args.out))
+    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)
     steps = sum(_step_counts(args))

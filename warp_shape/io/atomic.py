@@ -62,6 +62,7 @@ def atomic_write(path, data: bytes | str) -> Path:
 
 # ------------------------------------------------------------------------------------ whole output folders
 MANIFEST = "manifest.json"
+MAX_FOREIGN_ENTRIES = 2000  # other files an output folder may hold (carried into each new set as hard links)
 RENAME_EXCHANGE = 2  # linux/fs.h
 AT_FDCWD = -100
 
@@ -161,9 +162,11 @@ class StagedFolder:
         self.partial = self.out.with_name(self.out.name + ".partial")
         self.owned = owned
         self._begun = False
+        self._lock_fd = None
 
-    def check(self) -> None:
-        """A clear ``OutputError`` now, before any work, where the outputs could not be written."""
+    def check(self, replaced: bool = True) -> None:
+        """A clear ``OutputError`` now, before any work, where the outputs could not be written (and,
+        with ``replaced``, where ``<out>`` is no folder of its own to be replaced as a whole)."""
         for p, what in ((self.out, "--out"), (self.partial, "the staging folder")):
             if p.exists() and not p.is_dir():
                 raise OutputError(f"{what} {p} is a file, not a folder; give --out a folder (new or holding "
@@ -176,6 +179,55 @@ class StagedFolder:
         _probe_writable(parent, "the folder holding --out")
         if self.out.is_dir():
             _probe_writable(self.out, "--out")
+            if replaced:
+                self._check_own_folder()
+
+    def _check_own_folder(self) -> None:
+        """``<out>`` is replaced as a whole: refuse the current folder (or one holding it) and a
+        folder of many other files (a project, a home folder), which would be copied into each set."""
+        cwd = Path.cwd().resolve()
+        if self.out == cwd or self.out in cwd.parents:
+            raise OutputError(f"--out {self.out} holds the current folder; a run replaces its output folder as a "
+                              f"whole: give it a folder of its own, e.g. --out out")
+        previous = set((read_manifest(self.out) or {}).get("files", {}))
+        count = 0
+        for root, dirs, files in os.walk(self.out):
+            if Path(root) == self.out:
+                dirs[:] = [d for d in dirs if not self.owned(d) and d not in previous]
+                files = [f for f in files if not self.owned(f) and f not in previous and f != MANIFEST]
+            count += len(files) + len(dirs)
+            if count > MAX_FOREIGN_ENTRIES:
+                raise OutputError(f"--out {self.out} holds more than {MAX_FOREIGN_ENTRIES} files that are not "
+                                  f"outputs of a run; a run replaces its output folder as a whole (keeping such "
+                                  f"files): give it a folder of its own, e.g. --out out")
+
+    def lock(self) -> None:
+        """Hold ``<parent>/.<out>.lock`` for the rest of the run: a second run into the same ``<out>``
+        is refused (the lock goes with the process, even when it is killed)."""
+        import fcntl
+
+        if self._lock_fd is not None:
+            return
+        if not self.out.parent.exists():
+            self.out.parent.mkdir(parents=True)
+        path = self.out.parent / f".{self.out.name}.lock"
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise OutputError(f"another run (process {holder}) is writing to {self.out}; wait for it to finish "
+                              f"or give another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self._lock_fd = fd
+
+    def unlock(self) -> None:
+        """Let the next run into ``<out>`` start (done by ``commit`` and ``discard``)."""
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     @property
     def path(self) -> Path:
@@ -226,6 +278,7 @@ class StagedFolder:
             os.rename(self.partial, self.out)
             shutil.rmtree(old)
         self._begun = False
+        self.unlock()
         return self.out
 
     def discard(self) -> None:
@@ -233,3 +286,4 @@ class StagedFolder:
         if self._begun:
             shutil.rmtree(self.partial, ignore_errors=True)
             self._begun = False
+        self.unlock()

@@ -188,6 +188,45 @@ def check_crate(path: Path) -> None:
                 raise bad(f"{count} tokens in {raw} bytes, packed into {packed} of {length}")
 
 
+#: the child process that reads a binary scene first: USD reads every attribute value of the stage
+PROBE_SCRIPT = ("import resource, sys\nlimit = int(sys.argv[2])\n"
+                "resource.setrlimit(resource.RLIMIT_AS, (limit, limit))\n"
+                "from pxr import Usd\nstage = Usd.Stage.Open(sys.argv[1])\n"
+                "for prim in stage.Traverse():\n    for a in prim.GetAttributes():\n        a.Get()\n")
+#: seconds the child may read a binary scene
+PROBE_TIMEOUT = 120.0
+#: address space of that child: a base for Python and USD plus a multiple of the file's size (bytes)
+PROBE_MEMORY = 2 * 2**30
+PROBE_MEMORY_PER_BYTE = 256
+
+
+def probe_binary(path: Path) -> None:
+    """Read a scene that is or composes binary (crate) USD in a child process first: USD can crash the
+    process on corrupt crate data (a segmentation fault, no exception), which then happens there and
+    becomes a ``SceneError``. Text-only scenes are not probed (USD parses text without crashing)."""
+    import re
+    import subprocess
+    import sys
+
+    data = Path(path).read_bytes()
+    if not data.startswith(b"PXR-USDC") and not re.search(rb"@[^@\n]*\.usd[c]?@", data):
+        return
+    # corrupt counts make USD allocate tens of GB: the child's memory is bounded (a 4 MB scene needs ~100 MB)
+    limit = PROBE_MEMORY + PROBE_MEMORY_PER_BYTE * len(data)
+    try:
+        run = subprocess.run([sys.executable, "-c", PROBE_SCRIPT, str(path), str(limit)], capture_output=True,
+                             timeout=PROBE_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        raise SceneError(f"{path}: USD did not finish reading the file in {PROBE_TIMEOUT:g} s (corrupt binary "
+                         f"data?)") from None
+    if run.returncode < 0:
+        raise SceneError(f"{path}: not a readable USD file: USD crashed reading it (signal {-run.returncode}; "
+                         f"corrupt binary crate data)")
+    if run.returncode != 0:
+        lines = run.stderr.decode("utf-8", "replace").strip().splitlines() or ["(no message)"]
+        raise SceneError(f"{path}: not a readable USD file (corrupt?): {' '.join(lines[-1].split())[:400]}")
+
+
 def _open_stage(path: Path, allow_outside: bool = False):
     """Open a scene file as a stage; unreadable files, composition errors and (unless
     ``allow_outside``) layers composed from outside the scene's folder raise ``SceneError``."""
@@ -195,6 +234,7 @@ def _open_stage(path: Path, allow_outside: bool = False):
     Sdf, Usd = pxr.Sdf, pxr.Usd
     # a layer still open elsewhere under this identifier would be served stale: reload it
     check_crate(path)
+    probe_binary(path)
     try:
         existing = Sdf.Layer.Find(str(path))
         if existing:

@@ -30,11 +30,16 @@ def list_scenes() -> list[str]:
 
 def resolve_scene(path_or_name) -> Path:
     """The file of a scene given as a path, or by the name of a shipped scene (``list_scenes()``)."""
+    if not isinstance(path_or_name, (str, Path)) or not str(path_or_name).strip():
+        raise SceneError(f"a scene is a file path or a shipped scene name ({', '.join(list_scenes())}), "
+                         f"got {path_or_name!r}")
     if isinstance(path_or_name, Path) or any(s in str(path_or_name) for s in ("/", "\\")) or \
             str(path_or_name).lower().endswith(SCENE_EXTENSIONS):
         p = Path(path_or_name)
         if not p.exists():
             raise SceneError(f"scene file not found: {p}")
+        if not p.is_file():
+            raise SceneError(f"scene path {p} is not a file (a folder?); give the .usda/.usdc file")
         return p
     name = str(path_or_name)
     for d in scene_dirs():
@@ -43,7 +48,7 @@ def resolve_scene(path_or_name) -> Path:
             if cand.exists():
                 return cand
     p = Path(name)
-    if p.exists():
+    if p.is_file():
         return p
     raise SceneError(f"unknown scene {name!r}; shipped scenes: {', '.join(list_scenes()) or '(none found)'}")
 

@@ -10,11 +10,12 @@ device is CUDA; at most ``workers`` tasks are in flight. A task whose worker pro
 from __future__ import annotations
 
 import os
+import socket
 import time
 
 from .params import SweepError
 
-__all__ = ["BACKENDS", "run_serial", "run_ray", "require_ray", "start_ray"]
+__all__ = ["BACKENDS", "run_serial", "run_ray", "require_ray", "start_ray", "check_address"]
 
 BACKENDS = ("ray", "serial")
 
@@ -31,12 +32,28 @@ def require_ray():
     return ray
 
 
+def check_address(address: str, timeout: float = 5.0) -> None:
+    """A quick ``SweepError`` when nothing listens at a HOST:PORT address (Ray itself retries for minutes)."""
+    if address in ("auto", "local") or "://" in address:
+        return
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise SweepError(f"--address must be HOST:PORT (e.g. 10.0.0.5:6379), auto or ray://HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise SweepError(f"no Ray cluster answers at {address} ({exc}); start its head there with "
+                         f"`ray start --head --port {port}`, or leave out --address for a local instance") from None
+
+
 def start_ray(address: str | None, workers: int | None) -> tuple[bool, float]:
     """Join ``address`` or start a local Ray instance with ``workers`` CPUs (this machine's count by
     default); returns (started here, seconds taken). An instance already running in this process is used."""
     ray = require_ray()
     if ray.is_initialized():
         return False, 0.0
+    if address:
+        check_address(address)
     t0 = time.perf_counter()
     common = dict(include_dashboard=False, logging_level="warning", log_to_driver=False,
                   runtime_env={"env_vars": {"OMP_NUM_THREADS": "1"}})
@@ -44,11 +61,14 @@ def start_ray(address: str | None, workers: int | None) -> tuple[bool, float]:
         if address:
             ray.init(address=address, **common)
         else:
-            ray.init(num_cpus=workers or os.cpu_count() or 1, **common)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
+            # "local": a new instance even where a cluster's address is on record (RAY_ADDRESS, a stale file)
+            ray.init(address="local", num_cpus=workers or os.cpu_count() or 1, **common)
+    except (ConnectionError, RuntimeError, ValueError, ray.exceptions.RayError) as exc:
         where = f"the Ray cluster at {address!r}" if address else "a local Ray instance"
-        raise SweepError(f"could not start or join {where}: {exc}. For a cluster, start its head with "
-                         f"`ray start --head` and pass --address HOST:6379 (or auto)") from None
+        hint = ("start its head with `ray start --head` and pass --address HOST:6379 (or auto on a node); Ray "
+                ">= 2.59 guards a cluster with a token: set RAY_AUTH_MODE=token with the cluster's token in "
+                "~/.ray/auth_token (docs/sweeps.md)") if address else "see docs/sweeps.md"
+        raise SweepError(f"could not start or join {where}: {' '.join(str(exc).split())[:300]}. {hint}") from None
     return True, time.perf_counter() - t0
 
 
