@@ -89,6 +89,15 @@ def test_masked_cell_never_jams():
     assert np.isnan(np.asarray(sim.jam_times)[0, 0])
 
 
+def test_placement_settings_errors_name_the_fix():
+    with pytest.raises(ws.DesignError, match="placement must be one of"):
+        ws.DesignSettings(placement="best")
+    for bad in (0, 2.5, True):
+        with pytest.raises(ws.DesignError, match="candidates must be a whole number >= 1"):
+            ws.DesignSettings(candidates=bad)
+    assert ws.DesignSettings(candidates=np.int64(3)).candidates == 3  # as read from a scene
+
+
 def test_mask_errors_name_the_fix():
     d = _two_ipam_design()
     sim = ws.Simulator(d, worlds=2)
