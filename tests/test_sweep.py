@@ -110,6 +110,25 @@ def test_serial_sweep_writes_one_row_per_run_with_the_design_outputs(serial_swee
     assert (out / "summary.md").read_text().count("| ok |") == 3 and (out / "summary.png").stat().st_size > 1000
 
 
+def test_a_run_is_the_design_command_with_the_same_settings(tmp_path):
+    """A sweep run and ``warp-shape design`` with the same problem and settings reach the same fit and
+    write the same files."""
+    assert main(["design", "--targets", "oval", "--actuators", "1", "--subdivisions", "2", "--placement", "paper",
+                 "--out", str(tmp_path / "design")]) == 0
+    res = ws.sweep("grid", targets=["oval"], params={"actuators": [1]}, fixed={"subdivisions": 2, "placement": "paper"},
+                   out=tmp_path / "sweep", backend="serial")
+    row = res.rows[0]
+    by_design = json.loads((tmp_path / "design" / "report.json").read_text())
+    by_sweep = json.loads((tmp_path / "sweep" / row["out_dir"] / "report.json").read_text())
+    assert row["pcc_oval"] == by_design["final"]["oval"]["pcc"] and row["mare_oval_m"] == by_design["final"]["oval"]["mare_m"]
+    timeless = lambda final: {k: v for k, v in final["oval"].items() if k != "refinement"}  # noqa: E731
+    assert timeless(by_sweep["final"]) == timeless(by_design["final"])
+    assert by_sweep["pcc_by_round"] == by_design["pcc_by_round"] and by_sweep["added"] == by_design["added"]
+    assert set(by_sweep["outputs"]) == set(by_design["outputs"])
+    for name in ("rounds.json", "control_oval.csv"):
+        assert (tmp_path / "sweep" / row["out_dir"] / name).read_bytes() == (tmp_path / "design" / name).read_bytes()
+
+
 def test_rerun_skips_finished_runs_and_a_different_sweep_is_refused(serial_sweep):
     out, first = serial_sweep
     again = tiny_sweep(out, backend="serial")  # the same sweep from Python: nothing left to run

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS
@@ -61,7 +62,7 @@ class DesignSettings:
             raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
         if self.placement not in PLACEMENT_METHODS:
             raise DesignError(f"placement must be one of {list(PLACEMENT_METHODS)}, got {self.placement!r}")
-        if isinstance(self.candidates, bool) or not isinstance(self.candidates, int) or self.candidates < 1:
+        if isinstance(self.candidates, bool) or not isinstance(self.candidates, numbers.Integral) or self.candidates < 1:
             raise DesignError(f"candidates must be a whole number >= 1 (candidate actuator sets per round), got "
                               f"{self.candidates!r}")
         if not (0 <= self.min_gain < 1):

@@ -33,7 +33,7 @@ GROUPS = {"designer": DesignSettings, "controller": ControlSettings, "simulation
 
 #: parameters that are not a settings field: name -> (type, meaning)
 SPECIAL = {"actuators": (int, "number of IPAMs placed"),
-           "subdivisions": (int, "base mesh resolution: icosphere subdivisions (2: 162 vertices, 3: 642)")}
+           "subdivisions": (int, "base mesh: an icosphere of 1..6 subdivisions (2: 162 vertices, 3: 642)")}
 
 
 class SweepError(WarpShapeError, ValueError):
@@ -135,9 +135,9 @@ def _check_one(group: str, field_name: str, value) -> None:
     """Build the settings object with the value (its own checks run); a bad value raises ``SweepError``."""
     try:
         if group == "run":
-            if not isinstance(value, int) or isinstance(value, bool) or value < (1 if field_name == "subdivisions"
-                                                                                 else 0):
-                raise SweepError(f"must be an integer >= {1 if field_name == 'subdivisions' else 0}, got {value!r}")
+            lo, hi = (1, 6) if field_name == "subdivisions" else (1, 10_000)
+            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+                raise SweepError(f"must be a whole number in {lo}..{hi}, got {value!r}")
             return
         if group == "design":
             return  # checked by design() when it runs
@@ -147,7 +147,8 @@ def _check_one(group: str, field_name: str, value) -> None:
         else:
             cls(**{field_name: value})
     except (WarpShapeError, TypeError) as exc:
-        raise SweepError(f"bad value {value!r} for sweep parameter {group}.{field_name}: {exc}") from None
+        where = field_name if group == "run" else f"{group}.{field_name}"
+        raise SweepError(f"bad value {value!r} for sweep parameter {where}: {exc}") from None
 
 
 def parse_param(spec: str) -> Param:

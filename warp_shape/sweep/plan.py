@@ -8,10 +8,9 @@ product of the values of the swept parameters (Fig. 12: ``actuators=5,10,20``). 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
 
 from ..mesh import TriMesh, icosphere
 from ..targets import TARGET_NAMES, target
@@ -92,10 +91,11 @@ def run_id(names, swept: dict) -> str:
 
 
 def _base_mesh(base: TriMesh, subdivisions) -> TriMesh:
-    """The scene's base mesh, or an icosphere of ``subdivisions`` with the base's mean radius."""
+    """The scene's base mesh, or (as ``warp-shape design --subdivisions``) an icosphere of
+    ``subdivisions`` enclosing the base's volume."""
     if subdivisions is None:
         return base
-    radius = float(np.linalg.norm(base.vertices - base.vertices.mean(axis=0), axis=1).mean())
+    radius = float(base.volume() * 3 / (4 * math.pi)) ** (1 / 3)
     return icosphere(int(subdivisions), radius)
 
 

@@ -68,31 +68,49 @@ def read_outputs(folder: Path) -> dict:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+def _outputs(task: RunTask, result, records: list, wall: float) -> dict:
+    """Every file ``warp-shape design`` leaves for this result (rounds.json, the design outputs and the
+    manifest), written in a temporary folder; {relative path: bytes}."""
+    from ..io.atomic import StagedFolder
+    from ..io.outputs import is_run_output, write_design_outputs, write_json
+
+    with tempfile.TemporaryDirectory(prefix="warp_shape_run_") as tmp:
+        staged = StagedFolder(Path(tmp) / "run", owned=is_run_output)
+        write_json(staged.path / "rounds.json", dict(targets=list(task.target_names), rounds=list(records)))
+        write_design_outputs(result, staged.path, marker_height=task.marker_height,
+                             layer_thickness=task.layer_thickness, kept=["rounds.json", "manifest.json"],
+                             extra_report=dict(complete=True, wall_seconds=wall, device=task.device,
+                                               sweep_run=task.run_id, swept=task.swept))
+        return read_outputs(staged.commit(True, command="sweep"))
+
+
 def execute(task: RunTask) -> tuple[dict, dict]:
     """Design, write the outputs (as ``warp-shape design``), return (row, {file: bytes}); never raises
     for a failed design: the row carries the error."""
     import warp as wp
 
     from ..designer import design
-    from ..io.outputs import write_design_outputs
+    from ..io.outputs import round_record
 
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
     t0 = time.perf_counter()
+    records: list = []
+
+    def on_round(i, design_i, results):  # as the design command records each finished round
+        if records and records[-1]["round"] == i:  # a round controlled again as the last (early stop)
+            records.pop()
+        records.append(round_record(i, design_i, results, task.target_names))
+
     try:
         settings, control, material, keywords = _settings(task)
         result = design(task.base, task.targets, actuators=task.actuators, device=task.device,
                         target_names=task.target_names, settings=settings, control_settings=control,
-                        material=material, **keywords)
-        wall = time.perf_counter() - t0
-        with tempfile.TemporaryDirectory(prefix="warp_shape_run_") as tmp:
-            write_design_outputs(result, tmp, marker_height=task.marker_height, layer_thickness=task.layer_thickness,
-                                 extra_report=dict(complete=True, wall_seconds=wall, device=task.device,
-                                                   sweep_run=task.run_id, swept=task.swept))
-            files = read_outputs(Path(tmp))
+                        material=material, on_round=on_round, **keywords)
+        files = _outputs(task, result, records, time.perf_counter() - t0)
         return row_of(task, result, time.perf_counter() - t0), files
     except Exception as exc:  # a failing run is recorded, the sweep goes on
         detail = f"{type(exc).__name__}: {exc}"
-        if not hasattr(exc, "__module__") or not type(exc).__module__.startswith("warp_shape"):
+        if not type(exc).__module__.startswith("warp_shape"):
             detail += " | " + traceback.format_exc(limit=-1).strip().splitlines()[-2].strip()
         return error_row(task, detail, time.perf_counter() - t0), {}
