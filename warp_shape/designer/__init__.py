@@ -29,7 +29,8 @@
 
 Modules: ``settings`` (DesignSettings), ``initialize`` (checks, initial rest shape, design copies),
 ``placement`` (the paper's rule, candidate ends), ``simulated`` (the simulated placement),
-``selection`` (which actuators each target's sequence leaves out), ``loop`` (design), ``result`` (DesignResult, plain data).
+``selection`` (which actuators each target's sequence leaves out), ``loop`` (design), ``result``
+(DesignResult, plain data).
 """
 
 from .initialize import copy_design, initial_rest_shape

@@ -59,7 +59,7 @@ def _control_round(i: int, current: Design, targets, names, selection: Selection
 
 
 ESCALATED = ("no candidate helped under the paper's law, which can hide what an actuator does (a cube corner "
-             "IPAM alone); this round and the next are controlled by model-based control (round_control 'quick')")
+             "IPAM alone); this round and those after it are controlled by model-based control (round_control 'quick')")
 
 
 def _escalates(round_control: str, control_settings: ControlSettings) -> bool:
@@ -135,4 +135,5 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     pcc_rows = np.array([[r.pcc for r in rs] for rs in rounds])
     return DesignResult(design=current, designs=designs, rounds=rounds, pcc_by_round=pcc_rows, target_names=names,
                         targets=targets, added=added, settings=settings, control_settings=control_settings,
-                        passive_ipams=selection.passive_ipams(), passive_cells=selection.passive_cells(), placement=info)
+                        passive_ipams=selection.passive_ipams(), passive_cells=selection.passive_cells(),
+                        placement=info)

@@ -29,7 +29,7 @@ class DesignResult:
     passive_cells: list = field(default_factory=list)  # per target: cells left out of its control sequence
     settings: DesignSettings = field(default_factory=DesignSettings)
     control_settings: ControlSettings = field(default_factory=ControlSettings)
-    placement: dict = field(default_factory=dict)  # method, K, start PCC / bad start, per round every candidate's scores
+    placement: dict = field(default_factory=dict)  # method, K, start PCC, bad start, every candidate's scores
 
     @property
     def objective_by_round(self) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS
@@ -43,7 +44,7 @@ class DesignSettings:
     volume_scale: float = 0.8  # rest volume / smallest target volume (multi-target initialisation)
     min_angle_deg: float = 120.0  # the two IPAM ends are at least this far apart seen from the origin
     initialize: bool = True  # False: keep the given rest shape (single-target mode)
-    placement: str = "simulated"  # "paper" (Algorithm 1 as published) or "simulated" (candidate sets, PLACEMENT_METHODS)
+    placement: str = "simulated"  # "paper" (Algorithm 1 as published) or "simulated" (PLACEMENT_METHODS)
     candidates: int = 4  # simulated placement: candidate actuator sets tried per round (K; worlds = K x targets)
     min_gain: float = 0.005  # simulated placement stops when no candidate lowers the summed objective by this fraction
     ipam_stiffness: float = DEFAULT_IPAM_STIFFNESS  # N/m of every added IPAM
@@ -61,7 +62,8 @@ class DesignSettings:
             raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
         if self.placement not in PLACEMENT_METHODS:
             raise DesignError(f"placement must be one of {list(PLACEMENT_METHODS)}, got {self.placement!r}")
-        if isinstance(self.candidates, bool) or not isinstance(self.candidates, int) or self.candidates < 1:
+        whole = isinstance(self.candidates, numbers.Integral) and not isinstance(self.candidates, bool)
+        if not whole or self.candidates < 1:
             raise DesignError(f"candidates must be a whole number >= 1 (candidate actuator sets per round), got "
                               f"{self.candidates!r}")
         if not (0 <= self.min_gain < 1):

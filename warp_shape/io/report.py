@@ -87,7 +87,8 @@ def _placement_section(result) -> list[str]:
         if rnd.get("escalated"):
             lines.append(f"\nNo gain: {rnd['escalated']}.")
         if rnd.get("left_out_for"):
-            lines.append(f"\nThe kept set is held neutral for {', '.join(rnd['left_out_for'])} (it does not help there).")
+            lines.append(f"\nThe kept set is held neutral for {', '.join(rnd['left_out_for'])} "
+                         "(it does not help there).")
     if info.get("stopped"):
         lines += ["", f"Stopped early: {info['stopped']}."]
     return lines

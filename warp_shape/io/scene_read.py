@@ -61,12 +61,20 @@ class _Reader:
             raise self.error(prim, name, "has no value")
         return a, value
 
+    def convert(self, prim, name: str, kind, value):
+        """``kind(value)``; a value of another kind than its declared type (an edited layer can hold a
+        list operation or a dictionary there) raises ``SceneError``."""
+        try:
+            return kind(value)
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise self.error(prim, name, f"holds a {type(value).__name__}, not a value of its type ({exc})") from None
+
     def scalar(self, prim, name, required=True):
         numeric = {"double", "float", "half", "int", "int64", "uint", "uint64", "uchar"}
         _, v = self._typed(prim, name, required, lambda t: not t.isArray and str(t) in numeric, "a number (double)")
         if v is None:
             return None
-        v = float(v)
+        v = self.convert(prim, name, float, v)
         if not math.isfinite(v):
             raise self.error(prim, name, f"must be finite, got {v}")
         return v
@@ -77,7 +85,7 @@ class _Reader:
         _, v = self._typed(prim, name, required, lambda t: t.isArray and str(t.scalarType) in kinds, what)
         if v is None:
             return None
-        a = np.array(v, dtype=np.int64)
+        a = self.convert(prim, name, lambda x: np.array(x, dtype=np.int64), v)
         if a.size % width:
             raise self.error(prim, name, f"has {a.size} numbers, not a whole number of {what} elements")
         return a.reshape(-1) if width == 1 else a.reshape(-1, width)
@@ -90,7 +98,9 @@ class _Reader:
         _, v = self._typed(prim, name, required, lambda t: t.isArray and str(t.scalarType) in kinds, what)
         if v is None:
             return None
-        a = np.array(v, dtype=np.float64)
+        a = self.convert(prim, name, lambda x: np.array(x, dtype=np.float64), v)
+        if a.size % width:
+            raise self.error(prim, name, f"has {a.size} numbers, not a whole number of {what} elements")
         a = a.reshape(-1) if width == 1 else a.reshape(-1, width)
         if not np.all(np.isfinite(a)):
             i = int(np.flatnonzero((~np.isfinite(a.reshape(a.shape[0], -1))).any(axis=1))[0])
@@ -444,7 +454,7 @@ def _read_settings(r: _Reader, root) -> dict:
         value = a.Get() if a.HasAuthoredValue() else None
         if value is None:
             raise r.error(prim, name, "is declared without a value; give it one or remove it")
-        settings.setdefault(parts[1], {})[parts[2]] = SETTING_READERS[tn](value)
+        settings.setdefault(parts[1], {})[parts[2]] = r.convert(prim, name, SETTING_READERS[tn], value)
     _check_setting_groups(r, prim, settings)
     return settings
 
