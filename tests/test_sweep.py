@@ -137,6 +137,19 @@ def test_rerun_skips_finished_runs_and_a_different_sweep_is_refused(serial_sweep
         ws.sweep("subsets", targets=["oval", "pear"], actuators=1, fixed=dict(TINY), out=out, backend="serial")
 
 
+def test_a_second_sweep_into_a_busy_folder_is_refused(tmp_path):
+    from warp_shape.sweep.results import ResultsTable
+
+    busy = ResultsTable(tmp_path, [], {})
+    busy.lock()  # as a sweep running in another process holds it
+    try:
+        with pytest.raises(SweepError, match=f"another sweep \\(process {os.getpid()}\\) is writing"):
+            tiny_sweep(tmp_path, backend="serial")
+    finally:
+        busy.unlock()
+    assert not (tmp_path / "results.csv").exists()
+
+
 def test_a_failing_run_records_its_error_and_the_sweep_goes_on(tmp_path):
     res = ws.sweep("grid", targets=["oval"], params={"cell_radius": [0.2, 0.012], "actuators": [1]}, fixed=TINY,
                    out=tmp_path, backend="serial")

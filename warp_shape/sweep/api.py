@@ -103,11 +103,22 @@ def sweep(kind: str = "subsets", scene: str | None = None, *, targets=None, actu
 
 def _execute(kind, problem, plist, tasks, folder: Path, *, backend, workers, address, device, retries, restart,
              progress, run_fn) -> SweepResult:
-    from .run import execute
-
     names = [n for n, _ in problem.targets]
     swept = [p.name for p in plist]
     table = ResultsTable(folder, columns_for(names, swept), _description(kind, problem, plist, device))
+    table.lock()
+    try:
+        return _run_locked(table, kind, names, swept, tasks, folder, backend=backend, workers=workers,
+                           address=address, device=device, retries=retries, restart=restart, progress=progress,
+                           run_fn=run_fn)
+    finally:
+        table.unlock()
+
+
+def _run_locked(table, kind, names, swept, tasks, folder: Path, *, backend, workers, address, device, retries,
+                restart, progress, run_fn) -> SweepResult:
+    from .run import execute
+
     if restart:
         for stale in ("results.json", "results.csv", "runs"):
             p = folder / stale

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -74,6 +75,29 @@ class ResultsTable:
                              f"use another --out, or --restart to discard its results")
         self.rows = {r["run_id"]: r for r in data.get("rows", [])}
         return self
+
+    def lock(self) -> None:
+        """Hold ``.sweep.lock`` in the folder while this process runs the sweep: a second sweep into the
+        same folder is refused (the lock goes with the process, even when it is killed)."""
+        import fcntl
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.folder / ".sweep.lock", os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise SweepError(f"another sweep (process {holder}) is writing to {self.folder}; wait for it to "
+                             f"finish or give another --out") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self._lock_fd = fd
+
+    def unlock(self) -> None:
+        if getattr(self, "_lock_fd", None) is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     def finished(self, run_id: str) -> bool:
         """True when the run has an ``ok`` row and its output folder is in place."""
