@@ -33,7 +33,7 @@ def register(subparsers) -> None:
     e.add_argument("--passive", choices=["neutral", "zero"], default="neutral",
                    help="pressure written for IPAMs a target does not use: the simulated neutral pressure "
                         "(force-free, default) or 0 kPa (vented)")
-    add_common_args(e)
+    add_common_args(e, out="out/export")  # beside, not inside, a design's own output folder
     e.set_defaults(func=run)
 
 
