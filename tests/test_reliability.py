@@ -119,11 +119,8 @@ def test_interrupt_inside_a_step_leaves_a_consistent_state(monkeypatch):
     np.testing.assert_allclose(sim.positions, clean.positions, atol=1e-9)
 
 
-def test_interrupt_keeps_the_whole_output_steps_already_taken(monkeypatch):
-    """An interrupt in the third output step of ``step(5)`` keeps the two whole ones before it."""
-    d = ws.Design(_sphere())
-    sim = ws.Simulator(d)
-    sim.air_moles = sim.air_moles * 1.3
+def _interrupt_third_output_step(monkeypatch, sim):
+    """``sim.step(5)`` interrupted (Ctrl-C) in its third output step; returns the real step runner."""
     run, calls = sim.plan.run, []
 
     def interrupted(count):
@@ -135,6 +132,15 @@ def test_interrupt_keeps_the_whole_output_steps_already_taken(monkeypatch):
     monkeypatch.setattr(sim.plan, "run", interrupted)
     with pytest.raises(KeyboardInterrupt):
         sim.step(5)
+    return run
+
+
+def test_interrupt_keeps_the_whole_output_steps_already_taken(monkeypatch):
+    """An interrupt in the third output step of ``step(5)`` keeps the two whole ones before it."""
+    d = ws.Design(_sphere())
+    sim = ws.Simulator(d)
+    sim.air_moles = sim.air_moles * 1.3
+    run = _interrupt_third_output_step(monkeypatch, sim)
     monkeypatch.setattr(sim.plan, "run", run)
     ref = ws.Simulator(d)
     ref.air_moles = ref.air_moles * 1.3
@@ -159,17 +165,7 @@ def test_deferred_blowup_check_undoes_the_whole_call(monkeypatch):
     assert sim.step_count == 2 and not sim.blowup_watch.pending
     np.testing.assert_array_equal(sim.positions, x2)
     sim.velocities = v2
-    run, calls = sim.plan.run, []
-
-    def interrupted(count):
-        calls.append(count)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-        run(count)
-
-    monkeypatch.setattr(sim.plan, "run", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        sim.step(5)
+    run = _interrupt_third_output_step(monkeypatch, sim)
     assert sim.step_count == 2 and sim.time == pytest.approx(2 * sim.dt)
     np.testing.assert_array_equal(sim.positions, x2)
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ..errors import WarpShapeError
 
-__all__ = ["atomic_write", "atomic_target", "finalize_permissions", "MANIFEST", "file_digest", "read_manifest",
+__all__ = ["atomic_write", "atomic_target", "hold_lock", "finalize_permissions", "MANIFEST", "file_digest", "read_manifest",
            "manifest_problems", "StagedFolder", "OutputError"]
 
 
@@ -65,6 +65,24 @@ MANIFEST = "manifest.json"
 MAX_FOREIGN_ENTRIES = 2000  # other files an output folder may hold (carried into each new set as hard links)
 RENAME_EXCHANGE = 2  # linux/fs.h
 AT_FDCWD = -100
+
+
+def hold_lock(path, busy) -> int:
+    """Take the exclusive lock file ``path`` for this process and write its pid there; the lock goes with
+    the process, even when it is killed. Held by another process: raises ``busy(holder pid)``. Returns the
+    descriptor to close when done."""
+    import fcntl
+
+    fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+        os.close(fd)
+        raise busy(holder) from None
+    os.ftruncate(fd, 0)
+    os.write(fd, str(os.getpid()).encode())
+    return fd
 
 
 def file_digest(path) -> str:
@@ -204,24 +222,13 @@ class StagedFolder:
     def lock(self) -> None:
         """Hold ``<parent>/.<out>.lock`` for the rest of the run: a second run into the same ``<out>``
         is refused (the lock goes with the process, even when it is killed)."""
-        import fcntl
-
         if self._lock_fd is not None:
             return
         if not self.out.parent.exists():
             self.out.parent.mkdir(parents=True)
-        path = self.out.parent / f".{self.out.name}.lock"
-        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
-            os.close(fd)
-            raise OutputError(f"another run (process {holder}) is writing to {self.out}; wait for it to finish "
-                              f"or give another --out") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, str(os.getpid()).encode())
-        self._lock_fd = fd
+        self._lock_fd = hold_lock(self.out.parent / f".{self.out.name}.lock",
+                                  lambda holder: OutputError(f"another run (process {holder}) is writing to "
+                                                             f"{self.out}; wait for it to finish or give another --out"))
 
     def unlock(self) -> None:
         """Let the next run into ``<out>`` start (done by ``commit`` and ``discard``)."""

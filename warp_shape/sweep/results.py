@@ -18,7 +18,7 @@ import os
 import shutil
 from pathlib import Path
 
-from ..io.atomic import atomic_write
+from ..io.atomic import atomic_write, hold_lock
 from .params import SweepError
 
 __all__ = ["ResultsTable", "columns_for", "place_outputs"]
@@ -79,20 +79,10 @@ class ResultsTable:
     def lock(self) -> None:
         """Hold ``.sweep.lock`` in the folder while this process runs the sweep: a second sweep into the
         same folder is refused (the lock goes with the process, even when it is killed)."""
-        import fcntl
-
         self.folder.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.folder / ".sweep.lock", os.O_CREAT | os.O_RDWR, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
-            os.close(fd)
-            raise SweepError(f"another sweep (process {holder}) is writing to {self.folder}; wait for it to "
-                             f"finish or give another --out") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, str(os.getpid()).encode())
-        self._lock_fd = fd
+        self._lock_fd = hold_lock(self.folder / ".sweep.lock",
+                                  lambda holder: SweepError(f"another sweep (process {holder}) is writing to "
+                                                            f"{self.folder}; wait for it to finish or give another --out"))
 
     def unlock(self) -> None:
         if getattr(self, "_lock_fd", None) is not None:
