@@ -270,3 +270,20 @@ def test_progress_counts_finished_work_and_is_quiet_off_a_terminal():
         steps.update(40, 300, 0, 2)
         assert steps.tqdm.total is None  # counted, never against the step limit
     assert quiet.getvalue() == ""
+
+
+def test_design_eta_counts_the_final_refinement(monkeypatch):
+    """Rounds of 5 s each: after 3 of 5, two are left, the last with its model-based refinement worth
+    two rounds, so 15 s (without the refinement, 10 s)."""
+    from warp_shape.cli import progress
+
+    clock = [100.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
+    for refine, eta in ((True, "0:15"), (False, "0:10")):
+        clock[0] = 100.0
+        bar = progress.DesignProgress(5, stream=Terminal(), refine_last=refine)
+        for i in (1, 2, 3):
+            clock[0] += 5.0
+            bar.to(i)
+        assert bar.eta() == eta
+        bar.close()

@@ -83,6 +83,11 @@ class Bar:
         self.close()
 
 
+#: the last design round (final control plus its model-based refinement) takes about two placement
+#: rounds' time on the default problem (rounds 0-3: 4-7 s each; the last: 11 s)
+FINAL_ROUND_WEIGHT = 2.0
+
+
 class DesignProgress(Bar):
     """A design run: round i counts as done when round i + 1 starts (its control run and the
     placement after it, the work of every round but the last) or, for the last, when it is
@@ -97,13 +102,15 @@ class DesignProgress(Bar):
         self._start = self._last_done = time.monotonic()
 
     def eta(self) -> str:
-        """Time left: the mean time of the finished rounds for each round still to run, less the time
-        the current one has run ("?" before the first round is done)."""
+        """Time left: the mean time of the finished rounds for each round still to run (the last one,
+        with the model-based refinement, as ``FINAL_ROUND_WEIGHT`` rounds), less the time the current
+        one has run ("?" before the first round is done)."""
         n, total = self.tqdm.n, self.tqdm.total
         if n == 0 or n >= total:
             return "?" if n == 0 else "0:00"
         now = time.monotonic()
-        left = max(0.0, (total - n) * (self._last_done - self._start) / n - (now - self._last_done))
+        rounds_left = total - n + (FINAL_ROUND_WEIGHT - 1.0 if self.refine_last else 0.0)
+        left = max(0.0, rounds_left * (self._last_done - self._start) / n - (now - self._last_done))
         return f"{int(left // 60)}:{int(left % 60):02d}"
 
     def to(self, done: int) -> None:
