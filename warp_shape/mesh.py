@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import MeshError, numeric_array
 
-__all__ = ["TriMesh", "EdgeTopology", "icosphere", "edge_topology"]
+__all__ = ["TriMesh", "EdgeTopology", "icosphere", "icosphere_like", "edge_topology"]
 
 # A triangle whose area is below this fraction of (mean edge length)^2 counts as degenerate.
 _DEGENERATE_REL_AREA = 1e-12
@@ -382,3 +382,10 @@ def icosphere(subdivisions: int = 3, radius: float = 0.04, center=(0.0, 0.0, 0.0
             np.stack([f[:, 0], m[0], m[2]], 1), np.stack([f[:, 1], m[1], m[0]], 1),
             np.stack([f[:, 2], m[2], m[1]], 1), np.stack([m[0], m[1], m[2]], 1)])
     return TriMesh(v * float(radius) + np.asarray(center, dtype=np.float64), f.astype(np.int32))
+
+
+def icosphere_like(mesh: TriMesh, subdivisions: int) -> TriMesh:
+    """The same membrane at another resolution: an icosphere of ``subdivisions`` (10 * 4**n + 2
+    vertices) whose sphere holds ``mesh``'s volume (radius (3 V / 4 pi)^(1/3), m)."""
+    radius = float(mesh.volume() * 3 / (4 * np.pi)) ** (1 / 3)
+    return icosphere(int(subdivisions), radius)

@@ -74,15 +74,11 @@ def _problem(args):
     input is checked here, before anything runs or is written."""
     from ..designer import DesignSettings
     from ..errors import DesignError
-    from ..mesh import icosphere
 
     scene = load_scene_named(args.scene or "oval_heart")
-    base = scene.design.rest if scene.design is not None else icosphere(3, 0.035)
-    if args.subdivisions is not None:
-        if not 1 <= args.subdivisions <= 6:
-            raise DesignError(f"--subdivisions takes 1..6 (42..40962 vertices), got {args.subdivisions}")
-        radius = float(base.volume() * 3 / (4 * 3.141592653589793)) ** (1 / 3)
-        base = icosphere(args.subdivisions, radius)
+    if args.subdivisions is not None and not 1 <= args.subdivisions <= 6:
+        raise DesignError(f"--subdivisions takes 1..6 (42..40962 vertices), got {args.subdivisions}")
+    base = scene.base_mesh(args.subdivisions)
     named = list(zip(scene.target_names, scene.targets))
     if args.targets:
         named = load_targets(args.targets)
@@ -99,15 +95,14 @@ def _run_designer(args, base, named, actuators, settings, staged):
     ``<out>.partial``); any other failure removes the staging folder."""
     from ..designer import design
     from ..errors import DesignError
-    from ..io.outputs import round_record, write_round_outputs
+    from ..io.outputs import record_round, write_round_outputs
 
     names = [n for n, _ in named]
     records, rounds = [], []
 
     def on_round(i, d_i, results):
-        if records and records[-1]["round"] == i:  # a round controlled again as the last (early stop)
-            records.pop(), rounds.pop()
-        records.append(round_record(i, d_i, results, names))
+        if record_round(records, i, d_i, results, names):
+            rounds.pop()
         rounds.append(results)
         write_round_outputs(staged.path, names, records, rounds)
         staged.seal(False, command="design")

@@ -19,7 +19,7 @@ import numpy as np
 from .atomic import atomic_write
 
 __all__ = ["write_json", "control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
-           "write_stl", "write_molds", "round_record", "write_round_outputs", "write_figures_or_skip",
+           "write_stl", "write_molds", "round_record", "record_round", "write_round_outputs", "write_figures_or_skip",
            "write_design_outputs", "is_run_output", "RUN_OUTPUT_PREFIXES", "RUN_OUTPUT_NAMES"]
 
 #: How the files a design or control run writes are named (a file in an output folder named so is
@@ -122,6 +122,16 @@ def round_record(round_index: int, design, results, names) -> dict:
                 pcc={n: float(r.pcc) for n, r in zip(names, results)},
                 objective={n: float(r.objective) for n, r in zip(names, results)},
                 passive_ipams={n: [int(i) for i in r.passive_ipams] for n, r in zip(names, results)})
+
+
+def record_round(records: list, round_index: int, design, results, names) -> bool:
+    """Append round ``round_index``'s ``round_record`` to ``records``; a round controlled again as the
+    last (a design that stops early) replaces its earlier record. Returns whether it replaced one."""
+    replaced = bool(records) and records[-1]["round"] == round_index
+    if replaced:
+        records.pop()
+    records.append(round_record(round_index, design, results, names))
+    return replaced
 
 
 def write_round_outputs(out_dir, names, records, rounds) -> list[Path]:

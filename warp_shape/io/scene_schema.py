@@ -16,7 +16,7 @@ import numpy as np
 from ..design import Design
 from ..errors import SceneError
 from ..material import Material
-from ..mesh import TriMesh
+from ..mesh import TriMesh, icosphere, icosphere_like
 from ..settings import SimulationSettings
 
 __all__ = ["Scene", "SceneAttribute", "MATERIAL_ATTRIBUTES", "IPAM_ATTRIBUTES", "SCENE_FORMAT_VERSION",
@@ -167,6 +167,13 @@ class Scene:
         self.targets = meshes
         self.target_names = names
         self.settings = check_settings(self.settings)
+
+    def base_mesh(self, subdivisions: int | None = None) -> TriMesh:
+        """The membrane a design of this problem starts from: the design's rest shape, or for a scene of
+        targets only the default sphere (642 vertices, radius 35 mm); with ``subdivisions``, an
+        icosphere of that many subdivisions whose sphere holds that mesh's volume (m^3)."""
+        base = self.design.rest if self.design is not None else icosphere(3, 0.035)
+        return base if subdivisions is None else icosphere_like(base, subdivisions)
 
     def target(self, name: str) -> TriMesh:
         """The target called ``name``."""

@@ -8,12 +8,10 @@ product of the values of the swept parameters (Fig. 12: ``actuators=5,10,20``). 
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
-from ..mesh import TriMesh, icosphere
-from ..targets import TARGET_NAMES, target
+from ..mesh import TriMesh, icosphere_like
+from ..targets import load_target
 from .params import Param, SweepError, check_values, split_params
 
 __all__ = ["Problem", "RunTask", "load_problem", "subsets_plan", "grid_plan", "run_id"]
@@ -52,15 +50,9 @@ class RunTask:
 
 
 def _load_targets(specs) -> list:
-    """Target names (oval pear heart cube) or mesh files -> [(name, TriMesh)]."""
-    out = []
-    for spec in specs:
-        if spec in TARGET_NAMES:
-            out.append((spec, target(spec)))
-        elif Path(spec).is_file():
-            out.append((Path(spec).stem, TriMesh.load(spec, center=True)))
-        else:
-            raise SweepError(f"target {spec!r} is neither a shipped target ({', '.join(TARGET_NAMES)}) nor a mesh file")
+    """Target names (oval pear heart cube) or mesh files -> [(name, TriMesh)], as ``warp-shape design``
+    reads them (an unknown name gets the closest one, an unreadable file a parse error)."""
+    out = [load_target(spec) for spec in specs]
     names = [n for n, _ in out]
     if len(set(names)) != len(names):
         raise SweepError(f"targets repeat a name: {names}")
@@ -74,7 +66,7 @@ def load_problem(scene: str | None = None, targets=None, fixed: dict | None = No
 
     name = scene or DEFAULT_SCENE
     sc = load_scene(name)
-    base = sc.design.rest if sc.design is not None else icosphere(3, 0.035)
+    base = sc.base_mesh()
     named = _load_targets(targets) if targets else list(zip(sc.target_names, sc.targets))
     if not named:
         raise SweepError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
@@ -93,10 +85,7 @@ def run_id(names, swept: dict) -> str:
 def _base_mesh(base: TriMesh, subdivisions) -> TriMesh:
     """The scene's base mesh, or (as ``warp-shape design --subdivisions``) an icosphere of
     ``subdivisions`` enclosing the base's volume."""
-    if subdivisions is None:
-        return base
-    radius = float(base.volume() * 3 / (4 * math.pi)) ** (1 / 3)
-    return icosphere(int(subdivisions), radius)
+    return base if subdivisions is None else icosphere_like(base, subdivisions)
 
 
 def _task(problem: Problem, index: int, names, values: dict, swept: dict, device: str) -> RunTask:

@@ -90,7 +90,7 @@ def execute(task: RunTask) -> tuple[dict, dict]:
     import warp as wp
 
     from ..designer import design
-    from ..io.outputs import round_record
+    from ..io.outputs import record_round
 
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
@@ -98,9 +98,7 @@ def execute(task: RunTask) -> tuple[dict, dict]:
     records: list = []
 
     def on_round(i, design_i, results):  # as the design command records each finished round
-        if records and records[-1]["round"] == i:  # a round controlled again as the last (early stop)
-            records.pop()
-        records.append(round_record(i, design_i, results, task.target_names))
+        record_round(records, i, design_i, results, task.target_names)
 
     try:
         settings, control, material, keywords = _settings(task)
