@@ -105,3 +105,19 @@ class Scenario:
 @pytest.fixture(scope="module", params=DEVICES)
 def device(request):
     return request.param
+
+
+@pytest.fixture
+def ctrl_c_in_round_1(monkeypatch):
+    """The designer's second control call (design round 1) raises KeyboardInterrupt, as Ctrl-C would."""
+    import warp_shape.designer.loop as designer_loop
+
+    real, calls = designer_loop.control_many, {"n": 0}
+
+    def interrupt_second_round(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(designer_loop, "control_many", interrupt_second_round)

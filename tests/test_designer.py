@@ -175,20 +175,8 @@ def test_four_targets_twenty_actuators_fit_at_least_as_well_as_five():
     assert np.all(pcc[20] >= pcc[5]), pcc
 
 
-def test_interrupted_design_keeps_finished_rounds(tmp_path, monkeypatch, capsys):
+def test_interrupted_design_keeps_finished_rounds(tmp_path, ctrl_c_in_round_1, capsys):
     """Ctrl-C during round 1 keeps round 0's report and control sequences, whole."""
-    import warp_shape.designer.loop as designer_loop
-
-    real = designer_loop.control_many
-    calls = {"n": 0}
-
-    def interrupt_second_round(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(designer_loop, "control_many", interrupt_second_round)
     out = tmp_path / "out"
     rc = main(["design", "--out", str(out), "--actuators", "2"])
     assert rc == 130 and "interrupted" in capsys.readouterr().err

@@ -146,22 +146,11 @@ def test_a_folder_that_is_not_a_run_folder_is_refused(tmp_path, monkeypatch, cap
     assert "holds more than 5 files that are not outputs of a run" in err and snapshot(project) == before
 
 
-def test_interrupt_keeps_the_previous_finished_run(tmp_path, monkeypatch, capsys):
+def test_interrupt_keeps_the_previous_finished_run(tmp_path, ctrl_c_in_round_1, capsys):
     """Ctrl-C in round 1 into a folder holding a finished run: the folder is untouched, round 0 is
     kept whole in <out>.partial (rounds.json records it)."""
-    import warp_shape.designer.loop as designer_loop
-
     out = tmp_path / "out"
     before = fake_previous_set(out)
-    real, calls = designer_loop.control_many, {"n": 0}
-
-    def interrupt_second_round(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(designer_loop, "control_many", interrupt_second_round)
     rc = main(["design", "--out", str(out), *SMALL, "--targets", "oval", "pear"])
     assert rc == 130 and "out.partial" in capsys.readouterr().err
     assert snapshot(out) == before
