@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, fields
 
-import numpy as np
-
-from .errors import DesignError
+from .errors import DesignError, check_number
 
 __all__ = ["Material", "GAS_CONSTANT"]
 
@@ -52,11 +49,7 @@ class Material:
         non_negative = ("bending_stiffness", "spring_damping", "viscous_damping", "atmospheric_pressure")
         at_least_one = ("jam_stretch_factor", "jam_bend_factor")
         for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or not math.isfinite(value):
-                raise DesignError(f"Material.{f.name} must be a finite number, got {value!r}")
-            object.__setattr__(self, f.name, float(value))
+            object.__setattr__(self, f.name, check_number(getattr(self, f.name), f"Material.{f.name}"))
         for name in positive:
             if getattr(self, name) <= 0:
                 raise DesignError(f"Material.{name} must be > 0 (SI units), got {getattr(self, name)!r}")

@@ -147,7 +147,7 @@ class TriMesh:
     """
 
     def __init__(self, vertices, faces, *, validate: bool = True):
-        v = numeric_array(vertices, "vertices", MeshError).copy()
+        v = numeric_array(vertices, "vertices", MeshError)  # a new float64 array
         f = numeric_array(faces, "faces", MeshError) if not _int_array(faces) else np.array(faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3:
             raise MeshError(f"vertices must have shape (V, 3), got {v.shape}")

@@ -299,8 +299,16 @@ class Simulator:
         return self._out(self._fg_probe[0].numpy().astype(np.float64))
 
     def _volumes(self) -> np.ndarray:
+        """(W,) chamber volumes, m^3, through one recorded launch (no Python launch path: ``step`` reads
+        them after every output step on CPU)."""
+        if self._volume_cmd is None:
+            cmds = []
+            eval_volume(self.model, self.state.x, self._vol_probe,
+                        lambda k, dim, inputs: cmds.append(wp.launch(k, dim, inputs, device=self.device,
+                                                                     record_cmd=True)))
+            self._volume_cmd = cmds[0]
         self._vol_probe.zero_()
-        eval_volume(self.model, self.state.x, self._vol_probe, self._direct)
+        self._volume_cmd.launch()
         return self._vol_probe.numpy().copy()
 
     def volume(self):
@@ -430,15 +438,7 @@ class Simulator:
         """Raise ``SimulationError`` when a world's chamber volume is not positive (membrane turned
         inside out or collapsed). ``step`` calls it after each output step where the host reads the
         state anyway (CPU): such a step is a blow-up of that step."""
-        if self._volume_cmd is None:  # a recorded launch: no Python launch path per output step
-            cmds = []
-            eval_volume(self.model, self.state.x, self._vol_probe,
-                        lambda k, dim, inputs: cmds.append(wp.launch(k, dim, inputs, device=self.device,
-                                                                     record_cmd=True)))
-            self._volume_cmd = cmds[0]
-        self._vol_probe.zero_()
-        self._volume_cmd.launch()
-        vol = self._vol_probe.numpy()
+        vol = self._volumes()
         if np.all(vol > 0):
             return
         w = int(np.argmin(vol))

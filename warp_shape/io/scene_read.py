@@ -162,13 +162,13 @@ CRATE_EXPANSION = 256
 CRATE_ELEMENTS_PER_BYTE = 4 * CRATE_EXPANSION
 
 
-def check_crate(path: Path) -> None:
+def check_crate(path: Path, data: bytes | None = None) -> None:
     """Refuse a binary (crate) USD file whose table of contents or element counts cannot be true for
     its size: USD believes such counts and allocates for them (a corrupt count of 1.5e9 tokens in a
     7 kB file took 40 s and 12 GB before USD reported it)."""
     import struct
 
-    data = Path(path).read_bytes()
+    data = Path(path).read_bytes() if data is None else data
     if not data.startswith(b"PXR-USDC"):
         return
     size = len(data)
@@ -210,7 +210,7 @@ PROBE_MEMORY = 2 * 2**30
 PROBE_MEMORY_PER_BYTE = 256
 
 
-def probe_binary(path: Path) -> None:
+def probe_binary(path: Path, data: bytes | None = None) -> None:
     """Read a scene that is or composes binary (crate) USD in a child process first: USD can crash the
     process on corrupt crate data (a segmentation fault, no exception), which then happens there and
     becomes a ``SceneError``. Text-only scenes are not probed (USD parses text without crashing)."""
@@ -218,7 +218,7 @@ def probe_binary(path: Path) -> None:
     import subprocess
     import sys
 
-    data = Path(path).read_bytes()
+    data = Path(path).read_bytes() if data is None else data
     if not data.startswith(b"PXR-USDC") and not re.search(rb"@[^@\n]*\.usd[c]?@", data):
         return
     # corrupt counts make USD allocate tens of GB: the child's memory is bounded (a 4 MB scene needs ~100 MB)
@@ -242,10 +242,11 @@ def _open_stage(path: Path, allow_outside: bool = False):
     ``allow_outside``) layers composed from outside the scene's folder raise ``SceneError``."""
     pxr = load_pxr()
     Sdf, Usd = pxr.Sdf, pxr.Usd
-    # a layer still open elsewhere under this identifier would be served stale: reload it
-    check_crate(path)
-    probe_binary(path)
+    data = Path(path).read_bytes()  # the file's bytes, checked before USD reads them
+    check_crate(path, data)
+    probe_binary(path, data)
     try:
+        # a layer still open elsewhere under this identifier would be served stale: reload it
         existing = Sdf.Layer.Find(str(path))
         if existing:
             existing.Reload(force=True)
