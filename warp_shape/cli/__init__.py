@@ -52,11 +52,10 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from ..errors import WarpShapeError
 
-    device = str(getattr(args, "device", "cpu"))
-    if args.command != "view" and device.startswith("cpu") and not getattr(args, "verbose", False):
+    if args.command != "view":  # every command's Warp: no banner, no note that this CPU has no CUDA driver
         from .options import quiet_warp
 
-        quiet_warp(False, device)  # Warp started without its note that this machine has no CUDA driver
+        quiet_warp(getattr(args, "verbose", False), str(getattr(args, "device", "cpu")))
 
     try:
         return int(args.func(args) or 0)

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from ..errors import DesignError
-from .options import check_device, check_out, print_outputs, quiet_warp
+from .options import check_device, check_out, print_outputs
 
 __all__ = ["register", "run"]
 
@@ -133,7 +133,6 @@ def run(args) -> int:
     """Run the chosen benchmarks; print their tables; write ``bench_<name>.json`` for each."""
     import warp as wp
 
-    quiet_warp(device=args.device)
     from ..benchmarks.sim import format_rows
     from ..io.atomic import StagedFolder
     from ..io.outputs import write_json

@@ -73,9 +73,6 @@ def format_comparison(res, *, scan: str = "", reference: str = "") -> str:
 
 def run(args) -> int:
     """Compare the scan with the reference; print the table (or JSON)."""
-    import warp as wp
-
-    wp.config.log_level = wp.LOG_WARNING  # the output is the table (or JSON) alone, no Warp banner
     from ..scan import IcpConvergenceWarning, compare_scan
 
     try:

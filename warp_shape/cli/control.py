@@ -8,7 +8,7 @@ from pathlib import Path
 import argparse
 
 from .options import (ControlProgress, actuator_selection, add_common_args, check_device, check_out, check_rerun,
-                      open_recorder, print_outputs, quiet_warp, resolve_design_and_targets)
+                      open_recorder, print_outputs, resolve_design_and_targets)
 
 __all__ = ["register", "run"]
 
@@ -60,7 +60,6 @@ def _print_table(design, settings, names, results, args, out: Path) -> None:
 
 def run(args) -> int:
     """Control the design to every chosen target; write figures and ``control_<target>.csv|json``."""
-    quiet_warp(args.verbose, args.device)
     from ..controller import ControlSettings, control_many
     from ..io.atomic import StagedFolder
     from ..io.outputs import write_control_outputs, write_figures_or_skip

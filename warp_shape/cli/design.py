@@ -12,8 +12,8 @@ from __future__ import annotations
 import json
 import time
 
-from .options import (add_common_args, check_device, check_out, check_rerun, load_scene_named, load_targets,
-                      open_recorder, print_outputs, quiet_warp, run_progress)
+from .options import (add_common_args, check_device, check_out, check_rerun, load_targets,
+                      open_recorder, print_outputs, run_progress)
 
 __all__ = ["register", "run"]
 
@@ -74,8 +74,9 @@ def _problem(args):
     input is checked here, before anything runs or is written."""
     from ..designer import DesignSettings
     from ..errors import DesignError
+    from ..io.scene_read import load_scene
 
-    scene = load_scene_named(args.scene or "oval_heart")
+    scene = load_scene(args.scene or "oval_heart")
     if args.subdivisions is not None and not 1 <= args.subdivisions <= 6:
         raise DesignError(f"--subdivisions takes 1..6 (42..40962 vertices), got {args.subdivisions}")
     base = scene.base_mesh(args.subdivisions)
@@ -162,7 +163,6 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
 
 def run(args) -> int:
     """Design, then write the scene, control sequences, USD animations, molds, figures and reports."""
-    quiet_warp(args.verbose, args.device)
     from ..io.outputs import is_run_output, write_design_outputs
     from ..io.report import design_markdown
     from ..io.atomic import StagedFolder

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from ..io.valve import DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ
-from .options import actuator_selection, add_common_args, control_progress, load_targets, open_recorder, quiet_warp
+from .options import actuator_selection, add_common_args, control_progress, load_targets, open_recorder
 
 __all__ = ["register", "run"]
 
@@ -39,7 +39,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
-    quiet_warp(args.verbose)
     from ..controller import ControlSettings, control_many
     from ..errors import DesignError
     from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds

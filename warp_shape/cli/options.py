@@ -11,7 +11,7 @@ from pathlib import Path
 from .progress import Bar, ControlProgress, DesignProgress
 
 __all__ = ["add_common_args", "add_rerun_args", "open_recorder", "quiet_warp", "progress", "control_progress",
-           "load_targets", "load_scene_named", "resolve_design_and_targets", "actuator_selection", "check_device",
+           "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "print_outputs", "run_progress", "Bar", "ControlProgress"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
@@ -141,32 +141,17 @@ def load_targets(specs) -> list:
     return [load_target(spec) for spec in specs]
 
 
-def load_scene_named(scene):
-    """A scene file or shipped scene name; an unknown name gets the closest shipped name."""
-    from ..errors import SceneError
-    from ..io.scene_read import load_scene
-    from ..io.scene_registry import list_scenes
-    from ..targets import suggest
-
-    try:
-        return load_scene(scene)
-    except SceneError as exc:
-        if str(exc).startswith("unknown scene"):
-            raise SceneError(f"unknown scene {scene!r}{suggest(scene, list_scenes())}; shipped scenes: "
-                             f"{', '.join(list_scenes())} (or give a .usda file)") from None
-        raise
-
-
 def resolve_design_and_targets(scene: str | None, target_names):
     """The built-in Fig. 6 problem (no USD needed), or a scene file / shipped scene name; then the
     chosen targets: the scene's own by name, else shipped target names or mesh files."""
+    from ..io.scene_read import load_scene
     from ..scenarios import cube_fig6_design
     from ..targets import target
 
     if scene in (None, "cube_fig6", "fig6"):
         design, targets, settings = cube_fig6_design(), [("cube", target("cube"))], {}
     else:
-        sc = load_scene_named(scene)
+        sc = load_scene(scene)
         design, settings = sc.design, sc.settings or {}
         targets = list(zip(sc.target_names, sc.targets))
     if target_names:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import Bar, add_common_args, check_device, check_out, check_rerun, open_recorder, print_outputs, quiet_warp
+from .options import Bar, add_common_args, check_device, check_out, check_rerun, open_recorder, print_outputs
 
 __all__ = ["register", "run"]
 
@@ -88,7 +88,6 @@ def _drive(sim, design, args, rec, bar) -> list[dict]:
 
 def run(args) -> int:
     """Run the Fig. 6 sequence; write ``simulate.json``; print a table (or the JSON)."""
-    quiet_warp(args.verbose, args.device)
     from ..io.atomic import StagedFolder
     from ..io.outputs import write_json
     from ..scenarios import cube_fig6_design

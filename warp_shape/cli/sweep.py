@@ -6,7 +6,6 @@ import json
 import sys
 from pathlib import Path
 
-from .options import quiet_warp
 
 __all__ = ["register", "run"]
 
@@ -62,7 +61,6 @@ def _fixed(specs) -> dict:
 
 def run(args) -> int:
     """Run the sweep; print the summary table (or the rows as JSON) and where the results are."""
-    quiet_warp(args.verbose)
     from ..sweep import sweep
 
     res = sweep(args.kind, args.scene, targets=args.targets, actuators=args.actuators, params=args.param,

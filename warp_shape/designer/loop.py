@@ -118,7 +118,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
                                          control_settings=round_settings, device=device,
                                          progress=_round_progress(progress, i, actuators), recorder=recorder)
             info["rounds"].append(record)
-            if recorder is not None and hasattr(recorder, "log_design_candidates"):
+            if recorder is not None:
                 recorder.log_design_candidates(i, record)
             if record["chosen"] is None:  # nothing helps: this round again, by model-based control or as the last
                 designs.pop(), rounds.pop()

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..errors import SceneError
 from ..mesh import TriMesh
-from ..targets import target
+from ..targets import suggest, target
 from .scene_schema import SCENE_EXTENSIONS
 
 __all__ = ["scene_dirs", "list_scenes", "resolve_scene", "resolve_targets"]
@@ -50,7 +50,8 @@ def resolve_scene(path_or_name) -> Path:
     p = Path(name)
     if p.is_file():
         return p
-    raise SceneError(f"unknown scene {name!r}; shipped scenes: {', '.join(list_scenes()) or '(none found)'}")
+    raise SceneError(f"unknown scene {name!r}{suggest(name, list_scenes())}; shipped scenes: "
+                     f"{', '.join(list_scenes()) or '(none found)'} (or give a .usda file)")
 
 
 def resolve_targets(targets) -> tuple[list[TriMesh], list[str]]:

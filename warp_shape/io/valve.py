@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +42,7 @@ import numpy as np
 from ..errors import DesignError
 from ..material import GAS_CONSTANT
 from .atomic import atomic_write
+from .outputs import write_json
 
 __all__ = ["DEFAULT_RATE_HZ", "DEFAULT_MAX_SLEW_KPA_S", "row_times", "valve_schedule", "valve_csv_text",
            "valve_sidecar", "write_valve_outputs"]
@@ -197,5 +197,5 @@ def write_valve_outputs(results, names, out_dir, *, rate_hz: float | None = DEFA
         sched = valve_schedule(res, **opts)
         side = valve_sidecar(res, sched, target_name=name, **opts)
         written.append(atomic_write(out / f"valve_{name}.csv", valve_csv_text(sched)))
-        written.append(atomic_write(out / f"valve_{name}.json", json.dumps(side, indent=2) + "\n"))
+        written.append(write_json(out / f"valve_{name}.json", side))
     return written
