@@ -33,7 +33,7 @@ from .plans import parse_plans, start_plan
 from .refine import STOP_LIMIT, Refined, refine
 from .result import ControlResult
 from .settings import ControlSettings
-from .worlds import mask_passive
+from .worlds import mask_passive, passive_masks
 
 __all__ = ["control_inverse", "PLANS_REFINED"]
 
@@ -59,15 +59,6 @@ class _Run:
         if self.passive_ipams is not None and worlds == len(self.passive_ipams):  # one world per target
             mask_passive(sim, self.passive_ipams, self.passive_cells)
         return sim
-
-
-def _masks(warm, dev) -> tuple[np.ndarray, np.ndarray]:
-    W = len(warm)
-    pi, pc = np.zeros((W, dev.n_ipam), bool), np.zeros((W, dev.n_cell), bool)
-    for w, r in enumerate(warm):
-        pi[w, np.asarray(r.passive_ipams, dtype=np.int64)] = True
-        pc[w, np.asarray(r.passive_cells, dtype=np.int64)] = True
-    return pi, pc
 
 
 def _screen(start: np.ndarray, keep: int) -> np.ndarray:
@@ -209,7 +200,7 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     sampler = RadialSampler([r.target for r in warm], device=device)
     probe = _Run(design, settings, device, sampler, None, None, None)
     dev = DeviceConstants.of(probe.new_simulator(1), design)
-    pi, pc = _masks(warm, dev)
+    pi, pc = passive_masks(warm, dev.n_ipam, dev.n_cell)
     ctx = dataclasses.replace(probe, dev=dev, passive_ipams=pi, passive_cells=pc)
     if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
         plans = [p for p in plans if p[0] != "overinflate"] or plans

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..design import Design
 from ..errors import DesignError
-from .worlds import mask_passive
+from .worlds import mask_passive, passive_masks
 
 __all__ = ["replay", "replay_many", "replay_simulator"]
 
@@ -52,11 +52,8 @@ def replay_simulator(design: Design, results, *, device: str = "cpu"):
     sched = [_schedule(r, sim.dt) for r in results]
     if any(s[3].shape[1] != design.n_cells or s[2].shape[1] != design.n_ipams for s in sched):
         raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
-    passive_i, passive_c = np.zeros((len(results), design.n_ipams), bool), np.zeros((len(results), design.n_cells), bool)
-    for w, r in enumerate(results):  # actuators a sequence left out are masked out, as when it was recorded
-        passive_i[w, np.asarray(r.passive_ipams, dtype=np.int64)] = True
-        passive_c[w, np.asarray(r.passive_cells, dtype=np.int64)] = True
-    mask_passive(sim, passive_i, passive_c)
+    # actuators a sequence left out are masked out, as when it was recorded
+    mask_passive(sim, *passive_masks(results, design.n_ipams, design.n_cells))
     marks = np.unique(np.concatenate([s[0] for s in sched]))
     rows = [0] * len(results)
     for a, b in zip(marks[:-1], marks[1:]):

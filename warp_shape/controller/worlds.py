@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["WorldState", "take_worlds", "put_worlds", "max_speeds", "mask_passive"]
+__all__ = ["WorldState", "take_worlds", "put_worlds", "max_speeds", "mask_passive", "passive_masks"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,15 @@ def put_worlds(sim, states: list[WorldState]) -> None:
     sim.air_moles = np.array([s.air for s in states])
     if sim.model.n_ipams:
         sim.ipam_pressures = np.stack([s.pressures for s in states])
+
+
+def passive_masks(results, n_ipam: int, n_cell: int) -> tuple[np.ndarray, np.ndarray]:
+    """((W, n_ipam), (W, n_cell)) bool, True where control result w leaves the IPAM or cell out."""
+    pi, pc = np.zeros((len(results), n_ipam), bool), np.zeros((len(results), n_cell), bool)
+    for w, r in enumerate(results):
+        pi[w, np.asarray(r.passive_ipams, dtype=np.int64)] = True
+        pc[w, np.asarray(r.passive_cells, dtype=np.int64)] = True
+    return pi, pc
 
 
 def mask_passive(sim, passive_ipams: np.ndarray | None, passive_cells: np.ndarray | None = None):
