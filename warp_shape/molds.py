@@ -24,32 +24,10 @@ from .design import Design
 from .errors import DesignError
 from .mesh import TriMesh
 
-__all__ = ["inner_mold", "outer_mold", "MoldSet", "mold_set", "UNIT_SCALES"]
+__all__ = ["outer_mold", "MoldSet", "mold_set", "UNIT_SCALES"]
 
 #: output unit -> factor from metres
 UNIT_SCALES = {"mm": 1000.0, "cm": 100.0, "m": 1.0, "in": 1000.0 / 25.4}
-
-
-def inner_mold(design: Design, marker_height: float = 2e-3) -> TriMesh:
-    """Rest shape with a pyramid marker (height ``marker_height`` m) on each IPAM end face (metres)."""
-    if marker_height < 0:
-        raise DesignError(f"marker_height must be >= 0 m, got {marker_height}")
-    rest = design.rest
-    v = [rest.vertices]
-    faces = rest.faces.copy()
-    keep = np.ones(rest.n_faces, dtype=bool)
-    extra = []
-    n = rest.n_vertices
-    normals = rest.face_normals()
-    for f in ipam_end_faces(design):
-        a, b, c = rest.faces[f]
-        apex = rest.vertices[[a, b, c]].mean(axis=0) + marker_height * normals[f]
-        v.append(apex[None, :])
-        keep[f] = False
-        extra += [[a, b, n], [b, c, n], [c, a, n]]
-        n += 1
-    all_faces = np.concatenate([faces[keep], np.array(extra, dtype=np.int32).reshape(-1, 3)])
-    return TriMesh(np.concatenate(v), all_faces)
 
 
 def outer_mold(design: Design, layer_thickness: float = 5e-3) -> TriMesh:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .progress import Bar, ControlProgress, DesignProgress
 
-__all__ = ["add_common_args", "add_rerun_args", "open_recorder", "quiet_warp", "progress", "control_progress",
+__all__ = ["add_common_args", "add_rerun_args", "open_recorder", "quiet_warp", "control_progress",
            "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "print_outputs", "run_progress", "Bar", "ControlProgress"]
 
@@ -113,13 +113,6 @@ def check_rerun(args) -> None:
             folder = folder.parent
         if not os.access(folder, os.W_OK | os.X_OK):
             raise DesignError(f"--rerun {path}: {folder} is not writable")
-
-
-def progress(done: int, total: int, label: str, stream=sys.stderr) -> None:
-    """One progress line per 10 % (kept for callers that report done / total themselves)."""
-    if done == total or done % max(1, total // 10) == 0:
-        stream.write(f"{label}: {done}/{total} ({100.0 * done / total:5.1f} %)\n")
-        stream.flush()
 
 
 def control_progress(step, total, done, worlds, prefix: str = "") -> None:

@@ -19,7 +19,7 @@ import numpy as np
 from .atomic import atomic_write
 
 __all__ = ["write_json", "control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
-           "write_stl", "write_molds", "round_record", "record_round", "write_round_outputs", "write_figures_or_skip",
+           "write_molds", "round_record", "record_round", "write_round_outputs", "write_figures_or_skip",
            "write_design_outputs", "is_run_output", "RUN_OUTPUT_PREFIXES", "RUN_OUTPUT_NAMES"]
 
 #: How the files a design or control run writes are named (a file in an output folder named so is
@@ -90,11 +90,6 @@ def write_control_outputs(results, names, out_dir, *, usd: bool = False) -> list
         if usd:
             written.append(write_control_usd(res, out / f"actuation_{name}.usdc", target_name=name))
     return written
-
-
-def write_stl(mesh, path) -> Path:
-    """A TriMesh as binary STL."""
-    return atomic_write(path, mesh.to_trimesh().export(file_type="stl"))
 
 
 def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float, units: str = "mm") -> list[Path]:
