@@ -119,7 +119,7 @@ def _run_designer(args, base, named, actuators, settings, staged):
         raise
     except DesignError as exc:
         staged.discard()
-        hint = _cell_room_hint(str(exc), args)
+        hint = _cell_room_hint(exc, args)
         if hint:
             raise DesignError(f"{exc}{hint}") from None
         raise
@@ -128,18 +128,17 @@ def _run_designer(args, base, named, actuators, settings, staged):
         raise
 
 
-def _cell_room_hint(message: str, args) -> str:
+def _cell_room_hint(exc, args) -> str:
     """For the designer's "no room for the cells" error: the cell radius that fits, and what
     ``--subdivisions`` can do (cells cover a fixed share of the surface whatever the mesh; a finer
     mesh helps only where a cell is smaller than a face)."""
     import math
-    import re
 
-    m = re.search(r"need about (\d+) faces of jamming cells \(radius ([\d.]+) mm\) but the membrane has (\d+)", message)
-    if not m:
+    from ..errors import CellRoomError
+
+    if not isinstance(exc, CellRoomError):
         return ""
-    need, radius_mm, have = int(m.group(1)), float(m.group(2)), int(m.group(3))
-    fit_mm = math.floor(10 * radius_mm * math.sqrt(have / max(need, 1))) / 10
+    fit_mm = math.floor(10 * exc.cell_radius_mm * math.sqrt(exc.faces / max(exc.faces_needed, 1))) / 10
     sub = (args.subdivisions or 3) + 1
     return (f". With these actuators, --cell-radius {fit_mm / 1e3:g} (m) fits; a finer base mesh "
             f"(--subdivisions {sub}) helps only where a cell is smaller than a face")

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ..design import Design
-from ..errors import DesignError
+from ..errors import CellRoomError, DesignError
 from ..mesh import TriMesh
 from ..sampling import RadialSampler
 from ..targets import centred_targets
@@ -62,10 +62,11 @@ def check_cell_room(rest: TriMesh, actuators: int, cell_radius: float) -> None:
     """A clear error when ``actuators`` sets of two cells of ``cell_radius`` cannot fit on ``rest``."""
     per_cell = max(1.0, math.pi * cell_radius**2 / float(np.mean(rest.face_areas())))
     if 2 * actuators * per_cell > rest.n_faces:
-        raise DesignError(
-            f"{actuators} actuators need about {2 * actuators * per_cell:.0f} faces of jamming cells "
-            f"(radius {cell_radius * 1e3:.1f} mm) but the membrane has {rest.n_faces}; use fewer "
-            f"actuators, a smaller cell_radius or a finer base mesh")
+        need, radius_mm = f"{2 * actuators * per_cell:.0f}", f"{cell_radius * 1e3:.1f}"
+        raise CellRoomError(
+            f"{actuators} actuators need about {need} faces of jamming cells (radius {radius_mm} mm) but the "
+            f"membrane has {rest.n_faces}; use fewer actuators, a smaller cell_radius or a finer base mesh",
+            faces_needed=int(need), cell_radius_mm=float(radius_mm), faces=rest.n_faces)
 
 
 def copy_design(d: Design, rest: TriMesh | None = None) -> Design:
