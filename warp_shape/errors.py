@@ -15,15 +15,6 @@ class DesignError(WarpShapeError, ValueError):
     """A design, material or actuator description is invalid."""
 
 
-class CellRoomError(DesignError):
-    """The jamming cells the actuators need do not fit on the membrane: ``faces_needed`` faces of cells
-    of ``cell_radius_mm`` (both as the message prints them) against the membrane's ``faces``."""
-
-    def __init__(self, message: str, faces_needed: int, cell_radius_mm: float, faces: int):
-        super().__init__(message)
-        self.faces_needed, self.cell_radius_mm, self.faces = faces_needed, cell_radius_mm, faces
-
-
 class StabilityError(WarpShapeError, ValueError):
     """A requested time step is beyond the stable step of the model."""
 

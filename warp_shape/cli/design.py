@@ -134,11 +134,10 @@ def _cell_room_hint(exc, args) -> str:
     mesh helps only where a cell is smaller than a face)."""
     import math
 
-    from ..errors import CellRoomError
-
-    if not isinstance(exc, CellRoomError):
+    if getattr(exc, "cell_room", None) is None:
         return ""
-    fit_mm = math.floor(10 * exc.cell_radius_mm * math.sqrt(exc.faces / max(exc.faces_needed, 1))) / 10
+    need, radius_mm, have = exc.cell_room
+    fit_mm = math.floor(10 * radius_mm * math.sqrt(have / max(need, 1))) / 10
     sub = (args.subdivisions or 3) + 1
     return (f". With these actuators, --cell-radius {fit_mm / 1e3:g} (m) fits; a finer base mesh "
             f"(--subdivisions {sub}) helps only where a cell is smaller than a face")

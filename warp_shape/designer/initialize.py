@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ..design import Design
-from ..errors import CellRoomError, DesignError
+from ..errors import DesignError
 from ..mesh import TriMesh
 from ..sampling import RadialSampler
 from ..targets import centred_targets
@@ -63,10 +63,12 @@ def check_cell_room(rest: TriMesh, actuators: int, cell_radius: float) -> None:
     per_cell = max(1.0, math.pi * cell_radius**2 / float(np.mean(rest.face_areas())))
     if 2 * actuators * per_cell > rest.n_faces:
         need, radius_mm = f"{2 * actuators * per_cell:.0f}", f"{cell_radius * 1e3:.1f}"
-        raise CellRoomError(
+        exc = DesignError(
             f"{actuators} actuators need about {need} faces of jamming cells (radius {radius_mm} mm) but the "
-            f"membrane has {rest.n_faces}; use fewer actuators, a smaller cell_radius or a finer base mesh",
-            faces_needed=int(need), cell_radius_mm=float(radius_mm), faces=rest.n_faces)
+            f"membrane has {rest.n_faces}; use fewer actuators, a smaller cell_radius or a finer base mesh")
+        # (faces needed, cell radius in mm, faces of the membrane) as printed, for front ends' advice
+        exc.cell_room = (int(need), float(radius_mm), rest.n_faces)
+        raise exc
 
 
 def copy_design(d: Design, rest: TriMesh | None = None) -> Design:
