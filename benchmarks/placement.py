@@ -1,6 +1,6 @@
 """Placement benchmark: the paper's Algorithm 1 against the simulated placement on the shipped cases.
 
-``python -m warp_shape.benchmarks.placement CASE --placement paper|simulated [--candidates K] --out DIR``
+``python -m warp_shape.benchmarks.placement CASE --placement paper|simulated|greedy [--candidates K] --out DIR``
 designs CASE and writes ``DIR/placement_<CASE>_<placement>.json``: wall time, the objective, PCC, MARE
 and MPRE of every target after every round, the actuators placed (ends, the target each was placed
 for, rest-shape angle, how many ends sit at a cube corner), and the placement record (every
@@ -77,7 +77,7 @@ def run_case(case: str, placement: str, candidates: int | None = None, device: s
     added = [dict(round=a["round"], placed_for=names[a["target"]], face_a=a["face_a"], face_b=a["face_b"],
                   rest_angle_deg=a.get("rest_angle_deg"), corner_ends=corners[k],
                   left_out_for=a.get("left_out_for", [])) for k, a in enumerate(res.added)]
-    return dict(case=case, placement=placement, candidates=K if placement == "simulated" else None, device=device,
+    return dict(case=case, placement=placement, candidates=K if placement != "paper" else None, device=device,
                 targets=names, actuators_requested=actuators, actuators=res.design.n_ipams, wall_s=wall,
                 vertices=res.design.rest.n_vertices, cell_radius=cell_radius, by_round=by_round,
                 final={key: v[-1] for key, v in by_round.items()}, added=added,
@@ -88,8 +88,9 @@ def run_case(case: str, placement: str, candidates: int | None = None, device: s
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m warp_shape.benchmarks.placement", description=__doc__.splitlines()[0])
     p.add_argument("case", choices=CASES)
-    p.add_argument("--placement", choices=["paper", "simulated"], default="simulated")
-    p.add_argument("--candidates", type=int, default=None, help="simulated placement: candidate sets per round (K)")
+    p.add_argument("--placement", choices=["paper", "simulated", "greedy"], default="simulated")
+    p.add_argument("--candidates", type=int, default=None, help="K (simulated: holds per target per refinement "
+                   "round; greedy: candidate sets per round)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", default="out")
     args = p.parse_args(argv)

@@ -165,17 +165,17 @@ def test_a_design_that_stops_early_records_each_round_once(tmp_path, monkeypatch
     holds that round once, matching the saved design."""
     import warp_shape.designer.loop as designer_loop
 
-    real = designer_loop.simulated_placement
+    real = designer_loop.greedy_placement
 
     def stop_in_round_1(current, results, ctx, i, *args, **kwargs):
         if i == 1:  # no candidate gains 99.9 %: the design stops
             ctx = dataclasses.replace(ctx, settings=ctx.settings.replace(min_gain=0.999))
         return real(current, results, ctx, i, *args, **kwargs)
 
-    monkeypatch.setattr(designer_loop, "simulated_placement", stop_in_round_1)
+    monkeypatch.setattr(designer_loop, "greedy_placement", stop_in_round_1)
     out = tmp_path / "out"
     assert main(["design", "--out", str(out), "--subdivisions", "2", "--actuators", "3", "--candidates", "1",
-                 "--targets", "oval"]) == 0
+                 "--placement", "greedy", "--targets", "oval"]) == 0
     report = assert_whole_set(out)
     rounds = json.loads((out / "rounds.json").read_text())["rounds"]
     assert [r["round"] for r in rounds] == [0, 1] and report["actuators"] == 1

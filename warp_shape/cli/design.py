@@ -34,9 +34,15 @@ def register(subparsers) -> None:
                         "4: 2562) instead of the scene's base mesh (default: the scene's, 642 vertices)")
     d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m (default: the "
                    "scene's, else 0.012)")
-    d.add_argument("--placement", choices=["paper", "simulated"], default=None,
-                   help="actuator placement: simulated candidate sets (default) or the paper's Algorithm 1")
-    d.add_argument("--candidates", type=int, default=None, help="simulated placement: candidate sets per round (K)")
+    d.add_argument("--placement", choices=["simulated", "paper", "greedy"], default=None,
+                   help="actuator placement: simulated (default: Algorithm 1's sets, each target holding neutral "
+                        "what does not help it, refined in batches of worlds; never worse than paper on any "
+                        "target), paper (Algorithm 1 as published) or greedy (the best of K candidate sets per "
+                        "round by summed objective; trades targets off)")
+    d.add_argument("--candidates", type=int, default=None,
+                   help="K: simulated: holds tried per target per refinement round; greedy: candidate sets per round")
+    d.add_argument("--refine-rounds", type=int, default=None,
+                   help="simulated placement: refinement rounds at most after the last round (default 3; 0: none)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
     d.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
@@ -61,7 +67,7 @@ def _designer_options(scene, args) -> tuple[int, dict]:
     opts.pop("initialize", None)
     if args.cell_radius is not None:
         opts["cell_radius"] = args.cell_radius
-    for key in ("placement", "candidates"):
+    for key in ("placement", "candidates", "refine_rounds"):
         if getattr(args, key, None) is not None:
             opts[key] = getattr(args, key)
     if isinstance(actuators, bool) or not isinstance(actuators, int) or actuators < 1:

@@ -39,8 +39,8 @@ from .placement import PLACEMENTS, PlacementContext, paper_placement
 from .result import DesignResult
 from .selection import Selection, selection_from_settings, selection_to_settings
 from .settings import PLACEMENT_METHODS, DesignSettings
-from .simulated import simulated_placement
+from .greedy import greedy_placement
 
 __all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "selection_to_settings",
            "selection_from_settings", "PlacementContext", "paper_placement", "PLACEMENTS", "Selection",
-           "simulated_placement", "PLACEMENT_METHODS"]
+           "greedy_placement", "PLACEMENT_METHODS"]

@@ -1,5 +1,6 @@
 """The design loop (Algorithm 1): control every target, record, place the next actuator set (the
-paper's rule or simulated candidate sets, ``DesignSettings.placement``)."""
+paper's rule, with per-target holds and refinement rounds, or greedy candidate sets,
+``DesignSettings.placement``)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
 from .placement import PLACEMENTS, PlacementContext
+from .refine import ipam_cells, refine_holds
 from .result import DesignResult
 from .selection import Selection
-from .simulated import simulated_placement
+from .greedy import greedy_placement
 from .settings import DesignSettings, round_control_settings
 
 __all__ = ["design"]
@@ -30,7 +32,7 @@ def _start_pcc(rest: TriMesh, sampler: RadialSampler, n_targets: int) -> np.ndar
 
 def _placement_info(settings: DesignSettings, names, start_pcc: np.ndarray) -> dict:
     bad = [n for n, v in zip(names, start_pcc) if v < 0]
-    return dict(method=settings.placement, candidates=settings.candidates if settings.placement == "simulated" else 1,
+    return dict(method=settings.placement, candidates=settings.candidates if settings.placement != "paper" else 1,
                 start_pcc=start_pcc.tolist(), bad_start=bad, rounds=[], stopped=None)
 
 
@@ -42,20 +44,48 @@ def _round_progress(progress, i: int, rounds_total: int):
 
 
 def _control_round(i: int, current: Design, targets, names, selection: Selection, round_settings, designs: list,
-                   rounds: list, *, device, progress, recorder, on_round, rounds_total: int) -> list:
+                   rounds: list, *, device, progress, recorder, on_round, rounds_total: int, hold=None) -> list:
     """Round ``i``: the current design controlled to every target (one batch of worlds), the actuators
-    each target leaves out held neutral; recorded, appended to ``designs`` and ``rounds``."""
+    each target leaves out held neutral; recorded, appended to ``designs`` and ``rounds``. ``hold``:
+    what the round records instead of the results (``_hold_last_set``); the results are returned."""
     designs.append(copy_design(current))
     results = control_many(current, targets, device=device, settings=round_settings,
                            progress=_round_progress(progress, i, rounds_total),
                            passive_ipams=selection.passive_ipams(), passive_cells=selection.passive_cells(),
                            recorder=recorder, recorder_prefix=f"design/round_{i}", target_names=names)
-    rounds.append(results)
+    rounds.append(results if hold is None else hold(results))
     if recorder is not None:
-        recorder.log_design_round(i, np.array([r.pcc for r in results]), names, designs[-1])
+        recorder.log_design_round(i, np.array([r.pcc for r in rounds[-1]]), names, designs[-1])
     if on_round is not None:
-        on_round(i, designs[-1], results)
+        on_round(i, designs[-1], rounds[-1])
     return results
+
+
+def _hold_last_set(current: Design, targets, names, held: Selection, round_settings, *, device, progress):
+    """Simulated placement, a round before the last: each target also controlled with the newest
+    actuator set held neutral on top of what it held before (its previous round's fit), and the better
+    of the two recorded, so that no round makes a target worse while the sets themselves stay
+    Algorithm 1's (placed on the errors with every actuator in use). Returns ``hold(results)`` for
+    ``_control_round``; it records in ``held`` what each target holds and in ``held_for`` its names."""
+    new = current.n_ipams - 1
+    cells = set(ipam_cells(current, new))
+
+    def hold(results):
+        pi = [sorted(held.ipams[t] | {new}) for t in range(len(targets))]
+        pc = [sorted(held.cells[t] | cells) for t in range(len(targets))]
+        runs = control_many(current, targets, device=device, settings=round_settings, progress=progress,
+                            passive_ipams=pi, passive_cells=pc, target_names=names)
+        out, hold.held_for = [], []
+        for t, (r_all, r_held) in enumerate(zip(results, runs)):
+            if r_held.objective < r_all.objective:
+                held.ipams[t], held.cells[t] = set(pi[t]), set(pc[t])
+                out.append(r_held)
+                hold.held_for.append(names[t])
+            else:
+                held.ipams[t], held.cells[t] = set(), set()
+                out.append(r_all)
+        return out
+    return hold
 
 
 ESCALATED = ("no candidate helped under the paper's law, which can hide what an actuator does (a cube corner "
@@ -63,7 +93,7 @@ ESCALATED = ("no candidate helped under the paper's law, which can hide what an 
 
 
 def _escalates(round_control: str, control_settings: ControlSettings) -> bool:
-    """Whether a simulated round that found no gain under the paper's law is tried again by model-based
+    """Whether a greedy round that found no gain under the paper's law is tried again by model-based
     control: the rounds were controlled by the paper's law and the design is controlled model-based."""
     return round_control == "paper" and control_settings.method == "inverse"
 
@@ -73,12 +103,16 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
            material: Material | None = None, progress=None, on_round=None, recorder=None,
            **overrides) -> DesignResult:
     """Design a shape display for ``targets`` with ``actuators`` IPAMs (Algorithm 1). Where each
-    round's actuator set goes: ``placement`` ("simulated", the default: ``candidates`` sets tried in
-    one batch of worlds, the best kept, early stop when none helps; "paper": Algorithm 1 as published).
-    Simulated placement with the rounds controlled by the paper's law (``round_control`` "paper")
-    and a model-based design controller: a round in which no candidate helps is controlled again,
-    with its candidates, by model-based control ("quick"), and so are the rounds after it; the design
-    stops early only when that finds no gain either (``result.placement["escalated_at"]``).
+    round's actuator set goes: ``placement``: "simulated" (the default): Algorithm 1's sets; in each
+    round before the last, every target is also controlled with the newest set held neutral and keeps
+    the better fit (``result.added[k]["held_for"]``); after the last round, refinement rounds try
+    ``candidates`` holds per target in one batch of worlds and keep those the design's controller
+    confirms (``designer.refine``), so no target ends worse than under "paper", Algorithm 1 as
+    published. "greedy": ``candidates`` sets tried in one batch of worlds each round, the best by
+    summed objective kept, early stop when none helps; with the rounds controlled by the paper's law
+    (``round_control`` "paper") and a model-based design controller, a round in which no candidate
+    helps is controlled again, with its candidates, by model-based control ("quick"), and so are the
+    rounds after it (``result.placement["escalated_at"]``).
 
     ``progress(round, n_rounds, step, max_steps, done, worlds)`` is called during control runs;
     ``on_round(i, design_i, results_i)`` after each round (e.g. to write outputs as they finish).
@@ -103,18 +137,27 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     designs, rounds, added = [], [], []
     selection = Selection(len(targets))
     info = _placement_info(settings, names, _start_pcc(rest, sampler, len(targets)))
+    held = Selection(len(targets))  # simulated: what each target holds neutral in the construction rounds
+    greedy = settings.placement == "greedy"
     i, final, round_control = 0, False, settings.round_control
     while True:
         final = final or i == actuators
         round_settings = control_settings if final else round_control_settings(control_settings, round_control)
+        hold = None
+        if settings.placement == "simulated" and 0 < i and not final:
+            hold = _hold_last_set(current, targets, names, held, round_settings, device=device,
+                                  progress=_round_progress(progress, i, actuators))
         results = _control_round(i, current, targets, names, selection, round_settings, designs, rounds, device=device,
-                                 progress=progress, recorder=recorder, on_round=on_round, rounds_total=actuators)
+                                 progress=progress, recorder=recorder, on_round=on_round, rounds_total=actuators,
+                                 hold=hold)
+        if hold is not None:
+            added[-1]["held_for"] = hold.held_for
         if final:
             break
-        if settings.placement == "paper":
+        if not greedy:
             record, _ = PLACEMENTS["paper"](current, results, ctx, i)
         else:
-            record = simulated_placement(current, results, ctx, i, selection, targets=targets, names=names,
+            record = greedy_placement(current, results, ctx, i, selection, targets=targets, names=names,
                                          control_settings=round_settings, device=device,
                                          progress=_round_progress(progress, i, actuators), recorder=recorder)
             info["rounds"].append(record)
@@ -132,6 +175,15 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
                 continue
         added.append(record)
         i += 1
+    if settings.placement == "simulated" and settings.refine_rounds > 0 and current.n_ipams > 0:
+        refined, info["refinement"], info["refinement_stopped"] = refine_holds(
+            current, rounds[-1], selection, held.passive_ipams(), targets=targets, names=names, settings=settings,
+            control_settings=control_settings, device=device, progress=_round_progress(progress, i, actuators),
+            recorder=recorder)
+        if any(a is not b for a, b in zip(refined, rounds[-1])):
+            rounds[-1] = refined
+            if on_round is not None:
+                on_round(i, designs[-1], refined)
     pcc_rows = np.array([[r.pcc for r in rs] for rs in rounds])
     return DesignResult(design=current, designs=designs, rounds=rounds, pcc_by_round=pcc_rows, target_names=names,
                         targets=targets, added=added, settings=settings, control_settings=control_settings,

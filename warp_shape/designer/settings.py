@@ -14,9 +14,12 @@ __all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEM
 
 #: Where each design round puts its actuator set: "paper": Algorithm 1 as published (the free face
 #: with the largest scaled error, the other end by the 120-degree rule on the rest shape, every target
-#: uses every actuator); "simulated": ``candidates`` sets controlled to every target in one batch of
-#: worlds, the one that lowers the summed fit objective most kept (designer.simulated).
-PLACEMENT_METHODS = ("paper", "simulated")
+#: uses every actuator); "simulated": Algorithm 1's sets, each held neutral for the targets it does
+#: not help, then refinement rounds of ``candidates`` holds per target tried in one batch of worlds
+#: (designer.refine): at least as good as "paper" on every target by construction; "greedy":
+#: ``candidates`` sets controlled to every target in one batch of worlds each round, the one that
+#: lowers the summed fit objective most kept (designer.simulated; trades targets off).
+PLACEMENT_METHODS = ("paper", "simulated", "greedy")
 
 #: How the designer controls the rounds before the last (the last round always uses the control
 #: settings as given, so that re-controlling the saved design reproduces its sequences):
@@ -44,9 +47,10 @@ class DesignSettings:
     volume_scale: float = 0.8  # rest volume / smallest target volume (multi-target initialisation)
     min_angle_deg: float = 120.0  # the two IPAM ends are at least this far apart seen from the origin
     initialize: bool = True  # False: keep the given rest shape (single-target mode)
-    placement: str = "simulated"  # "paper" (Algorithm 1 as published) or "simulated" (PLACEMENT_METHODS)
-    candidates: int = 4  # simulated placement: candidate actuator sets tried per round (K; worlds = K x targets)
-    min_gain: float = 0.005  # simulated placement stops when no candidate lowers the summed objective by this fraction
+    placement: str = "simulated"  # "paper" (Algorithm 1 as published), "simulated" or "greedy" (PLACEMENT_METHODS)
+    candidates: int = 4  # K: "simulated": holds tried per target per refinement round; "greedy": sets per round
+    min_gain: float = 0.005  # a candidate must lower an objective by this fraction ("simulated", "greedy": else stop)
+    refine_rounds: int = 3  # "simulated": refinement rounds at most after the last round (0: none)
     ipam_stiffness: float = DEFAULT_IPAM_STIFFNESS  # N/m of every added IPAM
     ipam_area: float = DEFAULT_IPAM_AREA  # m^2
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
@@ -66,6 +70,10 @@ class DesignSettings:
         if not whole or self.candidates < 1:
             raise DesignError(f"candidates must be a whole number >= 1 (candidate actuator sets per round), got "
                               f"{self.candidates!r}")
+        if isinstance(self.refine_rounds, bool) or not isinstance(self.refine_rounds, numbers.Integral) \
+                or self.refine_rounds < 0:
+            raise DesignError(f"refine_rounds must be a whole number >= 0 (refinement rounds of simulated placement), "
+                              f"got {self.refine_rounds!r}")
         if not (0 <= self.min_gain < 1):
             raise DesignError(f"min_gain must be a relative gain in [0, 1) (e.g. 0.005), got {self.min_gain}")
         if not 0 < self.min_angle_deg < 180:

@@ -62,11 +62,13 @@ def _placement_section(result) -> list[str]:
         return []
     names = result.target_names
     method = info.get("method", "paper")
-    lines = ["## Placement", "", f"Method: {method}" + (f", K = {info.get('candidates')} candidate sets per round "
-                                                       "(each controlled to every target in one batch of worlds)"
-                                                       if method == "simulated" else
-                                                       " (Algorithm 1 as published: every target uses every "
-                                                       "actuator)") + "."]
+    K = info.get("candidates")
+    what = {"simulated": f" (Algorithm 1's actuator sets, each held neutral for the targets it does not help, then "
+                         f"refinement rounds of K = {K} holds per target, each round one batch of worlds: no target "
+                         "ends worse than under Algorithm 1)",
+            "greedy": f", K = {K} candidate sets per round (each controlled to every target in one batch of worlds)",
+            "paper": " (Algorithm 1 as published: every target uses every actuator)"}
+    lines = ["## Placement", "", f"Method: {method}{what.get(method, '')}."]
     start = info.get("start_pcc") or []
     if start:
         lines += ["", "PCC of each target against the rest shape before control: "
@@ -91,6 +93,29 @@ def _placement_section(result) -> list[str]:
                          "(it does not help there).")
     if info.get("stopped"):
         lines += ["", f"Stopped early: {info['stopped']}."]
+    return lines + _holds_lines(result, info)
+
+
+def _holds_lines(result, info: dict) -> list[str]:
+    """Simulated placement: the sets held neutral in the construction rounds and the refinement rounds."""
+    names = result.target_names
+    lines = []
+    for k, a in enumerate(result.added):
+        if a.get("held_for"):
+            lines += ["", f"Round {k + 1}: IPAM {k} is held neutral for {', '.join(a['held_for'])} (it did not "
+                      "lower their objective in that round)."]
+    for rnd in info.get("refinement", []):
+        lines += ["", f"Refinement round {rnd['round']}: {rnd['worlds']} worlds.", "",
+                  "| target | hold IPAMs | screened objective | screened before | gain |", "|---|---|---|---|---|"]
+        for c in rnd["candidates"]:
+            lines.append(f"| {names[c['target']]} | {' '.join(map(str, c['hold']))} | {c['objective']:.4f} | "
+                         f"{c['screened_before']:.4f} | {100 * c['gain']:+.2f} % |")
+        for n, p in rnd.get("proposed", {}).items():
+            kept = "kept" if n in rnd.get("kept", {}) else "not kept"
+            lines.append(f"\n{n}: holding IPAM(s) {' '.join(map(str, p['hold']))} reaches {p['objective']:.4f} "
+                         f"(before {p['before']:.4f}) under the design's controller: {kept}.")
+    if info.get("refinement_stopped"):
+        lines += ["", f"Refinement stopped: {info['refinement_stopped']}."]
     return lines
 
 

@@ -1,6 +1,6 @@
-"""Simulated placement: each round, candidate actuator sets controlled to every target in one batch.
+"""Greedy placement: each round, candidate actuator sets controlled to every target in one batch.
 
-Round i of ``placement="simulated"``:
+Round i of ``placement="greedy"``:
 1. ``candidates`` (K) candidate sets (``placement.candidate_ends``): first ends from the largest-error
    free faces of every target, the other end by the 120-degree rule on the rest shape, a cell of
    ``cell_radius`` around each end.
@@ -26,7 +26,7 @@ from .placement import (PlacementContext, add_actuator_set, candidate_ends, end_
                         scaled_errors)
 from .selection import Selection
 
-__all__ = ["candidate_worlds", "simulated_placement"]
+__all__ = ["candidate_worlds", "greedy_placement"]
 
 
 def candidate_worlds(base: Design, ends: list, ctx: PlacementContext) -> tuple[Design, list[int], list[list[int]]]:
@@ -48,9 +48,9 @@ def _passive(selection: Selection, k: int, j: int, ipams: list, cells: list) -> 
     return sorted(pi), sorted(pc)
 
 
-def simulated_placement(current: Design, results, ctx: PlacementContext, round_index: int, selection: Selection, *,
+def greedy_placement(current: Design, results, ctx: PlacementContext, round_index: int, selection: Selection, *,
                         targets, names, control_settings, device, progress=None, recorder=None) -> dict:
-    """Round ``round_index`` of the simulated placement (module docstring). Adds the kept set to
+    """Round ``round_index`` of the greedy placement (module docstring). Adds the kept set to
     ``current`` and leaves it out of the targets it does not help (``selection``); returns the
     round's record: every candidate's ends, per-target objectives and score, the one kept (``chosen``,
     None when the round stopped the design) and the targets that leave it out."""
@@ -70,7 +70,7 @@ def simulated_placement(current: Design, results, ctx: PlacementContext, round_i
     score = np.minimum(obj, prev[None, :]).sum(axis=1)
     gain = (prev.sum() - score) / prev.sum()
     best = int(np.argmin(score))
-    record = dict(round=round_index, method="simulated", candidates=[
+    record = dict(round=round_index, method="greedy", candidates=[
         dict(target=j, face_a=a, face_b=b, error=float(errors[j, a]), error_b=float(errors[j, b]),
              rest_angle_deg=end_angle_deg(ctx, a, b), objective=obj[k].tolist(),
              mare_m=[runs[k * T + t].mare for t in range(T)], pcc=[runs[k * T + t].pcc for t in range(T)],
