@@ -145,7 +145,8 @@ def test_simulated_placement_single_generated_target(name):
     assert res.placement["method"] == "simulated" and res.placement["candidates"] == 2
     assert res.placement["refinement_stopped"]
     for rnd in res.placement["refinement"]:
-        assert rnd["candidates"] and all(len(c["hold"]) >= 1 and c["score"] > 0 for c in rnd["candidates"])
+        assert rnd["candidates"] and all(c["hold"] or c["cells"] for c in rnd["candidates"])
+        assert all(c["score"] == c["objective"] > 0 for c in rnd["candidates"])
 
 
 @pytest.mark.parametrize("names", PAIRS, ids=["+".join(p) for p in PAIRS])
@@ -163,7 +164,8 @@ def test_simulated_placement_is_never_worse_than_the_papers_on_any_target(names)
     assert np.all(final_sim <= final_paper * (1 + 1e-12)), (final_sim, final_paper)
     for t, n in enumerate(names):  # a held IPAM is out of that target's final sequence
         kept = [rnd["kept"][n] for rnd in sim.placement["refinement"] if n in rnd["kept"]]
-        assert set(i for h in kept for i in h) <= set(sim.passive_ipams[t])
+        assert {i for h in kept for i in h["hold"]} <= set(sim.passive_ipams[t])
+        assert {c for h in kept for c in h["cells"]} <= set(sim.passive_cells[t])
         if not kept:
             assert sim.results[t].objective == final_paper[t]
     md = design_markdown(sim)

@@ -124,7 +124,9 @@ class DesignProgress(Bar):
     def update(self, i, n_rounds, step, max_steps, done, worlds) -> None:
         """The designer's ``progress`` callback."""
         self.to(i)
-        if worlds > self.n_targets:
+        if worlds > self.n_targets and i >= n_rounds:
+            text = f"round {i}/{n_rounds}: refining, {worlds} worlds, step {step}"
+        elif worlds > self.n_targets:
             text = f"round {i}/{n_rounds}: {worlds // self.n_targets} candidate sets, step {step}"
         elif self.refine_last and i == n_rounds and done == worlds:
             text = f"round {i}/{n_rounds}: refining the final control"

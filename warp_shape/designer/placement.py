@@ -5,8 +5,7 @@ adds one IPAM and its cells to ``design`` (in place) given the round's control r
 target), and returns what it placed (a JSON-ready dict) and the indices of the new cells.
 ``paper_placement`` is the paper's rule (Algorithm 1: the largest scaled error, the other end by the
 120-degree rule measured on the rest shape, cells around both ends); ``PLACEMENTS``: the placements by
-name. ``candidate_ends`` proposes the candidate sets the simulated placement (``designer.simulated``)
-tries.
+name. ``candidate_ends`` proposes the candidate sets the greedy placement (``designer.greedy``) tries.
 """
 
 from __future__ import annotations

@@ -4,9 +4,10 @@ The design (every actuator set) is Algorithm 1's; what changes is which actuator
 control sequence uses (section V-C: an actuator can be held neutral, masked out of that target's
 world). Each refinement round:
 
-1. **Candidates.** Per target, up to ``candidates`` (K) holds: each of the K IPAMs it uses with the
-   smallest final force (with their cells), and the IPAMs the construction rounds held neutral for
-   it (``construction_holds``), each added to what the target already leaves out.
+1. **Candidates.** Per target, up to ``candidates`` (K) holds, alternating between an IPAM with its
+   cells and the cells of an IPAM alone (the IPAM still acts; only cells the target's run jammed),
+   the IPAMs with the smallest final force first; and what the construction rounds held for it
+   (``construction_holds``). Each is added to what the target already leaves out.
 2. **One batch.** The K candidate holds of every target and every target as it stands, K x targets
    + targets worlds of the one design, controlled in one ``control_many`` call by the screening
    controller (model-based control with the paper's jam times and two refinement steps, ``quick``).
@@ -15,10 +16,14 @@ world). Each refinement round:
    is better than the target's current fit. Targets do not trade: each keeps its own holds, so no
    refinement round makes any target worse, and the final design is at least as good as Algorithm
    1's on every target.
-4. The rounds stop when no hold is proposed or none is kept (and say so), or after ``refine_rounds``.
+4. The next round tries again only the targets that kept a hold (the others were tried as they
+   stand). The rounds stop when no hold is proposed or none is kept (and say so), or after
+   ``refine_rounds``.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,7 +32,7 @@ from ..design import Design
 from .selection import Selection
 from .settings import round_control_settings
 
-__all__ = ["ipam_cells", "refine_holds"]
+__all__ = ["Hold", "ipam_cells", "refine_holds"]
 
 
 def ipam_cells(design: Design, i: int) -> list[int]:
@@ -36,21 +41,38 @@ def ipam_cells(design: Design, i: int) -> list[int]:
     return [c for c, cell in enumerate(design.cells) if ip.face_a in cell.faces or ip.face_b in cell.faces]
 
 
-def _holds_for(t: int, result, selection: Selection, construction_holds: list, K: int) -> list[frozenset]:
-    """Target ``t``'s candidate holds: sets of IPAMs to leave out in addition to what it leaves out."""
-    used = [i for i in range(len(result.ipam_forces)) if i not in selection.ipams[t]]
-    by_force = sorted(used, key=lambda i: (abs(float(result.ipam_forces[i])), i))[:K]
-    out = [frozenset({i}) for i in by_force]
-    extra = frozenset(construction_holds[t]) - frozenset(selection.ipams[t])
-    if extra and extra not in out:
+@dataclass(frozen=True)
+class Hold:
+    """What a target leaves out of its sequence on top of what it already leaves out."""
+
+    ipams: frozenset = frozenset()
+    cells: frozenset = frozenset()
+
+    def label(self) -> str:
+        return "+".join([f"ipam{i}" for i in sorted(self.ipams)] + [f"cell{c}" for c in sorted(self.cells)]) or "none"
+
+
+def _holds_for(design: Design, t: int, result, selection: Selection, construction: tuple, K: int) -> list[Hold]:
+    """Target ``t``'s K candidate holds, alternating between an IPAM with its cells and the cells of an
+    IPAM alone (the IPAM still acting; only cells the target's run jammed), the IPAMs with the
+    smallest final force first; then what the rounds held for it (``construction``: IPAMs, cells)."""
+    by_force = sorted((i for i in range(design.n_ipams) if i not in selection.ipams[t]),
+                      key=lambda i: (abs(float(result.ipam_forces[i])), i))
+    jammed = {c for c in range(len(result.jammed)) if result.jammed[c]} - selection.cells[t]
+    whole = [Hold(frozenset({i}), frozenset(ipam_cells(design, i)) - selection.cells[t]) for i in by_force]
+    cells = [Hold(cells=frozenset(ipam_cells(design, i)) & jammed) for i in by_force]
+    out = []
+    for pair in zip(whole, cells + [None] * (len(whole) - len(cells))):
+        out += [h for h in pair if h is not None and (h.ipams or h.cells) and h not in out]
+    out = out[:K]
+    extra = Hold(frozenset(construction[0]) - selection.ipams[t], frozenset(construction[1]) - selection.cells[t])
+    if (extra.ipams or extra.cells) and extra not in out:
         out.append(extra)
     return out
 
 
-def _passive(design: Design, selection: Selection, t: int, hold=frozenset()) -> tuple[list, list]:
-    ipams = sorted(set(selection.ipams[t]) | set(hold))
-    cells = sorted(set(selection.cells[t]) | {c for i in hold for c in ipam_cells(design, i)})
-    return ipams, cells
+def _passive(selection: Selection, t: int, hold: Hold = Hold()) -> tuple[list, list]:
+    return sorted(selection.ipams[t] | hold.ipams), sorted(selection.cells[t] | hold.cells)
 
 
 def refine_holds(design: Design, results: list, selection: Selection, construction_holds: list, *, targets, names,
@@ -62,24 +84,26 @@ def refine_holds(design: Design, results: list, selection: Selection, constructi
     screen = round_control_settings(control_settings, "quick")
     current = list(results)
     records, stop = [], f"the round limit ({settings.refine_rounds}) was reached"
+    active = list(range(T))  # targets whose holds changed (all at first): the others were tried as they stand
     for r in range(settings.refine_rounds):
-        holds = [_holds_for(t, current[t], selection, construction_holds, K) for t in range(T)]
-        worlds = [(t, frozenset()) for t in range(T)] + [(t, h) for t in range(T) for h in holds[t]]
-        if len(worlds) == T:
+        holds = {t: _holds_for(design, t, current[t], selection, construction_holds[t], K) for t in active}
+        worlds = [(t, Hold()) for t in active] + [(t, h) for t in active for h in holds[t]]
+        if len(worlds) == len(active):
             stop = "every target already leaves out every IPAM it could"
             break
-        passive = [_passive(design, selection, t, h) for t, h in worlds]
+        passive = [_passive(selection, t, h) for t, h in worlds]
         runs = control_many(design, [targets[t] for t, _ in worlds], device=device, settings=screen,
                             progress=progress, recorder=recorder, recorder_prefix=f"design/refine_{r}",
                             passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
-                            target_names=[f"{names[t]}_hold{'_'.join(map(str, sorted(h))) or '_none'}"
-                                          for t, h in worlds])
-        base = np.array([runs[t].objective for t in range(T)])
+                            target_names=[f"{names[t]}_hold_{h.label()}" for t, h in worlds])
+        n = len(active)
+        base = {t: runs[k].objective for k, t in enumerate(active)}
         record = dict(round=r, worlds=len(worlds), candidates=[], proposed={}, kept={})
-        best: dict[int, tuple[float, frozenset]] = {}
-        for (t, h), run in zip(worlds[T:], runs[T:]):
+        best: dict[int, tuple[float, Hold]] = {}
+        for (t, h), run in zip(worlds[n:], runs[n:]):
             gain = float((base[t] - run.objective) / base[t]) if base[t] > 0 else 0.0
-            record["candidates"].append(dict(target=t, hold=sorted(h), objective=run.objective,
+            record["candidates"].append(dict(target=t, hold=sorted(h.ipams), cells=sorted(h.cells),
+                                             objective=run.objective,
                                              screened_before=float(base[t]), gain=gain, score=run.objective))
             if gain > settings.min_gain and (t not in best or gain > best[t][0]):
                 best[t] = (gain, h)
@@ -88,19 +112,21 @@ def refine_holds(design: Design, results: list, selection: Selection, constructi
             stop = (f"no hold lowers a target's screened objective by more than {100 * settings.min_gain:g} %")
             break
         order = sorted(best)
-        passive = [_passive(design, selection, t, best[t][1]) for t in order]
+        passive = [_passive(selection, t, best[t][1]) for t in order]
         checked = control_many(design, [targets[t] for t in order], device=device, settings=control_settings,
                                progress=progress, passive_ipams=[p for p, _ in passive],
                                passive_cells=[c for _, c in passive], target_names=[names[t] for t in order])
         for t, run, (pi, pc) in zip(order, checked, passive):
-            record["proposed"][names[t]] = dict(hold=sorted(best[t][1]), objective=run.objective,
+            record["proposed"][names[t]] = dict(hold=sorted(best[t][1].ipams), cells=sorted(best[t][1].cells),
+                                                objective=run.objective,
                                                 before=current[t].objective)
             if run.objective < current[t].objective:
                 selection.ipams[t], selection.cells[t] = set(pi), set(pc)
                 current[t] = run
-                record["kept"][names[t]] = sorted(best[t][1])
+                record["kept"][names[t]] = dict(hold=sorted(best[t][1].ipams), cells=sorted(best[t][1].cells))
         records.append(record)
-        if not record["kept"]:
+        active = [t for t in order if names[t] in record["kept"]]
+        if not active:
             stop = "no proposed hold reached a better fit under the design's controller"
             break
     return current, records, stop

@@ -1,7 +1,9 @@
 """Which actuators each target's control sequence leaves out (held neutral, section V-C).
 
-The simulated placement (``designer.simulated``) leaves a kept candidate set out of the sequence of
-every target it does not help; the paper's placement leaves nothing out. The selection is stored in
+The simulated placement holds a set neutral for a target when that fits it better (in the rounds and
+in its refinement rounds, ``designer.refine``); the greedy placement (``designer.greedy``) leaves a
+kept candidate set out of the sequence of every target it does not help; the paper's placement
+leaves nothing out. The selection is stored in
 scene settings as flat strings.
 """
 

@@ -96,6 +96,15 @@ def _placement_section(result) -> list[str]:
     return lines + _holds_lines(result, info)
 
 
+def _held(hold: dict) -> str:
+    """"IPAM 2 with cells 4 5" / "cells 4 5" (the IPAM acting): a refinement candidate's hold."""
+    ipams = " ".join(map(str, hold.get("hold", [])))
+    cells = " ".join(map(str, hold.get("cells", [])))
+    if ipams:
+        return f"IPAM {ipams}" + (f" with cells {cells}" if cells else "")
+    return f"cells {cells}"
+
+
 def _holds_lines(result, info: dict) -> list[str]:
     """Simulated placement: the sets held neutral in the construction rounds and the refinement rounds."""
     names = result.target_names
@@ -106,14 +115,14 @@ def _holds_lines(result, info: dict) -> list[str]:
                       "lower their objective in that round)."]
     for rnd in info.get("refinement", []):
         lines += ["", f"Refinement round {rnd['round']}: {rnd['worlds']} worlds.", "",
-                  "| target | hold IPAMs | screened objective | screened before | gain |", "|---|---|---|---|---|"]
+                  "| target | held | screened objective | screened before | gain |", "|---|---|---|---|---|"]
         for c in rnd["candidates"]:
-            lines.append(f"| {names[c['target']]} | {' '.join(map(str, c['hold']))} | {c['objective']:.4f} | "
+            lines.append(f"| {names[c['target']]} | {_held(c)} | {c['objective']:.4f} | "
                          f"{c['screened_before']:.4f} | {100 * c['gain']:+.2f} % |")
         for n, p in rnd.get("proposed", {}).items():
             kept = "kept" if n in rnd.get("kept", {}) else "not kept"
-            lines.append(f"\n{n}: holding IPAM(s) {' '.join(map(str, p['hold']))} reaches {p['objective']:.4f} "
-                         f"(before {p['before']:.4f}) under the design's controller: {kept}.")
+            lines.append(f"\n{n}: holding {_held(p)} reaches {p['objective']:.4f} (before {p['before']:.4f}) "
+                         f"under the design's controller: {kept}.")
     if info.get("refinement_stopped"):
         lines += ["", f"Refinement stopped: {info['refinement_stopped']}."]
     return lines
