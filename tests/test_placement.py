@@ -156,8 +156,11 @@ def test_simulated_placement_is_never_worse_than_the_papers_on_any_target(names)
     from warp_shape.io.report import design_markdown
 
     paper = _design(names, placement="paper")
-    sim = _design(names)
+    log = _CandidateLog()
+    sim = _design(names, recorder=log)
     _check_rounds(sim)
+    assert log.refinement == {r["round"]: [c["score"] for c in r["candidates"]]  # every score in the recording
+                              for r in sim.placement["refinement"]}
     assert _ends(sim.design) == _ends(paper.design)
     final_paper = np.array([r.objective for r in paper.results])
     final_sim = np.array([r.objective for r in sim.results])
@@ -180,7 +183,7 @@ class _CandidateLog:
     """A recorder that keeps only what the designer logs per round (control runs are ignored)."""
 
     def __init__(self):
-        self.candidates, self.rounds = {}, []
+        self.candidates, self.rounds, self.refinement = {}, [], {}
 
     def begin_run(self, **kw):
         pass
@@ -196,6 +199,9 @@ class _CandidateLog:
 
     def log_design_candidates(self, i, record):
         self.candidates[i] = [c["score"] for c in record["candidates"]]
+
+    def log_design_refinement(self, r, record, names):
+        self.refinement[r] = [c["score"] for c in record["candidates"]]
 
 
 def test_greedy_placement_generated_pair():

@@ -177,7 +177,8 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         i += 1
     if settings.placement == "simulated" and settings.refine_rounds > 0 and current.n_ipams > 0:
         refined, info["refinement"], info["refinement_stopped"] = refine_holds(
-            current, rounds[-1], selection, list(zip(held.passive_ipams(), held.passive_cells())), targets=targets, names=names, settings=settings,
+            current, rounds[-1], selection, list(zip(held.passive_ipams(), held.passive_cells())),
+            [a["target"] for a in added], targets=targets, names=names, settings=settings,
             control_settings=control_settings, device=device, progress=_round_progress(progress, i, actuators),
             recorder=recorder)
         if any(a is not b for a, b in zip(refined, rounds[-1])):

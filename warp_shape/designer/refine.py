@@ -6,16 +6,18 @@ world). Each refinement round:
 
 1. **Candidates.** Per target, up to ``candidates`` (K) holds, alternating between an IPAM with its
    cells and the cells of an IPAM alone (the IPAM still acts; only cells the target's run jammed),
-   the IPAMs with the smallest final force first; and what the construction rounds held for it
-   (``construction_holds``). Each is added to what the target already leaves out.
-2. **One batch.** The K candidate holds of every target and every target as it stands, K x targets
-   + targets worlds of the one design, controlled in one ``control_many`` call by the screening
-   controller (model-based control with the paper's jam times and two refinement steps, ``quick``).
+   IPAMs placed for another target first, then those with the smallest final force; and what the
+   construction rounds held for it (``construction_holds``). Each is added to what the target
+   already leaves out.
+2. **Screened in one batch per jam plan.** Every target's candidates run together (K x targets
+   worlds of the one design, per-world masks), each controlled by the design's controller limited to
+   the jam plan it chose for that target (which reproduces the target's current fit exactly and
+   costs about as much as one plan): one ``control_many`` call per plan in use, usually one or two.
 3. **Verified.** Per target the hold that lowers its screened objective most (by more than
-   ``min_gain``) is controlled by the design's own controller; it is kept when the fit it reaches
-   is better than the target's current fit. Targets do not trade: each keeps its own holds, so no
-   refinement round makes any target worse, and the final design is at least as good as Algorithm
-   1's on every target.
+   ``min_gain``) is controlled by the design's own controller (every plan); it is kept when the fit
+   it reaches is better than the target's current fit. Targets do not trade: each keeps its own
+   holds, so no refinement round makes any target worse, and the final fit of every target is at
+   least Algorithm 1's.
 4. The next round tries again only the targets that kept a hold (the others were tried as they
    stand). The rounds stop when no hold is proposed or none is kept (and say so), or after
    ``refine_rounds``.
@@ -25,12 +27,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 
 from ..controller import control_many
 from ..design import Design
 from .selection import Selection
-from .settings import round_control_settings
 
 __all__ = ["Hold", "ipam_cells", "refine_holds"]
 
@@ -52,18 +52,21 @@ class Hold:
         return "+".join([f"ipam{i}" for i in sorted(self.ipams)] + [f"cell{c}" for c in sorted(self.cells)]) or "none"
 
 
-def _holds_for(design: Design, t: int, result, selection: Selection, construction: tuple, K: int) -> list[Hold]:
+def _holds_for(design: Design, t: int, result, selection: Selection, construction: tuple, placed_for: list,
+               K: int) -> list[Hold]:
     """Target ``t``'s K candidate holds, alternating between an IPAM with its cells and the cells of an
-    IPAM alone (the IPAM still acting; only cells the target's run jammed), the IPAMs with the
-    smallest final force first; then what the rounds held for it (``construction``: IPAMs, cells)."""
-    by_force = sorted((i for i in range(design.n_ipams) if i not in selection.ipams[t]),
-                      key=lambda i: (abs(float(result.ipam_forces[i])), i))
+    IPAM alone (the IPAM still acting; only cells the target's run jammed). IPAMs placed for another
+    target come first (section V-C: what one target needs another may not), then by smallest final
+    force. Then what the rounds held for it (``construction``: IPAMs, cells)."""
+    order = sorted((i for i in range(design.n_ipams) if i not in selection.ipams[t]),
+                   key=lambda i: (placed_for[i] == t, abs(float(result.ipam_forces[i])), i))
     jammed = {c for c in range(len(result.jammed)) if result.jammed[c]} - selection.cells[t]
-    whole = [Hold(frozenset({i}), frozenset(ipam_cells(design, i)) - selection.cells[t]) for i in by_force]
-    cells = [Hold(cells=frozenset(ipam_cells(design, i)) & jammed) for i in by_force]
     out = []
-    for pair in zip(whole, cells + [None] * (len(whole) - len(cells))):
-        out += [h for h in pair if h is not None and (h.ipams or h.cells) and h not in out]
+    for i in order:
+        for h in (Hold(frozenset({i}), frozenset(ipam_cells(design, i)) - selection.cells[t]),
+                  Hold(cells=frozenset(ipam_cells(design, i)) & jammed)):
+            if (h.ipams or h.cells) and h not in out:
+                out.append(h)
     out = out[:K]
     extra = Hold(frozenset(construction[0]) - selection.ipams[t], frozenset(construction[1]) - selection.cells[t])
     if (extra.ipams or extra.cells) and extra not in out:
@@ -71,44 +74,76 @@ def _holds_for(design: Design, t: int, result, selection: Selection, constructio
     return out
 
 
+def _screen_settings(control_settings, result):
+    """The design's controller limited to the jam plan it chose for this target: it reproduces the
+    target's current fit and costs about a quarter of trying every plan."""
+    plan = (result.refinement or {}).get("plan")
+    if control_settings.method != "inverse" or not plan:
+        return control_settings
+    return control_settings.replace(inverse_plans=plan)
+
+
 def _passive(selection: Selection, t: int, hold: Hold = Hold()) -> tuple[list, list]:
     return sorted(selection.ipams[t] | hold.ipams), sorted(selection.cells[t] | hold.cells)
 
 
-def refine_holds(design: Design, results: list, selection: Selection, construction_holds: list, *, targets, names,
-                 settings, control_settings, device, progress=None, recorder=None) -> tuple[list, list[dict], str]:
+def _screen(design: Design, worlds: list, current: list, selection: Selection, targets, names, control_settings, *,
+            device, progress, recorder, r: int) -> list:
+    """The candidate worlds (target, hold), grouped by their screening settings (one batch per jam
+    plan, usually one or two); their results in ``worlds`` order."""
+    groups: dict = {}
+    for k, (t, h) in enumerate(worlds):
+        s = _screen_settings(control_settings, current[t])
+        groups.setdefault((s.method, s.inverse_plans), (s, []))[1].append(k)
+    runs = [None] * len(worlds)
+    for g, (s, ks) in enumerate(groups.values()):
+        passive = [_passive(selection, worlds[k][0], worlds[k][1]) for k in ks]
+        out = control_many(design, [targets[worlds[k][0]] for k in ks], device=device, settings=s, progress=progress,
+                           recorder=recorder, recorder_prefix=f"design/refine_{r}" + (f"_{g}" if g else ""),
+                           passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
+                           target_names=[f"{names[worlds[k][0]]}_hold_{worlds[k][1].label()}" for k in ks])
+        for k, run in zip(ks, out):
+            runs[k] = run
+    return runs
+
+
+def refine_holds(design: Design, results: list, selection: Selection, construction_holds: list, placed_for: list, *,
+                 targets, names, settings, control_settings, device, progress=None,
+                 recorder=None) -> tuple[list, list[dict], str]:
     """Refinement rounds (module docstring) from the final ``results`` (one per target, controlled by
-    ``control_settings`` with ``selection``'s holds). Updates ``selection``; returns the refined
-    results, one record per round, and why the rounds stopped."""
+    ``control_settings`` with ``selection``'s holds; ``placed_for[i]``: the target IPAM ``i`` was
+    placed for). Updates ``selection``; returns the refined results, one record per round, and why
+    the rounds stopped."""
     T, K = len(targets), settings.candidates
-    screen = round_control_settings(control_settings, "quick")
     current = list(results)
     records, stop = [], f"the round limit ({settings.refine_rounds}) was reached"
     active = list(range(T))  # targets whose holds changed (all at first): the others were tried as they stand
+
+    def finish(record):
+        records.append(record)
+        if recorder is not None:
+            recorder.log_design_refinement(record["round"], record, names)
+
     for r in range(settings.refine_rounds):
-        holds = {t: _holds_for(design, t, current[t], selection, construction_holds[t], K) for t in active}
-        worlds = [(t, Hold()) for t in active] + [(t, h) for t in active for h in holds[t]]
-        if len(worlds) == len(active):
-            stop = "every target already leaves out every IPAM it could"
+        worlds = [(t, h) for t in active
+                  for h in _holds_for(design, t, current[t], selection, construction_holds[t], placed_for, K)]
+        if not worlds:
+            stop = "every target already leaves out every actuator it could"
             break
-        passive = [_passive(selection, t, h) for t, h in worlds]
-        runs = control_many(design, [targets[t] for t, _ in worlds], device=device, settings=screen,
-                            progress=progress, recorder=recorder, recorder_prefix=f"design/refine_{r}",
-                            passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
-                            target_names=[f"{names[t]}_hold_{h.label()}" for t, h in worlds])
-        n = len(active)
-        base = {t: runs[k].objective for k, t in enumerate(active)}
+        runs = _screen(design, worlds, current, selection, targets, names, control_settings, device=device,
+                       progress=progress, recorder=recorder, r=r)
         record = dict(round=r, worlds=len(worlds), candidates=[], proposed={}, kept={})
         best: dict[int, tuple[float, Hold]] = {}
-        for (t, h), run in zip(worlds[n:], runs[n:]):
-            gain = float((base[t] - run.objective) / base[t]) if base[t] > 0 else 0.0
+        for (t, h), run in zip(worlds, runs):
+            before = current[t].objective
+            gain = float((before - run.objective) / before) if before > 0 else 0.0
             record["candidates"].append(dict(target=t, hold=sorted(h.ipams), cells=sorted(h.cells),
-                                             objective=run.objective,
-                                             screened_before=float(base[t]), gain=gain, score=run.objective))
+                                             objective=run.objective, screened_before=float(before), gain=gain,
+                                             score=run.objective))
             if gain > settings.min_gain and (t not in best or gain > best[t][0]):
                 best[t] = (gain, h)
         if not best:
-            records.append(record)
+            finish(record)
             stop = (f"no hold lowers a target's screened objective by more than {100 * settings.min_gain:g} %")
             break
         order = sorted(best)
@@ -124,7 +159,7 @@ def refine_holds(design: Design, results: list, selection: Selection, constructi
                 selection.ipams[t], selection.cells[t] = set(pi), set(pc)
                 current[t] = run
                 record["kept"][names[t]] = dict(hold=sorted(best[t][1].ipams), cells=sorted(best[t][1].cells))
-        records.append(record)
+        finish(record)
         active = [t for t in order if names[t] in record["kept"]]
         if not active:
             stop = "no proposed hold reached a better fit under the design's controller"

@@ -379,8 +379,24 @@ class Recorder:
             s.log("design/actuators", rr.Scalars([float(design.n_ipams)]))
         s.reset_time()
 
+    def log_design_refinement(self, r: int, record: dict, target_names) -> None:
+        """Every hold tried in refinement round ``r`` of the simulated placement: its screened objective
+        (``design/refine/<target>/<k>/score``, ``refine`` timeline), and per target whether a hold was
+        kept (``design/refine/<target>/kept``: 1 or 0)."""
+        rr, s, names = self._rr, self.stream, list(target_names)
+        s.reset_time()
+        s.set_time("refine", sequence=int(r))
+        count: dict = {}
+        for c in record.get("candidates", []):
+            n = names[c["target"]]
+            k = count[n] = count.get(n, -1) + 1
+            s.log(f"design/refine/{n}/{k}/score", rr.Scalars([float(c["score"])]))
+        for n in {names[c["target"]] for c in record.get("candidates", [])}:
+            s.log(f"design/refine/{n}/kept", rr.Scalars([float(n in record.get("kept", {}))]))
+        s.reset_time()
+
     def log_design_candidates(self, i: int, record: dict) -> None:
-        """Every candidate set's score (summed fit objective) in simulated placement round ``i``
+        """Every candidate set's score (summed fit objective) in greedy placement round ``i``
         (``design/candidates/<k>/score``, ``round`` timeline) and the one kept (``design/candidates/kept``)."""
         rr, s = self._rr, self.stream
         s.reset_time()
