@@ -257,6 +257,9 @@ def test_progress_counts_finished_work_and_is_quiet_off_a_terminal():
     bar._drawn = 0.0
     bar.update(4, 4, 24, 300, 2, 2)
     assert "round 4/4: refining the final control" in term.getvalue()
+    bar._drawn = 0.0
+    bar.update(4, 4, 7, 300, 0, 8)  # the simulated placement's refinement: 8 worlds for 2 targets
+    assert "round 4/4: refining, 8 worlds, step 7" in term.getvalue()
     on_round(4, None, None)
     assert bar.tqdm.n == 5 and seen == [0, 4]
     bar.close()

@@ -42,7 +42,7 @@ def register(subparsers) -> None:
     d.add_argument("--candidates", type=int, default=None,
                    help="K: simulated: holds tried per target per refinement round; greedy: candidate sets per round")
     d.add_argument("--refine-rounds", type=int, default=None,
-                   help="simulated placement: refinement rounds at most after the last round (default 3; 0: none)")
+                   help="simulated placement: refinement rounds at most after the last round (default 5; 0: none)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
     d.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")

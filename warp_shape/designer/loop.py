@@ -88,6 +88,21 @@ def _hold_last_set(current: Design, targets, names, held: Selection, round_setti
     return hold
 
 
+def _refine_last_round(i: int, current: Design, designs: list, rounds: list, selection: Selection, held: Selection,
+                       added: list, info: dict, *, targets, names, settings, control_settings, device, progress,
+                       recorder, on_round) -> None:
+    """Simulated placement: the refinement rounds (``designer.refine``) after the last round; a
+    target's refined result replaces its last-round result (``on_round`` is told again)."""
+    refined, info["refinement"], info["refinement_stopped"] = refine_holds(
+        current, rounds[-1], selection, list(zip(held.passive_ipams(), held.passive_cells())),
+        [a["target"] for a in added], targets=targets, names=names, settings=settings,
+        control_settings=control_settings, device=device, progress=progress, recorder=recorder)
+    if any(a is not b for a, b in zip(refined, rounds[-1])):
+        rounds[-1] = refined
+        if on_round is not None:
+            on_round(i, designs[-1], refined)
+
+
 ESCALATED = ("no candidate helped under the paper's law, which can hide what an actuator does (a cube corner "
              "IPAM alone); this round and those after it are controlled by model-based control (round_control 'quick')")
 
@@ -103,16 +118,10 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
            material: Material | None = None, progress=None, on_round=None, recorder=None,
            **overrides) -> DesignResult:
     """Design a shape display for ``targets`` with ``actuators`` IPAMs (Algorithm 1). Where each
-    round's actuator set goes: ``placement``: "simulated" (the default): Algorithm 1's sets; in each
-    round before the last, every target is also controlled with the newest set held neutral and keeps
-    the better fit (``result.added[k]["held_for"]``); after the last round, refinement rounds try
-    ``candidates`` holds per target in one batch of worlds and keep those the design's controller
-    confirms (``designer.refine``), so no target ends worse than under "paper", Algorithm 1 as
-    published. "greedy": ``candidates`` sets tried in one batch of worlds each round, the best by
-    summed objective kept, early stop when none helps; with the rounds controlled by the paper's law
-    (``round_control`` "paper") and a model-based design controller, a round in which no candidate
-    helps is controlled again, with its candidates, by model-based control ("quick"), and so are the
-    rounds after it (``result.placement["escalated_at"]``).
+    round's actuator set goes: ``placement``: "simulated" (the default: Algorithm 1's sets, each
+    target holding neutral what does not help it, refinement rounds after the last; never worse than
+    "paper" on any target), "paper" (Algorithm 1 as published) or "greedy" (the best of
+    ``candidates`` sets per round by summed objective); see ``designer`` and docs/placement.md.
 
     ``progress(round, n_rounds, step, max_steps, done, worlds)`` is called during control runs;
     ``on_round(i, design_i, results_i)`` after each round (e.g. to write outputs as they finish).
@@ -176,15 +185,9 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         added.append(record)
         i += 1
     if settings.placement == "simulated" and settings.refine_rounds > 0 and current.n_ipams > 0:
-        refined, info["refinement"], info["refinement_stopped"] = refine_holds(
-            current, rounds[-1], selection, list(zip(held.passive_ipams(), held.passive_cells())),
-            [a["target"] for a in added], targets=targets, names=names, settings=settings,
-            control_settings=control_settings, device=device, progress=_round_progress(progress, i, actuators),
-            recorder=recorder)
-        if any(a is not b for a, b in zip(refined, rounds[-1])):
-            rounds[-1] = refined
-            if on_round is not None:
-                on_round(i, designs[-1], refined)
+        _refine_last_round(i, current, designs, rounds, selection, held, added, info, targets=targets, names=names,
+                           settings=settings, control_settings=control_settings, device=device,
+                           progress=_round_progress(progress, i, actuators), recorder=recorder, on_round=on_round)
     pcc_rows = np.array([[r.pcc for r in rs] for rs in rounds])
     return DesignResult(design=current, designs=designs, rounds=rounds, pcc_by_round=pcc_rows, target_names=names,
                         targets=targets, added=added, settings=settings, control_settings=control_settings,

@@ -50,7 +50,7 @@ class DesignSettings:
     placement: str = "simulated"  # "paper" (Algorithm 1 as published), "simulated" or "greedy" (PLACEMENT_METHODS)
     candidates: int = 4  # K: "simulated": holds tried per target per refinement round; "greedy": sets per round
     min_gain: float = 0.005  # a candidate must lower an objective by this fraction ("simulated", "greedy": else stop)
-    refine_rounds: int = 3  # "simulated": refinement rounds at most after the last round (0: none)
+    refine_rounds: int = 5  # "simulated": refinement rounds at most after the last round (0: none)
     ipam_stiffness: float = DEFAULT_IPAM_STIFFNESS  # N/m of every added IPAM
     ipam_area: float = DEFAULT_IPAM_AREA  # m^2
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m

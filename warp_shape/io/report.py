@@ -26,8 +26,10 @@ def _added_table(result) -> list[str]:
         first = result.added[0]["target"]
         others = [j for j in range(len(names)) if j != first]
         gains = {names[j]: float(result.pcc_by_round[1, j] - result.pcc_by_round[0, j]) for j in others}
+        held = result.added[0].get("held_for") or []
         lines += ["", f"The first IPAM was placed for {names[first]}; its effect on the other target(s): "
-                  + ", ".join(f"{n} PCC {g:+.4f}" for n, g in gains.items()) + "."]
+                  + ", ".join(f"{n} PCC {g:+.4f}" + (" (held neutral: it raised the objective)" if n in held else "")
+                              for n, g in gains.items()) + "."]
     return lines
 
 
