@@ -113,8 +113,8 @@ def _holds_lines(result, info: dict) -> list[str]:
     lines = []
     for k, a in enumerate(result.added):
         if a.get("held_for"):
-            lines += ["", f"Round {k + 1}: IPAM {k} is held neutral for {', '.join(a['held_for'])} (it did not "
-                      "lower their objective in that round)."]
+            lines += ["", f"Round {k + 1}: IPAM {k} was held neutral for {', '.join(a['held_for'])} in that round "
+                      "(with it their objective was higher; the last round uses every actuator again)."]
     for rnd in info.get("refinement", []):
         lines += ["", f"Refinement round {rnd['round']}: {rnd['worlds']} worlds.", "",
                   "| target | held | screened objective | screened before | gain |", "|---|---|---|---|---|"]
