@@ -119,9 +119,10 @@ from warp_shape.designer import design  # noqa: E402
 PAIRS = [("egg", "bean"), ("puck", "teardrop"), ("tilted_ellipsoid", "peanut")]
 
 
-def _design(names, actuators=2, candidates=3, **kw):
+def _design(names, actuators=2, **kw):
+    """The designer with its defaults (placement, K, refinement rounds) on a 162-vertex base."""
     return design(ws.icosphere(2, 0.035), [shape(n, subdivisions=3) for n in names], actuators=actuators,
-                  target_names=list(names), candidates=candidates, **kw)
+                  target_names=list(names), **kw)
 
 
 def _check_rounds(res):
@@ -140,9 +141,9 @@ def _ends(d):
 def test_simulated_placement_single_generated_target(name):
     """The default placement on one generated shape: no round raises the objective, the actuators
     lower it by a quarter, and every refinement candidate's screened score is recorded."""
-    res = _design([name], candidates=2)
+    res = _design([name])
     _check_rounds(res)
-    assert res.placement["method"] == "simulated" and res.placement["candidates"] == 2
+    assert res.placement["method"] == "simulated" and res.placement["candidates"] == ws.DesignSettings().candidates
     assert res.placement["refinement_stopped"]
     for rnd in res.placement["refinement"]:
         assert rnd["candidates"] and all(c["hold"] or c["cells"] for c in rnd["candidates"])
@@ -218,7 +219,7 @@ def test_greedy_placement_generated_pair():
 
     names = PAIRS[1]
     log = _CandidateLog()
-    res = _design(names, recorder=log, placement="greedy")
+    res = _design(names, recorder=log, placement="greedy", candidates=3)
     _check_rounds(res)
     obj = res.objective_by_round
     for rnd in res.placement["rounds"]:
