@@ -179,8 +179,9 @@ def test_simulated_placement_is_never_worse_than_the_papers_on_any_target(names,
             assert f"{n}: holding" in design_markdown(sim) and "kept" in design_markdown(sim)
     if actuators == 3:
         assert any(rnd["kept"] for rnd in sim.placement["refinement"]), sim.placement["refinement"]
+    assert sim.placement["paper_objective"] == pytest.approx(final_paper, rel=1e-12)
     md = design_markdown(sim)
-    assert "## Placement" in md and "Refinement stopped" in md
+    assert "## Placement" in md and "Refinement stopped" in md and "Against Algorithm 1 as published" in md
     start = sim.placement["start_pcc"]
     assert sim.placement["bad_start"] == [n for n, v in zip(names, start) if v < 0]
     if "teardrop" in names:  # anti-correlated with the averaged rest shape (start PCC about -0.93)

@@ -93,6 +93,7 @@ def _refine_last_round(i: int, current: Design, designs: list, rounds: list, sel
                        recorder, on_round) -> None:
     """Simulated placement: the refinement rounds (``designer.refine``) after the last round; a
     target's refined result replaces its last-round result (``on_round`` is told again)."""
+    info["paper_objective"] = [r.objective for r in rounds[-1]]  # every actuator in use: Algorithm 1's fit
     refined, info["refinement"], info["refinement_stopped"] = refine_holds(
         current, rounds[-1], selection, list(zip(held.passive_ipams(), held.passive_cells())),
         [a["target"] for a in added], targets=targets, names=names, settings=settings,

@@ -127,6 +127,11 @@ def _holds_lines(result, info: dict) -> list[str]:
                          f"under the design's controller: {kept}.")
     if info.get("refinement_stopped"):
         lines += ["", f"Refinement stopped: {info['refinement_stopped']}."]
+    if info.get("paper_objective"):
+        final = [r.objective for r in result.results]
+        lines += ["", "Against Algorithm 1 as published (the same actuator sets, every actuator in use), final "
+                  "objective: " + ", ".join(f"{n} {p:.4f} -> {f:.4f} ({f / p:.3f}x)" if p > 0 else f"{n} {p:.4f}"
+                                            for n, p, f in zip(names, info["paper_objective"], final)) + "."]
     return lines
 
 
