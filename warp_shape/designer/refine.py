@@ -12,7 +12,7 @@ world). Each refinement round:
 2. **Screened in one batch per jam plan.** Every target's candidates run together (K x targets
    worlds of the one design, per-world masks), each controlled by the design's controller limited to
    the jam plan it chose for that target (which reproduces the target's current fit exactly and
-   costs about as much as one plan): one ``control_many`` call per plan in use, usually one or two.
+   costs about a third of the full controller): one ``control_many`` call per plan in use, usually one or two.
 3. **Verified.** Per target the hold that lowers its screened objective most (by more than
    ``min_gain``) is controlled by the design's own controller (every plan); it is kept when the fit
    it reaches is better than the target's current fit. Targets do not trade: each keeps its own
@@ -26,7 +26,6 @@ world). Each refinement round:
 from __future__ import annotations
 
 from dataclasses import dataclass
-
 
 from ..controller import control_many
 from ..design import Design
@@ -76,7 +75,8 @@ def _holds_for(design: Design, t: int, result, selection: Selection, constructio
 
 def _screen_settings(control_settings, result):
     """The design's controller limited to the jam plan it chose for this target: it reproduces the
-    target's current fit and costs about a quarter of trying every plan."""
+    target's current fit exactly and costs about a third of trying every plan (measured: 2.4 s
+    against 6.8 s per world on the default problem)."""
     plan = (result.refinement or {}).get("plan")
     if control_settings.method != "inverse" or not plan:
         return control_settings
