@@ -12,7 +12,8 @@ world). Each refinement round:
 2. **Screened in one batch per jam plan.** Every target's candidates run together (K x targets
    worlds of the one design, per-world masks), each controlled by the design's controller limited to
    the jam plan it chose for that target (which reproduces the target's current fit exactly and
-   costs about a third of the full controller): one ``control_many`` call per plan in use, usually one or two.
+   costs about a third of the full controller): one ``control_many`` call per plan in use, usually
+   one or two.
 3. **Verified.** Per target the hold that lowers its screened objective most (by more than
    ``min_gain``) is controlled by the design's own controller (every plan); it is kept when the fit
    it reaches is better than the target's current fit. Targets do not trade: each keeps its own
