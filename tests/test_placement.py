@@ -182,10 +182,22 @@ def test_simulated_placement_is_never_worse_than_the_papers_on_any_target(names,
     assert sim.placement["paper_objective"] == pytest.approx(final_paper, rel=1e-12)
     md = design_markdown(sim)
     assert "## Placement" in md and "Refinement stopped" in md and "Against Algorithm 1 as published" in md
+    assert "refinement rounds of K = 4 holds per target" in md
     start = sim.placement["start_pcc"]
     assert sim.placement["bad_start"] == [n for n, v in zip(names, start) if v < 0]
     if "teardrop" in names:  # anti-correlated with the averaged rest shape (start PCC about -0.93)
         assert sim.placement["bad_start"] == ["teardrop"] and "Bad start: teardrop" in md
+
+
+def test_simulated_placement_without_refinement_is_the_papers_design():
+    """refine_rounds=0: Algorithm 1's sets and final runs, the rounds' holds only; the report says so."""
+    from warp_shape.io.report import design_markdown
+
+    paper = _design(["egg"], placement="paper")
+    sim = _design(["egg"], refine_rounds=0)
+    assert _ends(sim.design) == _ends(paper.design) and "refinement" not in sim.placement
+    assert sim.results[0].objective == paper.results[0].objective
+    assert "no refinement rounds" in design_markdown(sim)
 
 
 class _CandidateLog:

@@ -65,9 +65,10 @@ def _placement_section(result) -> list[str]:
     names = result.target_names
     method = info.get("method", "paper")
     K = info.get("candidates")
-    what = {"simulated": f" (Algorithm 1's actuator sets, each held neutral for the targets it does not help, then "
-                         f"refinement rounds of K = {K} holds per target, each round one batch of worlds: no target "
-                         "ends worse than under Algorithm 1)",
+    refine = (f", then refinement rounds of K = {K} holds per target, each round one batch of worlds"
+              if "refinement" in info else ", no refinement rounds")
+    what = {"simulated": f" (Algorithm 1's actuator sets, each held neutral for the targets it does not help{refine}: "
+                         "no target ends worse than under Algorithm 1)",
             "greedy": f", K = {K} candidate sets per round (each controlled to every target in one batch of worlds)",
             "paper": " (Algorithm 1 as published: every target uses every actuator)"}
     lines = ["## Placement", "", f"Method: {method}{what.get(method, '')}."]
