@@ -1,7 +1,7 @@
 """Design benchmark: wall time of the shipped design problems (oval + heart with 4 IPAMs; four targets
 with 5), and the cost of the simulated placement against K, the holds tried per target in each
-refinement round (each round controls (K + 1) x targets worlds in one batch: on a CPU the cost grows
-linearly in K, on a GPU the worlds run together)."""
+refinement round (each round controls K x targets screening worlds, one batch per jam plan: on a CPU
+the cost grows linearly in K, on a GPU the worlds run together)."""
 
 from __future__ import annotations
 

@@ -49,7 +49,7 @@ def _passive(selection: Selection, k: int, j: int, ipams: list, cells: list) -> 
 
 
 def greedy_placement(current: Design, results, ctx: PlacementContext, round_index: int, selection: Selection, *,
-                        targets, names, control_settings, device, progress=None, recorder=None) -> dict:
+                     targets, names, control_settings, device, progress=None, recorder=None) -> dict:
     """Round ``round_index`` of the greedy placement (module docstring). Adds the kept set to
     ``current`` and leaves it out of the targets it does not help (``selection``); returns the
     round's record: every candidate's ends, per-target objectives and score, the one kept (``chosen``,

@@ -66,7 +66,8 @@ def _hold_last_set(current: Design, targets, names, held: Selection, round_setti
     actuator set held neutral on top of what it held before (its previous round's fit), and the better
     of the two recorded, so that no round makes a target worse while the sets themselves stay
     Algorithm 1's (placed on the errors with every actuator in use). Returns ``hold(results)`` for
-    ``_control_round``; it records in ``held`` what each target holds and in ``held_for`` its names."""
+    ``_control_round``; it records in ``held`` what each target holds (the newest IPAM among them
+    where the held run was kept)."""
     new = current.n_ipams - 1
     cells = set(ipam_cells(current, new))
 
@@ -75,15 +76,11 @@ def _hold_last_set(current: Design, targets, names, held: Selection, round_setti
         pc = [sorted(held.cells[t] | cells) for t in range(len(targets))]
         runs = control_many(current, targets, device=device, settings=round_settings, progress=progress,
                             passive_ipams=pi, passive_cells=pc, target_names=names)
-        out, hold.held_for = [], []
+        out = []
         for t, (r_all, r_held) in enumerate(zip(results, runs)):
-            if r_held.objective < r_all.objective:
-                held.ipams[t], held.cells[t] = set(pi[t]), set(pc[t])
-                out.append(r_held)
-                hold.held_for.append(names[t])
-            else:
-                held.ipams[t], held.cells[t] = set(), set()
-                out.append(r_all)
+            keep = r_held.objective < r_all.objective
+            held.ipams[t], held.cells[t] = (set(pi[t]), set(pc[t])) if keep else (set(), set())
+            out.append(r_held if keep else r_all)
         return out
     return hold
 
@@ -161,7 +158,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
                                  progress=progress, recorder=recorder, on_round=on_round, rounds_total=actuators,
                                  hold=hold)
         if hold is not None:
-            added[-1]["held_for"] = hold.held_for
+            added[-1]["held_for"] = [names[t] for t in range(len(targets)) if current.n_ipams - 1 in held.ipams[t]]
         if final:
             break
         if not greedy:

@@ -48,6 +48,10 @@ class Hold:
     ipams: frozenset = frozenset()
     cells: frozenset = frozenset()
 
+    def as_record(self) -> dict:
+        """``{"hold": [IPAMs], "cells": [cells]}``, as the refinement records name a hold."""
+        return dict(hold=sorted(self.ipams), cells=sorted(self.cells))
+
     def label(self) -> str:
         return "+".join([f"ipam{i}" for i in sorted(self.ipams)] + [f"cell{c}" for c in sorted(self.cells)]) or "none"
 
@@ -138,9 +142,8 @@ def refine_holds(design: Design, results: list, selection: Selection, constructi
         for (t, h), run in zip(worlds, runs):
             before = current[t].objective
             gain = float((before - run.objective) / before) if before > 0 else 0.0
-            record["candidates"].append(dict(target=t, hold=sorted(h.ipams), cells=sorted(h.cells),
-                                             objective=run.objective, screened_before=float(before), gain=gain,
-                                             score=run.objective))
+            record["candidates"].append(dict(target=t, **h.as_record(), objective=run.objective,
+                                             screened_before=float(before), gain=gain, score=run.objective))
             if gain > settings.min_gain and (t not in best or gain > best[t][0]):
                 best[t] = (gain, h)
         if not best:
@@ -153,13 +156,12 @@ def refine_holds(design: Design, results: list, selection: Selection, constructi
                                progress=progress, passive_ipams=[p for p, _ in passive],
                                passive_cells=[c for _, c in passive], target_names=[names[t] for t in order])
         for t, run, (pi, pc) in zip(order, checked, passive):
-            record["proposed"][names[t]] = dict(hold=sorted(best[t][1].ipams), cells=sorted(best[t][1].cells),
-                                                objective=run.objective,
+            record["proposed"][names[t]] = dict(**best[t][1].as_record(), objective=run.objective,
                                                 before=current[t].objective)
             if run.objective < current[t].objective:
                 selection.ipams[t], selection.cells[t] = set(pi), set(pc)
                 current[t] = run
-                record["kept"][names[t]] = dict(hold=sorted(best[t][1].ipams), cells=sorted(best[t][1].cells))
+                record["kept"][names[t]] = best[t][1].as_record()
         finish(record)
         active = [t for t in order if names[t] in record["kept"]]
         if not active:
