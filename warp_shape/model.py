@@ -16,7 +16,8 @@ from .errors import DesignError
 from .material import GAS_CONSTANT
 from .physics.bending import dihedral_angles_np
 
-__all__ = ["Model", "State", "Control", "build_model", "check_device", "HostModel", "host_model", "PRECISIONS"]
+__all__ = ["Model", "State", "Control", "build_model", "check_device", "HostModel", "host_model", "PRECISIONS",
+           "cell_anchor_faces"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -93,11 +94,31 @@ def face_owners(topo) -> np.ndarray:
     return ((owner[topo.faces[:, 0]] == e) * 1 + (owner[topo.faces[:, 1]] == e) * 2).astype(np.int32)
 
 
+def cell_anchor_faces(design: Design) -> np.ndarray:
+    """(n_cell,) the face of each cell whose radius is the curvature reference r_IPAM: the IPAM end
+    inside the cell, else the face whose centroid direction is closest to the cell's mean direction."""
+    ends = {}
+    for ip in design.ipams:
+        for f in (ip.face_a, ip.face_b):
+            ends.setdefault(int(f), True)
+    c = design.rest.face_centroids()
+    anchors = np.empty(design.n_cells, dtype=np.int64)
+    for j, cell in enumerate(design.cells):
+        inside = [f for f in cell.faces.tolist() if f in ends]
+        if inside:
+            anchors[j] = inside[0]
+        else:
+            u = c[cell.faces] / np.linalg.norm(c[cell.faces], axis=1, keepdims=True)
+            anchors[j] = cell.faces[int(np.argmax(u @ u.mean(axis=0)))]
+    return anchors
+
+
 @dataclass(frozen=True)
 class HostModel:
-    """Host (float64 / int64) arrays of a design, built once: rest geometry, stiffness, mass, IPAMs
-    and cells. Shared by the device model, the energies, the stable-step estimate, the controller's
-    observations and the NumPy baseline. E edges (hinges), F faces, V vertices, n IPAMs."""
+    """Host (float64 / int64) arrays of a design, built once per Simulator: rest geometry, stiffness,
+    mass, IPAMs, cells and the gas constants. Shared by the device model, the storability check, the
+    energies, the stable-step estimate, the controller (observations, laws, plans) and the NumPy
+    baseline. E edges (hinges), F faces, V vertices, n IPAMs, c cells."""
 
     rest_vertices: np.ndarray  # (V, 3) m
     faces: np.ndarray  # (F, 3) int64
@@ -118,6 +139,18 @@ class HostModel:
     ipam_limits: np.ndarray  # (n, 2) Pa gauge: P_min, P_max
     cell_edges: list  # n_cell x (n_c,) int32 edge indices
     cell_faces: list  # n_cell x (n_c,) int64 face indices
+    cell_anchors: np.ndarray  # (c,) int64: each cell's curvature reference face (see cell_anchor_faces)
+    gas_rt: float  # R T, J/mol
+    atmospheric_pressure: float  # Pa absolute
+    rest_air: float  # mol: the air that holds the rest volume at atmospheric pressure
+
+    @property
+    def n_ipams(self) -> int:
+        return len(self.ipam_faces)
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cell_faces)
 
 
 def host_model(design: Design) -> HostModel:
@@ -145,7 +178,9 @@ def host_model(design: Design) -> HostModel:
         ipam_damping=np.array([ip.damping for ip in ips], dtype=np.float64),
         ipam_limits=np.array([ip.pressure_limits for ip in ips], dtype=np.float64).reshape(-1, 2),
         cell_edges=[design.cell_edges(c) for c in range(design.n_cells)],
-        cell_faces=[c.faces.astype(np.int64) for c in design.cells],
+        cell_faces=[c.faces.astype(np.int64) for c in design.cells], cell_anchors=cell_anchor_faces(design),
+        gas_rt=GAS_CONSTANT * mat.temperature, atmospheric_pressure=mat.atmospheric_pressure,
+        rest_air=mat.atmospheric_pressure * mesh.volume() / (GAS_CONSTANT * mat.temperature),
     )
 
 
@@ -158,14 +193,16 @@ def check_device(device) -> str:
         raise DesignError(f"device {device!r} is not available ({exc}); devices here: {have}") from None
 
 
-def build_model(design: Design, device: str = "cpu", precision: str = "float32") -> Model:
-    """Build the static device arrays of a design (host -> device, once)."""
+def build_model(design: Design, device: str = "cpu", precision: str = "float32",
+                host: HostModel | None = None) -> Model:
+    """Build the static device arrays of a design (host -> device, once) from its host model
+    (``host_model(design)`` when None)."""
     if precision not in PRECISIONS:
         raise DesignError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
     scalar, _, np_dtype = PRECISIONS[precision]
     mesh, mat = design.rest, design.material
     topo = mesh.topology
-    host = host_model(design)
+    host = host_model(design) if host is None else host
     hinges, stiffness, mass = host.hinges, host.edge_stiffness, host.mass
 
     def arr(a, dtype=scalar):

@@ -20,8 +20,7 @@ from .design import Design
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused
 from .integrators import BlowupWatch, blowup_error, make_solver
-from .material import GAS_CONSTANT
-from .model import Control, State, build_model, check_device
+from .model import Control, State, build_model, check_device, host_model
 from .physics import FORCE_TERMS
 from .physics.bending import bending_energy_np
 from .physics.ipam import axial_force_np, ipam_energy_np, ipam_lengths_np, natural_length_np
@@ -80,9 +79,10 @@ class Simulator:
         self.dt, self.bending, self.precision = s.dt, s.bending, s.precision
         self.launch_mode, self.reestimate_every = s.launch_mode, s.reestimate_every
         self.worlds = int(worlds)
-        check_storable(design, s.precision)
-        self.model = m = build_model(design, self.device, s.precision)
-        air0 = m.atmospheric_pressure * design.rest.volume() / (GAS_CONSTANT * m.temperature)
+        host = host_model(design)  # built once: checked, then copied to the device
+        check_storable(host, design.material, s.precision)
+        self.model = m = build_model(design, self.device, s.precision, host=host)
+        air0 = host.rest_air
         try:
             self.state = State(m, self.worlds)
             self.control = Control(m, self.worlds, air0)

@@ -14,7 +14,7 @@ import numpy as np
 from .design import DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_STIFFNESS
 from .errors import DesignError, SimulationError, StabilityError
 from .material import GAS_CONSTANT, Material
-from .model import Model, host_model
+from .model import HostModel, Model
 from .physics.bending import bending_rows_np, hinge_gradients_np
 from .physics.damping import viscous_rows_np
 from .physics.ipam import ipam_operator_terms, ipam_rows_np
@@ -247,11 +247,11 @@ def check_chamber(x: np.ndarray, faces: np.ndarray, dtype=np.float64, edge: floa
             f"these positions are mirrored, inside out or collapsed (keep the rest mesh's orientation)")
 
 
-def check_storable(design, precision: str) -> None:
-    """Refuse a design whose model values (stiffness, inverse mass, damping) do not fit in ``precision``
-    (float32 overflows near 3.4e38 and underflows to zero near 1e-45), naming the Material field."""
+def check_storable(h: HostModel, mat, precision: str) -> None:
+    """Refuse a design (host model ``h``, material ``mat``) whose model values (stiffness, inverse mass,
+    damping) do not fit in ``precision`` (float32 overflows near 3.4e38 and underflows to zero near
+    1e-45), naming the Material field."""
     dtype = np.float32 if precision == "float32" else np.float64
-    h, mat = host_model(design), design.material
     values = {"youngs_modulus x thickness (edge stiffness)": h.edge_stiffness, "areal_density (1 / vertex mass)":
               1.0 / h.mass, "areal_density (vertex mass)": h.mass,
               "bending_stiffness x jam_bend_factor": mat.bending_stiffness * mat.jam_bend_factor,

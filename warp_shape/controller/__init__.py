@@ -39,13 +39,14 @@ per-step record, its columns documented there), ``loop`` (control / control_many
 states as host data), ``replay`` (a recorded sequence re-simulated open loop).
 """
 
+from ..model import cell_anchor_faces
 from .history import HISTORY_COLUMNS
 from .laws import LAWS, Controls, LawStep, PaperLaw
 from .loop import control, control_many
-from .observe import DeviceConstants, Observation, Observer, cell_anchor_faces
+from .observe import Observation, Observer
 from .replay import replay
 from .result import ControlResult
 from .settings import ControlSettings
 
 __all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces", "Controls",
-           "LawStep", "PaperLaw", "LAWS", "DeviceConstants", "Observation", "Observer", "HISTORY_COLUMNS", "replay"]
+           "LawStep", "PaperLaw", "LAWS", "Observation", "Observer", "HISTORY_COLUMNS", "replay"]

@@ -13,8 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model import HostModel
 from ..sampling import RadialSampler
-from .observe import DeviceConstants, fit_of, ipam_neutral_pressures, vertex_area_shares
+from .observe import fit_of, ipam_neutral_pressures, vertex_area_shares
 from .worlds import WorldState, mask_passive, max_speeds, put_worlds, take_worlds
 
 __all__ = ["Settled", "Explorer"]
@@ -37,7 +38,7 @@ class Explorer:
     """Settles batches of worlds of one design. ``target_volume``: (T,) volume of every target;
     ``passive``: (T, n_ipam) bool, the IPAMs each target holds neutral."""
 
-    def __init__(self, design, sim_settings, device: str, sampler: RadialSampler, dev: DeviceConstants,
+    def __init__(self, design, sim_settings, device: str, sampler: RadialSampler, dev: HostModel,
                  target_volume: np.ndarray, passive: np.ndarray, settle_steps: int, control_period: int):
         self.design, self.sim_settings, self.device = design, sim_settings, device
         self.sampler, self.dev = sampler, dev
@@ -60,15 +61,15 @@ class Explorer:
         sim = self._sim(B)
         put_worlds(sim, states)
         sim.air_moles = np.asarray(air, dtype=np.float64)
-        passive = self.passive[np.asarray(targets)] if self.dev.n_ipam else np.zeros((B, 0), bool)
+        passive = self.passive[np.asarray(targets)] if self.dev.n_ipams else np.zeros((B, 0), bool)
         mask_passive(sim, passive)
-        p = np.array(pressures, dtype=np.float64).reshape(B, self.dev.n_ipam)
+        p = np.array(pressures, dtype=np.float64).reshape(B, self.dev.n_ipams)
         done = 0
         while done < self.settle_steps:
             if passive.any():
                 lengths = np.asarray(sim.ipam_lengths()).reshape(B, -1)
                 p = np.where(passive, ipam_neutral_pressures(lengths, self.dev), p)
-            if self.dev.n_ipam:
+            if self.dev.n_ipams:
                 sim.ipam_pressures = p
             n = min(self.period, self.settle_steps - done)
             sim.step(n)

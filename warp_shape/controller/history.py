@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model import HostModel
 from .laws import Controls
-from .observe import DeviceConstants, Observation
+from .observe import Observation
 
 __all__ = ["HISTORY_COLUMNS", "history_row", "History"]
 
@@ -24,19 +25,19 @@ HISTORY_COLUMNS = ("step", "time", "phase", "air_mol", "pressure_pa", "volume_m3
                    "max_speed_m_s", "objective", "pcc", "mare_m", "mpre_pct")
 
 
-def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: DeviceConstants) -> dict:
+def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: HostModel) -> dict:
     """World ``w``'s row of the record at this observation (columns in the module docstring)."""
     row = dict(step=obs.step, time=obs.time, phase=int(phase), air_mol=controls.air[w],
                pressure_pa=obs.pressure_abs[w] - dev.atmospheric_pressure, volume_m3=obs.volume[w],
                target_volume_m3=obs.target_volume[w])
     free = dev.ipam_free_length
-    for i in range(dev.n_ipam):
+    for i in range(dev.n_ipams):
         row[f"ipam{i}_pressure_pa"] = controls.pressures[w, i]
         row[f"ipam{i}_length_m"] = obs.ipam_lengths[w, i]
         row[f"ipam{i}_target_length_m"] = obs.ipam_target_lengths[w, i]
         row[f"ipam{i}_force_n"] = obs.ipam_forces[w, i]
         row[f"ipam{i}_strain"] = (obs.ipam_lengths[w, i] - free[i]) / free[i]
-    for j in range(dev.n_cell):
+    for j in range(dev.n_cells):
         row[f"cell{j}_kappa_m"] = obs.kappa[w, j]
         row[f"cell{j}_kappa_target_m"] = obs.kappa_target[w, j]
         row[f"cell{j}_jammed"] = int(obs.jammed[w, j])
@@ -51,7 +52,7 @@ def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: D
 class History:
     """Rows and float32 membrane frames of every world, recorded while the world runs."""
 
-    def __init__(self, worlds: int, dev: DeviceConstants):
+    def __init__(self, worlds: int, dev: HostModel):
         self.dev = dev
         self.rows: list[list[dict]] = [[] for _ in range(worlds)]
         self.frames: list[list[np.ndarray]] = [[] for _ in range(worlds)]

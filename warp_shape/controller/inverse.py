@@ -26,9 +26,9 @@ import time
 import numpy as np
 
 from ..design import Design
+from ..model import HostModel
 from ..sampling import RadialSampler
 from .explore import Explorer
-from .observe import DeviceConstants
 from .plans import parse_plans, start_plan
 from .refine import STOP_LIMIT, Refined, refine
 from .result import ControlResult
@@ -48,7 +48,7 @@ class _Run:
     settings: ControlSettings
     device: str
     sampler: RadialSampler
-    dev: DeviceConstants
+    dev: HostModel
     passive_ipams: np.ndarray  # (W, n_ipam) bool
     passive_cells: np.ndarray  # (W, n_cell) bool
 
@@ -73,7 +73,7 @@ def _refine_all(ctx: _Run, trajs: list, warm) -> tuple[list[Refined], int]:
     """Screen every (plan, target) pair in one batch (its start settled and measured), then refine the
     ``PLANS_REFINED`` best plans of every target in one set of batches; one ``Refined`` per plan, and
     the world-steps simulated for it."""
-    W, P, s, n = len(warm), len(trajs), ctx.settings, ctx.dev.n_ipam
+    W, P, s, n = len(warm), len(trajs), ctx.settings, ctx.dev.n_ipams
     volumes = np.array([r.target.volume() for r in warm])
     ex = Explorer(ctx.design, s.simulation, ctx.device, ctx.sampler, ctx.dev, volumes, ctx.passive_ipams,
                   s.inverse_settle_steps, s.control_period)
@@ -199,8 +199,8 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
                                       target_names=target_names)
     sampler = RadialSampler([r.target for r in warm], device=device)
     probe = _Run(design, settings, device, sampler, None, None, None)
-    dev = DeviceConstants.of(probe.new_simulator(1), design)
-    pi, pc = passive_masks(warm, dev.n_ipam, dev.n_cell)
+    dev = probe.new_simulator(1).model.host
+    pi, pc = passive_masks(warm, dev.n_ipams, dev.n_cells)
     ctx = dataclasses.replace(probe, dev=dev, passive_ipams=pi, passive_cells=pc)
     if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
         plans = [p for p in plans if p[0] != "overinflate"] or plans

@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .observe import DeviceConstants, Observation, ipam_neutral_pressures
+from ..model import HostModel
+from .observe import Observation, ipam_neutral_pressures
 from .settings import ControlSettings
 
 __all__ = ["Controls", "LawStep", "PaperLaw", "LAWS"]
@@ -44,7 +45,7 @@ class PaperLaw:
 
     name = "paper"
 
-    def __init__(self, settings: ControlSettings, dev: DeviceConstants, passive_ipams: np.ndarray,
+    def __init__(self, settings: ControlSettings, dev: HostModel, passive_ipams: np.ndarray,
                  passive_cells: np.ndarray):
         W = passive_ipams.shape[0]
         self.settings = settings
@@ -53,12 +54,12 @@ class PaperLaw:
         self.passive_cells = passive_cells  # (W, n_cell) bool
         self.phase = np.ones(W, dtype=np.int64)
         self.gain_air = np.full(W, settings.air_gain)  # backed off per world when the volume oscillates
-        self.gain_p = np.full((W, dev.n_ipam), settings.pressure_gain)  # per world and IPAM
+        self.gain_p = np.full((W, dev.n_ipams), settings.pressure_gain)  # per world and IPAM
         self.err_v_prev = np.zeros(W)
-        self.err_l_prev = np.zeros((W, dev.n_ipam))
+        self.err_l_prev = np.zeros((W, dev.n_ipams))
         # eqs. (14)-(15)'s last curvature and the IPAM back-off's last length error start at a world's
         # first shape-control step: not carried over from the inflation phase, when neither is controlled
-        self.kappa_prev = np.zeros((W, dev.n_cell))
+        self.kappa_prev = np.zeros((W, dev.n_cells))
         self.shaped = np.zeros(W, dtype=bool)  # (W,) the world has had a shape-control step
 
     def update_phase(self, obs: Observation, done: np.ndarray) -> np.ndarray:
@@ -88,7 +89,7 @@ class PaperLaw:
         self.gain_air = np.where(flip & active, np.maximum(self.gain_air * s.gain_backoff,
                                                            s.min_gain * s.air_gain), self.gain_air)
         self.err_v_prev = err_v
-        if self.dev.n_ipam:
+        if self.dev.n_ipams:
             err_l = obs.ipam_target_lengths - obs.ipam_lengths
             flip_l = (err_l * self.err_l_prev < 0) & (np.abs(err_l) > 0.5 * np.abs(self.err_l_prev)) \
                 & (np.abs(err_l) > s.length_deadband) & self.shaped[:, None]
@@ -98,7 +99,7 @@ class PaperLaw:
 
     def _air(self, obs: Observation, air: np.ndarray, active: np.ndarray) -> np.ndarray:
         """Eq. (11), rate limited: dn = (V_t - V) p_abs / (R T)."""
-        dn = self.gain_air * (obs.target_volume - obs.volume) * obs.pressure_abs / self.dev.rt
+        dn = self.gain_air * (obs.target_volume - obs.volume) * obs.pressure_abs / self.dev.gas_rt
         lim = self.settings.air_rate * self.dev.rest_air
         return np.where(active, np.maximum(air + np.clip(dn, -lim, lim), 0.0), air)
 
@@ -106,7 +107,7 @@ class PaperLaw:
                    shaping: np.ndarray) -> np.ndarray:
         """Eq. (12), rate limited and within limits: dP = (k / A) (L_t - L); passive IPAMs neutral."""
         dev = self.dev
-        if not dev.n_ipam:
+        if not dev.n_ipams:
             return pressures
         rate = self.settings.pressure_rate
         dP = self.gain_p * (obs.ipam_target_lengths - obs.ipam_lengths) / dev.ipam_area_over_k
@@ -122,7 +123,7 @@ class PaperLaw:
         """Eqs. (13)-(15): a cell jams when its curvature is no longer between its previous value (that of
         the law's last shape-control step) and its target (beyond ``curvature_tolerance``). No cell jams
         at a world's first shape-control step: it has no previous curvature yet."""
-        if not (self.dev.n_cell and self.settings.jamming):
+        if not (self.dev.n_cells and self.settings.jamming):
             return []
         tol = self.settings.curvature_tolerance
         lo = np.minimum(obs.kappa_target, self.kappa_prev) - tol

@@ -11,13 +11,14 @@ import numpy as np
 from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
+from ..model import HostModel
 from ..sampling import RadialSampler
 from ..targets import centred_targets
 from ..settings import SimulationSettings
 from .checks import check_targets_against_rest
 from .history import History
 from .laws import LAWS, Controls, PaperLaw
-from .observe import DeviceConstants, Observation, Observer
+from .observe import Observation, Observer
 from .result import ControlResult
 from .settings import ControlSettings
 from .worlds import mask_passive
@@ -67,7 +68,7 @@ class _Ending:
     deadbands and left them while settling resumes control (within the step limit); otherwise it is
     done, and the observation at which it finished is what its result reports."""
 
-    def __init__(self, settings: ControlSettings, dev: DeviceConstants, passive_ipams: np.ndarray):
+    def __init__(self, settings: ControlSettings, dev: HostModel, passive_ipams: np.ndarray):
         W = passive_ipams.shape[0]
         self.settings, self.dev, self.passive_ipams = settings, dev, passive_ipams
         self.state = np.full(W, RUNNING)
@@ -99,7 +100,7 @@ class _Ending:
     def deadbands_met(self, obs: Observation, controls: Controls) -> np.ndarray:
         """(W,) bool: volume and every IPAM length within their deadbands (pinned or passive IPAMs aside)."""
         vol_ok = obs.volume_within(self.settings.volume_deadband)
-        if not self.dev.n_ipam:
+        if not self.dev.n_ipams:
             return vol_ok
         near = np.abs(obs.ipam_target_lengths - obs.ipam_lengths) < self.settings.length_deadband
         return vol_ok & np.all(near | self.pinned(obs, controls) | self.passive_ipams, axis=1)
@@ -132,7 +133,7 @@ class _Ending:
         more, e.g. "ipam 3 at P_max 300 kPa"."""
         obs, controls = self.final[w]
         out = []
-        if self.dev.n_ipam:
+        if self.dev.n_ipams:
             lim = self.dev.ipam_limits
             for i in np.flatnonzero(self.pinned(obs, controls)[w]):
                 top = controls.pressures[w, i] >= lim[i, 1]
@@ -177,7 +178,7 @@ def _apply(sim, observer: Observer, law, ending: _Ending, obs: Observation, cont
         controls = out.controls
         ending.law_steps += active
     sim.air_moles = controls.air
-    if observer.dev.n_ipam:
+    if observer.dev.n_ipams:
         sim.ipam_pressures = controls.pressures
     return controls
 
@@ -188,8 +189,8 @@ def _run(sim, observer: Observer, law: PaperLaw, ending: _Ending, history: Histo
     is done; returns (W, n_cell) the control step at which each cell jammed (-1: never)."""
     dev, s = observer.dev, ending.settings
     W = len(ending.state)
-    controls = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipam)))
-    jam_steps = np.full((W, dev.n_cell), -1, dtype=np.int64)
+    controls = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipams)))
+    jam_steps = np.full((W, dev.n_cells), -1, dtype=np.int64)
     step = 0
     while True:
         obs = observer.observe(sim, step, controls.air, controls.pressures)
@@ -258,9 +259,9 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     sampler = RadialSampler(targets, device=device, names=names)  # checks star-shape, naming the directions
     check_targets_against_rest(design.rest, targets, sampler, names, max_stretch=settings.max_stretch)
     sim = _simulator(design, settings.simulation, device, W)
-    dev = DeviceConstants.of(sim, design)
-    passive_i = _passive_mask(passive_ipams, W, dev.n_ipam, "passive_ipams")  # (W, n_ipam)
-    passive_c = _passive_mask(passive_cells, W, dev.n_cell, "passive_cells")  # (W, n_cell)
+    dev = sim.model.host
+    passive_i = _passive_mask(passive_ipams, W, dev.n_ipams, "passive_ipams")  # (W, n_ipam)
+    passive_c = _passive_mask(passive_cells, W, dev.n_cells, "passive_cells")  # (W, n_cell)
     mask_passive(sim, passive_i, passive_c)
     if recorder is not None:
         recorder.begin_run(design=design, targets=targets, target_names=names, prefix=recorder_prefix,

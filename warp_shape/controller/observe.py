@@ -14,80 +14,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..design import Design
-from ..material import GAS_CONSTANT
+from ..model import HostModel
 from ..physics.ipam import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
 from ..physics.pressure import volumes_np
 from ..sampling import RadialSampler, fit_objective, mare, mpre, pcc
 
-__all__ = ["DeviceConstants", "Observation", "Observer", "cell_anchor_faces", "ipam_lengths_and_forces",
+__all__ = ["Observation", "Observer", "ipam_lengths_and_forces",
            "ipam_neutral_pressures", "vertex_area_shares", "fit_of"]
 
 
-def cell_anchor_faces(design: Design) -> np.ndarray:
-    """(n_cell,) the face of each cell whose radius is the curvature reference r_IPAM: the IPAM end
-    inside the cell, else the face whose centroid direction is closest to the cell's mean direction."""
-    ends = {}
-    for ip in design.ipams:
-        for f in (ip.face_a, ip.face_b):
-            ends.setdefault(int(f), True)
-    c = design.rest.face_centroids()
-    anchors = np.empty(design.n_cells, dtype=np.int64)
-    for j, cell in enumerate(design.cells):
-        inside = [f for f in cell.faces.tolist() if f in ends]
-        if inside:
-            anchors[j] = inside[0]
-        else:
-            u = c[cell.faces] / np.linalg.norm(c[cell.faces], axis=1, keepdims=True)
-            anchors[j] = cell.faces[int(np.argmax(u @ u.mean(axis=0)))]
-    return anchors
-
-
-@dataclass(frozen=True)
-class DeviceConstants:
-    """What the controller knows of the simulated device (host arrays, SI units)."""
-
-    faces: np.ndarray  # (F, 3) membrane triangles
-    hinges: np.ndarray  # (E, 4) edge endpoints first (stretch guard)
-    rest_length: np.ndarray  # (E,) rest edge lengths, m
-    ipam_faces: np.ndarray  # (n_ipam, 2) end faces
-    ipam_stiffness: np.ndarray  # (n_ipam,) N/m
-    ipam_area_over_k: np.ndarray  # (n_ipam,) A / k, m/Pa
-    ipam_free_length: np.ndarray  # (n_ipam,) m
-    ipam_limits: np.ndarray  # (n_ipam, 2) gauge pressure limits, Pa
-    cell_faces: list  # per cell: (n,) face indices
-    anchors: np.ndarray  # (n_cell,) curvature reference face of each cell
-    rt: float  # R T, J/mol
-    atmospheric_pressure: float  # Pa
-    rest_air: float  # air amount at rest, mol
-
-    @property
-    def n_ipam(self) -> int:
-        return len(self.ipam_faces)
-
-    @property
-    def n_cell(self) -> int:
-        return len(self.cell_faces)
-
-    @classmethod
-    def of(cls, sim, design: Design) -> "DeviceConstants":
-        """The constants of ``sim`` (a Simulator of ``design``)."""
-        m, h = sim.model, sim.model.host
-        return cls(faces=h.faces, hinges=h.hinges, rest_length=h.rest_length, ipam_faces=h.ipam_faces,
-                   ipam_stiffness=h.ipam_stiffness, ipam_area_over_k=h.ipam_area_over_k,
-                   ipam_free_length=h.ipam_free_length, ipam_limits=h.ipam_limits,
-                   cell_faces=[c.faces for c in design.cells], anchors=cell_anchor_faces(design),
-                   rt=GAS_CONSTANT * m.temperature, atmospheric_pressure=m.atmospheric_pressure,
-                   rest_air=float(np.atleast_1d(sim.air_moles)[0]))
-
-
-def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray, dev: DeviceConstants,
+def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray, dev: HostModel,
                             pressures: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The IPAM law on the host: (W, n_ipam) length L (distance between the end-face centroids),
     target length L_t (the same on the sampled target) and axial force k (L - L_n), L_n = L0 + (A/k) P
     (N, + = tension). ``centroids``: (W, F, 3) face centroids; ``pressures``: (W, n_ipam) gauge Pa."""
     W = centroids.shape[0]
-    if not dev.n_ipam:
+    if not dev.n_ipams:
         return np.zeros((W, 0)), np.zeros((W, 0)), np.zeros((W, 0))
     length = centroid_distances_np(centroids, dev.ipam_faces)
     target = centroid_distances_np(target_centroids, dev.ipam_faces)
@@ -96,7 +38,7 @@ def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray,
     return length, target, force
 
 
-def ipam_neutral_pressures(lengths: np.ndarray, dev: DeviceConstants) -> np.ndarray:
+def ipam_neutral_pressures(lengths: np.ndarray, dev: HostModel) -> np.ndarray:
     """(W, n_ipam) the gauge pressures (within limits) whose natural length is the current length:
     an IPAM held at such a pressure exerts no force."""
     lim = dev.ipam_limits
@@ -132,12 +74,12 @@ class Observation:
         return np.abs(self.volume - self.target_volume) / self.target_volume < deadband
 
 
-def _curvatures(radii: np.ndarray, dev: DeviceConstants) -> np.ndarray:
+def _curvatures(radii: np.ndarray, dev: HostModel) -> np.ndarray:
     """(W, n_cell) kappa = r_anchor - mean r over the cell's faces (eq. 13), from (W, F) face radii."""
-    if not dev.n_cell:
+    if not dev.n_cells:
         return np.zeros((radii.shape[0], 0))
-    return np.stack([radii[:, dev.anchors[j]] - radii[:, dev.cell_faces[j]].mean(axis=1)
-                     for j in range(dev.n_cell)], 1)
+    return np.stack([radii[:, dev.cell_anchors[j]] - radii[:, dev.cell_faces[j]].mean(axis=1)
+                     for j in range(dev.n_cells)], 1)
 
 
 def vertex_area_shares(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -168,7 +110,7 @@ class Observer:
     """Takes one observation of every world of a simulator (one target per world; ``target_volumes``:
     (W,) each world's target mesh volume, m^3, the scale of the objective)."""
 
-    def __init__(self, dev: DeviceConstants, sampler: RadialSampler, worlds: int, target_volumes):
+    def __init__(self, dev: HostModel, sampler: RadialSampler, worlds: int, target_volumes):
         self.dev = dev
         self.sampler = sampler
         self.world_index = np.arange(worlds)
@@ -190,9 +132,9 @@ class Observer:
         fit = fit_of(x, sampled, dev.faces, self.target_volumes)
         return Observation(
             step=step, time=sim.time, positions=x, sampled=sampled, volume=vol, target_volume=vol_t,
-            pressure_abs=air * dev.rt / vol, ipam_lengths=length, ipam_target_lengths=target_length,
+            pressure_abs=air * dev.gas_rt / vol, ipam_lengths=length, ipam_target_lengths=target_length,
             ipam_forces=force, kappa=_curvatures(np.linalg.norm(cen, axis=2), dev),
             kappa_target=_curvatures(np.linalg.norm(cen_t, axis=2), dev),
-            jammed=np.asarray(sim.jammed).reshape(W, dev.n_cell),
+            jammed=np.asarray(sim.jammed).reshape(W, dev.n_cells),
             mean_stretch=np.array([s.mean() for s in stretch]), max_speed=np.linalg.norm(v, axis=2).max(axis=1),
             **fit)

@@ -66,20 +66,20 @@ def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
     W = len(warm)
     dev = ctx.dev
     air = np.array([r.air_moles for r in warm])
-    press = np.stack([r.ipam_pressures for r in warm]) if dev.n_ipam else np.zeros((W, 0))
+    press = np.stack([r.ipam_pressures for r in warm]) if dev.n_ipams else np.zeros((W, 0))
     observer = Observer(dev, ctx.sampler, W, [r.target.volume() for r in warm])
     if name == "paper":
         sim = replay_simulator(ctx.design, warm, device=ctx.device)
         hist = _history_from_results(warm, dev)
         step = max(int(r.history["step"][-1]) for r in warm)
-        jam_steps = np.stack([r.jam_steps for r in warm]).astype(np.int64).reshape(W, dev.n_cell)
+        jam_steps = np.stack([r.jam_steps for r in warm]).astype(np.int64).reshape(W, dev.n_cells)
         traj = Trajectory(sim, observer, ctx.settings, hist, step, Controls(air.copy(), press.copy()), jam_steps,
                           ctx.passive_ipams, ctx.passive_cells)
         traj.observe()
         return traj
     sim = ctx.new_simulator(W)
-    rest = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipam)))
-    traj = Trajectory(sim, observer, ctx.settings, History(W, dev), 0, rest, np.full((W, dev.n_cell), -1, np.int64),
+    rest = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipams)))
+    traj = Trajectory(sim, observer, ctx.settings, History(W, dev), 0, rest, np.full((W, dev.n_cells), -1, np.int64),
                       ctx.passive_ipams, ctx.passive_cells)
     traj.observe()
     if name == "overinflate":

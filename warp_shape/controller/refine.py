@@ -68,7 +68,7 @@ class _World:
         lim = dev.ipam_limits / PRESSURE_SCALE
         self.lo = np.concatenate([[0.0], lim[:, 0]])
         self.hi = np.concatenate([[np.inf], lim[:, 1]])
-        self.trust = np.concatenate([[AIR_TRUST], np.full(dev.n_ipam, PRESSURE_TRUST / PRESSURE_SCALE)])
+        self.trust = np.concatenate([[AIR_TRUST], np.full(dev.n_ipams, PRESSURE_TRUST / PRESSURE_SCALE)])
         self.mu, self.objective, self.start, self.iterations = DAMPING, None, None, 0
         self.mare, self.start_mare = np.nan, np.nan
         self.stop, self.running, self.trace, self.J, self.e = STOP_LIMIT, True, [], None, None
@@ -104,7 +104,7 @@ class _World:
             return []
         g = self.J.T @ self.e
         out = []
-        for i in range(self.dev.n_ipam):
+        for i in range(self.dev.n_ipams):
             k = i + 1
             if not self.active[k]:
                 continue
@@ -219,7 +219,7 @@ def refine(explorer: Explorer, states: list, air: np.ndarray, pressures: np.ndar
             wd.stop = STOP_NOTHING
     out_air, out_p = zip(*[wd.controls(wd.u) for wd in worlds]) if worlds else ((), ())
     nan = float("nan")
-    return Refined(air=np.array(out_air), pressures=np.array(out_p).reshape(len(worlds), dev.n_ipam),
+    return Refined(air=np.array(out_air), pressures=np.array(out_p).reshape(len(worlds), dev.n_ipams),
                    start_objective=np.array([wd.start if wd.start is not None else nan for wd in worlds]),
                    objective=np.array([wd.objective if wd.objective is not None else nan for wd in worlds]),
                    start_mare=np.array([wd.start_mare for wd in worlds]), mare=np.array([wd.mare for wd in worlds]),

@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model import HostModel
 from .history import History
 from .laws import Controls
-from .observe import DeviceConstants, Observation, Observer, ipam_neutral_pressures
+from .observe import Observation, Observer, ipam_neutral_pressures
 from .settings import ControlSettings
 from .worlds import take_worlds
 
@@ -34,7 +35,7 @@ class Trajectory:
     def __init__(self, sim, observer: Observer, settings: ControlSettings, history: History, step: int,
                  controls: Controls, jam_steps: np.ndarray, passive_ipams: np.ndarray, passive_cells: np.ndarray):
         self.sim, self.observer, self.settings = sim, observer, settings
-        self.dev: DeviceConstants = observer.dev
+        self.dev: HostModel = observer.dev
         self.history, self.step, self.controls, self.jam_steps = history, int(step), controls, jam_steps
         self.passive_ipams, self.passive_cells = passive_ipams, passive_cells
         self.W = len(controls.air)
@@ -53,13 +54,13 @@ class Trajectory:
 
     def _apply(self, air: np.ndarray, pressures: np.ndarray) -> None:
         """Set the commands for the next control period (passive IPAMs neutral) and step it."""
-        if self.dev.n_ipam and self.passive_ipams.any():
+        if self.dev.n_ipams and self.passive_ipams.any():
             neutral = ipam_neutral_pressures(self.last.ipam_lengths, self.dev)
             pressures = np.where(self.passive_ipams, neutral, pressures)
         self.controls = Controls(air=np.asarray(air, dtype=np.float64).copy(),
                                  pressures=np.asarray(pressures, dtype=np.float64).reshape(self.W, -1).copy())
         self.sim.air_moles = self.controls.air
-        if self.dev.n_ipam:
+        if self.dev.n_ipams:
             self.sim.ipam_pressures = self.controls.pressures
         self.sim.step(self.settings.control_period)
         self.step += 1
@@ -74,9 +75,9 @@ class Trajectory:
         a0, p0 = self.controls.air.copy(), self.controls.pressures.copy()
         air = np.asarray(air, dtype=np.float64)
         pressures = np.clip(np.asarray(pressures, dtype=np.float64).reshape(self.W, -1),
-                            dev.ipam_limits[:, 0], dev.ipam_limits[:, 1]) if dev.n_ipam else p0
+                            dev.ipam_limits[:, 0], dev.ipam_limits[:, 1]) if dev.n_ipams else p0
         n_air = np.abs(air - a0) / (s.air_rate * dev.rest_air)
-        n_p = np.abs(pressures - p0).max(axis=1) / s.pressure_rate if dev.n_ipam else np.zeros(self.W)
+        n_p = np.abs(pressures - p0).max(axis=1) / s.pressure_rate if dev.n_ipams else np.zeros(self.W)
         n = np.ceil(np.maximum(n_air, n_p) - 1e-9).astype(int)
         for k in range(1, int(n.max(initial=0)) + 1):
             f = np.minimum(k / np.maximum(n, 1), 1.0)
