@@ -49,7 +49,8 @@ from .errors import MeshError, ShapeError
 from .mesh import TriMesh
 from .sampling import RadialSampler, radial_metrics
 
-__all__ = ["ScanComparison", "IcpConvergenceWarning", "compare_scan", "surface_samples", "load_scan", "icp", "kabsch", "surface_distances"]
+__all__ = ["ScanComparison", "IcpConvergenceWarning", "compare_scan", "surface_samples", "load_scan", "icp", "kabsch",
+           "surface_distances", "detect_length_unit", "LENGTH_UNITS", "PLAUSIBLE_EXTENT_M"]
 
 # Ignore pairs farther than this many robust standard deviations of the pair distances.
 INLIER_SIGMAS = 3.0
@@ -61,6 +62,11 @@ TRIAL_ITERATIONS = 8
 COVERAGE_SAMPLES = 40000
 # Longest point-to-plane step of ICP: rotation (rad), and shift as a fraction of the size.
 _PLANE_STEP_MAX = 0.05
+#: Length units a scan or reference file may be in -> factor to metres ("auto": ``detect_length_unit``).
+LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
+#: Largest extent (m) of a plausible shape display or a scan of one; a file whose numbers fit this
+#: range read as metres is in metres, one whose numbers fit it read as millimetres in millimetres.
+PLAUSIBLE_EXTENT_M = (5e-3, 2.0)
 
 
 class IcpConvergenceWarning(UserWarning):
@@ -79,6 +85,8 @@ class ScanComparison:
     ``converged``: ICP met its tolerance before its iteration limit (else an ``IcpConvergenceWarning``
     was issued); ``last_move``: the last ICP update's largest point displacement.
     ``coverage_radius``: the distance within which the scan covers the reference (step 5).
+    ``scan_units`` / ``reference_units``: the unit each input's numbers were read in ("m" or "mm"),
+    every length of the result is in metres whatever they were.
     """
 
     transform: np.ndarray
@@ -95,6 +103,8 @@ class ScanComparison:
     last_move: float = 0.0
     coverage_radius: float = 0.0
     reference_centroid: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    scan_units: str = "m"
+    reference_units: str = "m"
 
     def to_dict(self) -> dict:
         """The comparison as a JSON-ready dict (lengths in m, MPRE in %)."""
@@ -145,6 +155,32 @@ def load_scan(scan) -> tuple[np.ndarray, np.ndarray | None]:
     if arr.ndim == 2 and arr.shape[1] == 3:
         return arr, None
     raise ShapeError(f"cannot read a scan from {type(scan).__name__}")
+
+
+def detect_length_unit(points, what: str = "scan") -> str:
+    """``"m"`` or ``"mm"``: the unit in which ``points`` (N, 3) span a plausible shape display
+    (``PLAUSIBLE_EXTENT_M``, largest extent). Raises ``ShapeError`` where neither fits."""
+    ext = float(np.max(np.ptp(np.asarray(points, dtype=np.float64).reshape(-1, 3), axis=0)))
+    lo, hi = PLAUSIBLE_EXTENT_M
+    for unit, factor in LENGTH_UNITS.items():
+        if lo <= ext * factor <= hi:
+            return unit
+    raise ShapeError(f"{what} is {ext:.4g} units across: neither metres nor millimetres give a display "
+                     f"{lo * 1e3:g} mm to {hi:g} m across; give its unit (--units m or mm)")
+
+
+def _units_of(points, units: str, what: str) -> str:
+    """The unit ``points`` are read in: ``units``, or the detected one for ``"auto"``."""
+    if units == "auto":
+        return detect_length_unit(points, what)
+    if units not in LENGTH_UNITS:
+        raise ShapeError(f"{what} units must be one of {', '.join([*LENGTH_UNITS, 'auto'])}, got {units!r}")
+    ext = float(np.max(np.ptp(points, axis=0))) * LENGTH_UNITS[units]
+    if not PLAUSIBLE_EXTENT_M[0] <= ext <= PLAUSIBLE_EXTENT_M[1]:
+        other = next(u for u in LENGTH_UNITS if u != units)
+        raise ShapeError(f"{what} is {ext:.4g} m across read in {units}: no shape display is; is it in {other}? "
+                         f"(--units {other} or auto)")
+    return units
 
 
 def _load_reference(reference) -> TriMesh:
@@ -448,12 +484,16 @@ def _coverage(ref: TriMesh, aligned: np.ndarray, faces: np.ndarray | None, keep:
 def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tolerance: float = 1e-5,
                  method: str = "point_to_plane",
                  inlier_sigmas: float = INLIER_SIGMAS, icp_points: int = ICP_POINTS,
-                 initial_transform: np.ndarray | None = None, seed: int = 0) -> ScanComparison:
+                 initial_transform: np.ndarray | None = None, seed: int = 0, scan_units: str = "m",
+                 reference_units: str = "m") -> ScanComparison:
     """Align ``scan`` to ``reference`` and measure the fit (section V-D); see the module docstring.
 
     ``scan``: TriMesh, path (any trimesh format; open or partial meshes and point clouds accepted),
     trimesh object or (N, 3) points. ``reference``: closed TriMesh, mesh path or target name.
-    ``initial_transform`` (4x4, scan -> reference) skips the rough alignment.
+    ``scan_units`` / ``reference_units``: "m", "mm" or "auto" (``detect_length_unit``), the unit of
+    the numbers in each (a shipped target is always in metres); either, read in its unit, must span
+    a plausible display (``PLAUSIBLE_EXTENT_M``), else ``ShapeError`` names the other unit. ``initial_transform`` (4x4, scan -> reference, metres)
+    skips the rough alignment.
     """
     device = wp.get_device(device)
     pts, faces = load_scan(scan)
@@ -463,6 +503,11 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
     if not finite.all():
         raise ShapeError(f"scan point {int(np.flatnonzero(~finite)[0])} is not finite")
     ref = _load_reference(reference)
+    scan_units = _units_of(pts, scan_units, "the scan")
+    shipped = isinstance(reference, str) and not Path(reference).exists()
+    reference_units = "m" if shipped else _units_of(ref.vertices, reference_units, "the reference")
+    pts = pts * LENGTH_UNITS[scan_units]
+    ref = ref.scaled(LENGTH_UNITS[reference_units]) if reference_units != "m" else ref
     c_ref = ref.centroid()
     refc = ref.centered()
     scale = float(np.max(np.linalg.norm(refc.vertices, axis=1)))
@@ -496,8 +541,9 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
     if not info["converged"]:
         warnings.warn(f"ICP ({method}) did not converge in {iters} iterations: residual rms {rms * 1e3:.3f} mm, "
                       f"last update moved points by {info['last_move'] * 1e3:.4f} mm (tolerance "
-                      f"{tolerance * scale * 1e3:.4f} mm); the alignment may be off: raise --max-iterations or use "
-                      f"--method point_to_plane", IcpConvergenceWarning, stacklevel=2)
+                      f"{tolerance * scale * 1e3:.4f} mm); the alignment may be off: raise --max-iterations"
+                      f"{' or use --method point_to_plane' if method == 'point_to_point' else ''}",
+                      IcpConvergenceWarning, stacklevel=2)
 
     aligned = pts @ r.T + t
     proj, d = closest(aligned)
@@ -513,4 +559,4 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
                           covered_fraction=covered, rms=rms, iterations=iters, converged=info["converged"],
                           last_move=info["last_move"], coverage_radius=how["radius"],
                           uncovered_direction=uncovered_dir, n_points=len(pts), n_inliers=int(keep.sum()),
-                          reference_centroid=c_ref)
+                          reference_centroid=c_ref, scan_units=scan_units, reference_units=reference_units)

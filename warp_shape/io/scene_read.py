@@ -23,7 +23,7 @@ from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, IPAM_ATTRIBUTE
                            TARGETS, Scene, SceneAttribute, ipam_arguments, material_attribute_for)
 from .usd_common import load_pxr
 
-__all__ = ["read_stage", "load_scene", "validate_usd"]
+__all__ = ["read_stage", "load_scene", "validate_usd", "load_actuated_shape"]
 
 #: USD type names of settings attributes -> the Python type they read back as
 SETTING_READERS = {"bool": bool, "int": int, "int64": int, "uint": int, "uint64": int, "uchar": int,
@@ -509,3 +509,53 @@ def validate_usd(path_or_stage) -> list[str]:
     reg = UsdValidation.ValidationRegistry()
     ctx = UsdValidation.ValidationContext(reg.GetOrLoadAllValidators())
     return [e.GetErrorAsString() for e in ctx.Validate(stage) if not e.HasNoError()]
+
+
+def _animation_for(path: Path, stage, target: str | None) -> tuple[Path, object, str]:
+    """The animated stage of ``target``'s controlled run: ``path`` itself when its membrane is animated,
+    else (a design scene) the ``actuation_<target>.usdc`` a design or export wrote beside it."""
+    root = stage.GetDefaultPrim()
+    points = root.GetChild(MEMBRANE).GetAttribute("points") if root and root.GetChild(MEMBRANE) else None
+    if points is None or not points.IsValid():
+        raise SceneError(f"{path}: holds no membrane: give a design scene (design.usda) or an actuation_<target>.usdc")
+    names = read_stage(stage, str(path)).target_names
+    if points.GetNumTimeSamples() > 1:
+        if target is not None and names and target not in names:
+            raise SceneError(f"{path} is the run of target {names[0]}, not {target!r}")
+        return path, stage, (names[0] if names else path.stem.removeprefix("actuation_"))
+    if target is None:
+        if len(names) != 1:
+            raise SceneError(f"{path} is designed for {len(names)} targets ({', '.join(names) or 'none'}): "
+                             f"name one with --target NAME")
+        target = names[0]
+    elif names and target not in names:
+        raise SceneError(f"{path} has no target {target!r}; its targets: {', '.join(names)}")
+    run = path.parent / f"actuation_{target}.usdc"
+    if not run.is_file():
+        raise SceneError(f"no {run.name} beside {path} (the simulated run of target {target}); write it with: "
+                         f"warp-shape export {path} --what usd control --out {path.parent}")
+    return run, _open_stage(run), target
+
+
+def load_actuated_shape(path, *, target: str | None = None, time_s: float | None = None):
+    """The membrane of a design's simulated, controlled run of ``target`` at ``time_s`` seconds of its
+    valve schedule (None: the last sample, the achieved shape), as the run's ``actuation_<target>.usdc``
+    recorded it. ``path``: that file, or the design scene (``design.usda``) it lies beside.
+    Returns ``(TriMesh, info)``; info: ``target``, ``file``, ``time_s`` and ``duration_s``."""
+    path = resolve_scene(path)
+    run, stage, target = _animation_for(path, _open_stage(path), target)
+    membrane = stage.GetDefaultPrim().GetChild(MEMBRANE)
+    points = membrane.GetAttribute("points")
+    tcps = float(stage.GetTimeCodesPerSecond())
+    samples = points.GetTimeSamples()
+    duration = float(samples[-1]) / tcps
+    if time_s is None:
+        time_s = duration
+    if not (math.isfinite(time_s) and 0.0 <= time_s <= duration * (1 + 1e-9)):
+        raise SceneError(f"--time {time_s:g} s lies outside the run of target {target} (0 to {duration:.4g} s of its "
+                         f"valve schedule)")
+    rest, _ = _Reader(str(run)).triangles(membrane, REST_POINTS, fallback="points")
+    x = np.asarray(points.Get(load_pxr().Usd.TimeCode(min(time_s * tcps, float(samples[-1])))), dtype=np.float64)
+    if x.shape != rest.vertices.shape or not np.all(np.isfinite(x)):
+        raise SceneError(f"{run}: the membrane points at {time_s:g} s are not {rest.n_vertices} finite positions")
+    return TriMesh(x, rest.faces), dict(target=target, file=str(run), time_s=float(time_s), duration_s=duration)

@@ -1,0 +1,116 @@
+"""Units and plausibility on the command line: scans and references in millimetres or metres, the
+design's actuated shape as a reference, length flags checked against the device before any work."""
+
+from __future__ import annotations
+
+import json
+import re
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from warp_shape.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+R = 0.04
+
+
+def error_of(capsys, argv) -> str:
+    """The one line of error a command ends with (exit status 2)."""
+    assert main(argv) == 2, argv
+    err = capsys.readouterr().err
+    assert re.match(r"warp-shape( compare)?: error: ", err) and "Traceback" not in err and err.count("\n") == 1, err
+    return err
+
+
+def _stl(path, mesh: ws.TriMesh, scale: float = 1.0, noise: float = 0.0) -> Path:
+    m = mesh.to_trimesh()
+    if noise:
+        m.vertices = m.vertices + np.random.default_rng(3).normal(0.0, noise, m.vertices.shape)
+    m.apply_scale(scale)
+    m.export(str(path))
+    return path
+
+
+# ------------------------------------------------------------------------------------------ compare units
+@pytest.fixture(scope="module")
+def mm_files(tmp_path_factory):
+    """The oval target as a noisy scan and as a clean reference, both in millimetres."""
+    d = tmp_path_factory.mktemp("mm")
+    oval = ws.target("oval")
+    return _stl(d / "scan_mm.stl", oval, 1e3, noise=4e-4), _stl(d / "oval_mm.stl", oval, 1e3)
+
+
+def _compare(capsys, *argv) -> dict:
+    assert main(["compare", *map(str, argv), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_compare_reads_millimetre_files_as_millimetres(mm_files, capsys):
+    scan, ref = mm_files
+    truth = _compare(capsys, scan, "--to", "oval", "--units", "mm")
+    assert truth["scan_units"] == "mm" and truth["reference_units"] == "m"
+    assert 1e-4 < truth["mare"] < 1e-3  # the 0.4 mm noise, in metres
+    for reference in ("oval", ref):  # detected: against a shipped target and against a millimetre STL
+        res = _compare(capsys, scan, "--to", reference)
+        assert res["scan_units"] == "mm" and res["mare"] == pytest.approx(truth["mare"], rel=0.05)
+    assert res["reference_units"] == "mm"
+    assert main(["compare", str(scan), "--to", str(ref)]) == 0
+    table = capsys.readouterr().out
+    assert "(read in millimetres)" in table and f"MARE         {truth['mare'] * 1e3:.3f} mm" in table
+
+
+def test_compare_refuses_a_unit_that_makes_no_display(mm_files, capsys):
+    scan, ref = mm_files
+    err = error_of(capsys, ["compare", str(scan), "--to", "oval", "--units", "m"])
+    assert re.search(r"the scan is 10\d\.\d m across read in m", err) and "--units mm" in err
+    err = error_of(capsys, ["compare", str(scan), "--to", str(ref), "--reference-units", "m"])
+    assert "the reference is 101.3 m across read in m" in err
+
+
+# --------------------------------------------------------------------------------- compare with a design
+@pytest.fixture(scope="module")
+def design_folder(tmp_path_factory):
+    """A design folder as `design` writes it: design.usda and the actuated run of its target, here a
+    sphere growing to 1.2x its rest radius at 1 s of the schedule and 1.5x at 2 s."""
+    from warp_shape.io.scene_schema import Scene
+    from warp_shape.io.scene_write import save_scene
+    from warp_shape.io.usd_animation import export_animation
+
+    d = tmp_path_factory.mktemp("design")
+    rest = ws.icosphere(2, R)
+    design = ws.Design(rest)
+    blob = ws.icosphere(2, 1.2 * R)
+    save_scene(Scene(design=design, targets=[blob], target_names=["blob"]), d / "design.usda")
+    frames = [rest.vertices * s for s in (1.0, 1.2, 1.5)]
+    export_animation(d / "actuation_blob.usdc", design, frames, [0.0, 1.0, 2.0], targets=[blob], target_names=["blob"])
+    return d, _stl(d / "scan_mm.stl", blob, 1e3)
+
+
+def test_compare_with_the_designs_actuated_shape(design_folder, capsys):
+    d, scan = design_folder
+    at_1s = _compare(capsys, scan, "--to", d / "design.usda", "--time", "1")
+    assert at_1s["mare"] < 1e-5 and at_1s["scan_units"] == "mm"
+    assert "target blob, simulated shape at 1.000 of 2.000 s" in at_1s["reference"]
+    achieved = _compare(capsys, scan, "--to", d / "actuation_blob.usdc")  # default: the end of the schedule
+    assert 0.25 * R < achieved["mare"] < 0.3 * R  # 0.3 R apart, less what ICP's shift takes up
+    halfway = _compare(capsys, scan, "--to", d / "design.usda", "--target", "blob", "--time", "0.5")
+    assert halfway["mare"] == pytest.approx(0.1 * R, rel=0.05)  # interpolated between the samples: 1.1 R
+    err = error_of(capsys, ["compare", str(scan), "--to", str(d / "design.usda"), "--time", "3"])
+    assert "--time 3 s lies outside the run of target blob (0 to 2 s" in err
+    err = error_of(capsys, ["compare", str(scan), "--to", str(d / "design.usda"), "--target", "oval"])
+    assert "has no target 'oval'; its targets: blob" in err
+    err = error_of(capsys, ["compare", str(scan), "--to", "oval", "--time", "1"])
+    assert "--to oval is not a design" in err
+
+
+def test_compare_names_the_missing_run_of_a_design(design_folder, tmp_path, capsys):
+    d, scan = design_folder
+    (tmp_path / "design.usda").write_bytes((d / "design.usda").read_bytes())
+    err = error_of(capsys, ["compare", str(scan), "--to", str(tmp_path / "design.usda")])
+    assert "no actuation_blob.usdc beside" in err and "warp-shape export" in err
