@@ -114,3 +114,66 @@ def test_compare_names_the_missing_run_of_a_design(design_folder, tmp_path, caps
     (tmp_path / "design.usda").write_bytes((d / "design.usda").read_bytes())
     err = error_of(capsys, ["compare", str(scan), "--to", str(tmp_path / "design.usda")])
     assert "no actuation_blob.usdc beside" in err and "warp-shape export" in err
+
+
+# ------------------------------------------------------------------------------- length flags, before work
+def no_work(monkeypatch):
+    """Any design, control run or mold making fails loudly: the checks must come first."""
+    import warp_shape.cli.export as export
+    import warp_shape.designer.loop as designer_loop
+    import warp_shape.io.outputs as outputs
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("work started before the inputs were checked")
+
+    monkeypatch.setattr(designer_loop, "control_many", forbidden)
+    monkeypatch.setattr(outputs, "write_molds", forbidden)
+    monkeypatch.setattr(export, "control_many", forbidden, raising=False)
+    import warp_shape.controller as controller
+
+    monkeypatch.setattr(controller, "control_many", forbidden)
+
+
+@pytest.mark.parametrize("flag, value, expect", [
+    ("--layer-thickness", "5", "--layer-thickness 5 m is no jamming layer for a device 37 mm in radius: give "
+                               "metres, 0 < --layer-thickness <= 0.0186; if 5 is millimetres: --layer-thickness 0.005"),
+    ("--layer-thickness", "-1", "0 < --layer-thickness <= 0.0186"),
+    ("--layer-thickness", "nan", "--layer-thickness nan is no jamming layer"),
+    ("--layer-thickness", "0", "--layer-thickness 0 m is no jamming layer"),
+    ("--layer-thickness", "inf", "--layer-thickness inf is no jamming layer"),
+    ("--marker-height", "nan", "--marker-height nan is no IPAM marker for a device 37 mm in radius: give metres, "
+                               "0 <= --marker-height <= 0.00928"),
+    ("--marker-height", "-1", "--marker-height -1 m is no IPAM marker"),
+    ("--marker-height", "2", "if 2 is millimetres: --marker-height 0.002"),
+])
+def test_design_length_flags_are_checked_against_the_device_first(tmp_path, monkeypatch, capsys, flag, value, expect):
+    no_work(monkeypatch)
+    err = error_of(capsys, ["design", flag, value, "--out", str(tmp_path / "out")])
+    assert expect in err
+    assert not (tmp_path / "out").exists() and not list(tmp_path.iterdir())  # nothing left, not even a lock
+
+
+@pytest.mark.parametrize("flag, value", [("--layer-thickness", "3"), ("--layer-thickness", "inf"),
+                                         ("--marker-height", "nan"), ("--marker-height", "-1")])
+def test_export_length_flags_are_checked_against_the_device_first(tmp_path, monkeypatch, capsys, flag, value):
+    no_work(monkeypatch)
+    err = error_of(capsys, ["export", "cube_fig6", flag, value, "--out", str(tmp_path / "out")])
+    assert f"{flag} {value}" in err and "for a device 35 mm in radius" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_mold_lengths_of_the_api_are_checked_too():
+    from warp_shape.errors import DesignError
+    from warp_shape.molds import mold_set
+
+    design = ws.Design(ws.icosphere(1, R))
+    for kw in (dict(marker_height=float("nan")), dict(layer_thickness=float("inf")), dict(layer_thickness=5.0)):
+        with pytest.raises(DesignError, match="is no (jamming layer|IPAM marker) for a device 3[0-9] mm in radius"):
+            mold_set(design, **kw)
+
+
+def test_a_run_that_fails_after_taking_the_lock_leaves_no_lock_file(tmp_path, monkeypatch, capsys):
+    no_work(monkeypatch)
+    err = error_of(capsys, ["design", "--actuators", "30", "--subdivisions", "2", "--out", str(tmp_path / "o")])
+    assert "30 actuators need about" in err  # found by the designer, once the run holds its lock
+    assert not list(tmp_path.iterdir())

@@ -158,6 +158,7 @@ def test_interrupt_keeps_the_previous_finished_run(tmp_path, ctrl_c_in_round_1, 
     report = assert_whole_set(partial)
     assert report["complete"] is False and report["rounds_done"] == 1
     assert json.loads((partial / "rounds.json").read_text())["rounds"][0]["ipams"] == []
+    assert not (tmp_path / ".out.lock").exists()
 
 
 def test_a_design_that_stops_early_records_each_round_once(tmp_path, monkeypatch):
@@ -179,6 +180,7 @@ def test_a_design_that_stops_early_records_each_round_once(tmp_path, monkeypatch
     report = assert_whole_set(out)
     rounds = json.loads((out / "rounds.json").read_text())["rounds"]
     assert [r["round"] for r in rounds] == [0, 1] and report["actuators"] == 1
+    assert not (tmp_path / ".out.lock").exists()  # a finished run leaves no lock file
 
 
 def test_a_second_run_into_the_same_folder_is_refused(tmp_path, monkeypatch, capsys):

@@ -16,6 +16,8 @@ engine), so each part is a closed, watertight, manifold solid.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,17 +26,42 @@ from .design import Design
 from .errors import DesignError
 from .mesh import TriMesh
 
-__all__ = ["outer_mold", "MoldSet", "mold_set", "UNIT_SCALES"]
+__all__ = ["outer_mold", "MoldSet", "mold_set", "UNIT_SCALES", "check_mold_lengths", "equivalent_radius"]
 
 #: output unit -> factor from metres
 UNIT_SCALES = {"mm": 1000.0, "cm": 100.0, "m": 1.0, "in": 1000.0 / 25.4}
+#: The thickest jamming layer and the tallest IPAM marker a mold takes, as fractions of the device's
+#: radius: anything beyond is a length in the wrong unit, not a design.
+MOLD_LENGTH_LIMITS = {"layer_thickness": ("jamming layer", 0.5, False), "marker_height": ("IPAM marker", 0.25, True)}
+
+
+def equivalent_radius(mesh: TriMesh) -> float:
+    """Radius (m) of the sphere of ``mesh``'s volume: the size of a device or a target."""
+    return float((3.0 * mesh.volume() / (4.0 * np.pi)) ** (1.0 / 3.0))
+
+
+def check_mold_lengths(radius: float, *, spell=lambda name: name, **lengths) -> None:
+    """``layer_thickness`` and ``marker_height`` (m) checked against a device ``radius`` (m) before
+    any work: finite, > 0 (a marker: >= 0) and at most its ``MOLD_LENGTH_LIMITS`` share of the radius.
+    ``spell`` names a length in the message (the command line passes its flags). ``DesignError`` names
+    the range and, for a value that fits it in millimetres, the value in metres."""
+    for name, value in lengths.items():
+        what, share, zero_ok = MOLD_LENGTH_LIMITS[name]
+        hi = share * radius
+        real = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        finite = real and math.isfinite(value)
+        if finite and (value >= 0 if zero_ok else value > 0) and value <= hi:
+            continue
+        mm = f"; if {value:g} is millimetres: {spell(name)} {value * 1e-3:g}" if finite and 0 < value * 1e-3 <= hi else ""
+        raise DesignError(f"{spell(name)} {f'{value:g} m' if finite else repr(value)} is no {what} for a device {radius * 1e3:.0f} mm in radius: give "
+                          f"metres, {'0 <=' if zero_ok else '0 <'} {spell(name)} <= {hi:.3g}{mm}")
 
 
 def outer_mold(design: Design, layer_thickness: float = 5e-3) -> TriMesh:
     """Rest shape moved radially outward (from its volume centroid) by ``layer_thickness`` m: the
     membrane's outer surface and the shell's cavity (metres)."""
-    if not layer_thickness > 0:
-        raise DesignError(f"layer_thickness must be > 0 m, got {layer_thickness}")
+    if not 0 < layer_thickness < math.inf:
+        raise DesignError(f"layer_thickness must be a length > 0 m, got {layer_thickness}")
     rest = design.rest
     c = rest.centroid()
     d = rest.vertices - c
@@ -96,7 +123,7 @@ def mold_core(design: Design, *, marker_height: float = 2e-3, marker_radius: flo
     """The core (metres): the rest shape unioned with a boss of radius ``marker_radius`` standing
     ``marker_height`` proud of every IPAM end face (along its normal, from the face centroid).
     Returns (solid, markers): markers lists per IPAM end its face and boss tip position."""
-    if marker_height < 0 or marker_radius <= 0:
+    if not (0 <= marker_height < math.inf and 0 < marker_radius < math.inf):
         raise DesignError(f"marker_height must be >= 0 m and marker_radius > 0 m, got {marker_height}, {marker_radius}")
     rest = design.rest
     centroids, normals = rest.face_centroids(), rest.face_normals()
@@ -238,6 +265,7 @@ def mold_set(design: Design, *, units: str = "mm", layer_thickness: float = 5e-3
     are in metres, see :func:`mold_shell`."""
     if units not in UNIT_SCALES:
         raise DesignError(f"mold units must be one of {sorted(UNIT_SCALES)}, got {units!r}")
+    check_mold_lengths(equivalent_radius(design.rest), layer_thickness=layer_thickness, marker_height=marker_height)
     s = UNIT_SCALES[units]
     core, markers = mold_core(design, marker_height=marker_height, marker_radius=marker_radius)
     cavity = outer_mold(design, layer_thickness).to_trimesh()

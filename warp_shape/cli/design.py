@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import time
 
-from .options import (add_common_args, check_device, check_out, check_rerun, load_targets,
+from .options import (add_common_args, check_device, check_mold_flags, check_out, check_rerun, load_targets,
                       open_recorder, print_outputs, run_progress)
 
 __all__ = ["register", "run"]
@@ -32,8 +32,8 @@ def register(subparsers) -> None:
     d.add_argument("--subdivisions", type=int, default=None,
                    help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 2: 162, 3: 642, "
                         "4: 2562) instead of the scene's base mesh (default: the scene's, 642 vertices)")
-    d.add_argument("--cell-radius", type=float, default=None, help="jamming-cell radius, m (default: the "
-                   "scene's, else 0.012)")
+    d.add_argument("--cell-radius", type=float, default=None, metavar="M", help="jamming-cell radius, m (default: "
+                   "the scene's, else 0.012)")
     d.add_argument("--placement", choices=["simulated", "paper", "greedy"], default=None,
                    help="actuator placement: simulated (default: Algorithm 1's sets, each target holding neutral "
                         "what does not help it, refined in batches of worlds; never worse than paper on any "
@@ -44,8 +44,10 @@ def register(subparsers) -> None:
     d.add_argument("--refine-rounds", type=int, default=None,
                    help="simulated placement: refinement rounds at most after the last round (default 5; 0: none)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
-    d.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
-    d.add_argument("--marker-height", type=float, default=2e-3, help="IPAM marker height on the inner mold, m")
+    d.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
+                   help="jamming layer (outer mold offset), m (at most half the device's radius)")
+    d.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
+                   help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
     add_common_args(d)
     d.set_defaults(func=run)
 
@@ -93,7 +95,18 @@ def _problem(args):
         raise DesignError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
     actuators, opts = _designer_options(scene, args)
     settings = DesignSettings(**opts, initialize=not args.keep_rest)
+    check_mold_flags(args, _device_radius(base, named, settings))
     return base, named, actuators, settings
+
+
+def _device_radius(base, named, settings) -> float:
+    """The designed device's radius (m) before it is designed: the rest shape the designer will
+    initialise (``volume_scale`` of the smallest target's volume), or the base kept as it is."""
+    from ..molds import equivalent_radius
+
+    if not settings.initialize:
+        return equivalent_radius(base)
+    return settings.volume_scale ** (1.0 / 3.0) * min(equivalent_radius(t) for _, t in named)
 
 
 def _run_designer(args, base, named, actuators, settings, staged):

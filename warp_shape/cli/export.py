@@ -6,7 +6,8 @@ import json
 from pathlib import Path
 
 from ..io.valve import DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ
-from .options import actuator_selection, add_common_args, control_progress, load_targets, open_recorder
+from .options import (actuator_selection, add_common_args, check_mold_flags, control_progress, load_targets,
+                      open_recorder)
 
 __all__ = ["register", "run"]
 
@@ -19,8 +20,10 @@ def register(subparsers) -> None:
     e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
     e.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
-    e.add_argument("--layer-thickness", type=float, default=5e-3, help="jamming layer (outer mold offset), m")
-    e.add_argument("--marker-height", type=float, default=2e-3, help="IPAM boss height on the mold core, m")
+    e.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
+                   help="jamming layer (outer mold offset), m (at most half the device's radius)")
+    e.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
+                   help="IPAM boss height on the mold core, m (0: none; at most a quarter of the device's radius)")
     e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
                    help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")
     e.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ, metavar="HZ",
@@ -50,6 +53,9 @@ def run(args) -> int:
     if scene.design is None:
         raise DesignError(f"{args.scene} holds no design (only targets); export needs a design scene, "
                           f"e.g. out/design.usda from warp-shape design or the shipped cube_fig6")
+    from ..molds import equivalent_radius
+
+    check_mold_flags(args, equivalent_radius(scene.design.rest))
     named = list(zip(scene.target_names, scene.targets))
     if args.targets:
         named = load_targets(args.targets)

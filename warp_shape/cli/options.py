@@ -12,7 +12,7 @@ from .progress import Bar, ControlProgress, DesignProgress
 
 __all__ = ["add_common_args", "add_rerun_args", "open_recorder", "quiet_warp", "control_progress",
            "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
-           "check_out", "check_rerun", "print_outputs", "run_progress", "Bar", "ControlProgress"]
+           "check_out", "check_rerun", "check_mold_flags", "print_outputs", "run_progress", "Bar", "ControlProgress"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
 
@@ -113,6 +113,15 @@ def check_rerun(args) -> None:
             folder = folder.parent
         if not os.access(folder, os.W_OK | os.X_OK):
             raise DesignError(f"--rerun {path}: {folder} is not writable")
+
+
+def check_mold_flags(args, radius: float) -> None:
+    """``--layer-thickness`` and ``--marker-height`` (m) checked against a device of ``radius`` m
+    before any work (``molds.check_mold_lengths``)."""
+    from ..molds import check_mold_lengths
+
+    check_mold_lengths(radius, spell=lambda name: "--" + name.replace("_", "-"),
+                       layer_thickness=args.layer_thickness, marker_height=args.marker_height)
 
 
 def control_progress(step, total, done, worlds, prefix: str = "") -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ..errors import WarpShapeError
 
-__all__ = ["atomic_write", "atomic_target", "hold_lock", "finalize_permissions", "MANIFEST", "file_digest", "read_manifest",
+__all__ = ["atomic_write", "atomic_target", "hold_lock", "release_lock", "finalize_permissions", "MANIFEST", "file_digest", "read_manifest",
            "manifest_problems", "StagedFolder", "OutputError"]
 
 
@@ -70,19 +70,35 @@ AT_FDCWD = -100
 def hold_lock(path, busy) -> int:
     """Take the exclusive lock file ``path`` for this process and write its pid there; the lock goes with
     the process, even when it is killed. Held by another process: raises ``busy(holder pid)``. Returns the
-    descriptor to close when done."""
+    descriptor to give ``release_lock`` when done."""
     import fcntl
 
-    fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
-        os.close(fd)
-        raise busy(holder) from None
+    while True:
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise busy(holder) from None
+        try:
+            if os.stat(path).st_ino == os.fstat(fd).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)  # the file was released (removed) by its holder after we opened it: take the new one
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode())
     return fd
+
+
+def release_lock(path, fd: int) -> None:
+    """Give up a lock of ``hold_lock`` and remove its file (a finished or failed run leaves none)."""
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+    os.close(fd)
 
 
 def file_digest(path) -> str:
@@ -226,14 +242,18 @@ class StagedFolder:
             return
         if not self.out.parent.exists():
             self.out.parent.mkdir(parents=True)
-        self._lock_fd = hold_lock(self.out.parent / f".{self.out.name}.lock",
+        self._lock_fd = hold_lock(self._lock_path,
                                   lambda holder: OutputError(f"another run (process {holder}) is writing to "
                                                              f"{self.out}; wait for it to finish or give another --out"))
 
+    @property
+    def _lock_path(self) -> Path:
+        return self.out.parent / f".{self.out.name}.lock"
+
     def unlock(self) -> None:
-        """Let the next run into ``<out>`` start (done by ``commit`` and ``discard``)."""
+        """Let the next run into ``<out>`` start (done by ``commit`` and ``discard``); the lock file goes."""
         if self._lock_fd is not None:
-            os.close(self._lock_fd)
+            release_lock(self._lock_path, self._lock_fd)
             self._lock_fd = None
 
     @property

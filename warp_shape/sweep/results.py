@@ -14,11 +14,10 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 import shutil
 from pathlib import Path
 
-from ..io.atomic import atomic_write, hold_lock
+from ..io.atomic import atomic_write, hold_lock, release_lock
 from .params import SweepError
 
 __all__ = ["ResultsTable", "columns_for", "place_outputs"]
@@ -86,7 +85,7 @@ class ResultsTable:
 
     def unlock(self) -> None:
         if getattr(self, "_lock_fd", None) is not None:
-            os.close(self._lock_fd)
+            release_lock(self.folder / ".sweep.lock", self._lock_fd)
             self._lock_fd = None
 
     def finished(self, run_id: str) -> bool:
