@@ -177,3 +177,26 @@ def test_a_run_that_fails_after_taking_the_lock_leaves_no_lock_file(tmp_path, mo
     err = error_of(capsys, ["design", "--actuators", "30", "--subdivisions", "2", "--out", str(tmp_path / "o")])
     assert "30 actuators need about" in err  # found by the designer, once the run holds its lock
     assert not list(tmp_path.iterdir())
+
+
+# ------------------------------------------------------------------------------------- target files
+def test_target_files_are_read_in_their_unit_and_named_in_errors(mm_files, tmp_path, monkeypatch, capsys):
+    import trimesh
+
+    no_work(monkeypatch)
+    _, oval_mm = mm_files
+    err = error_of(capsys, ["design", "--targets", str(oval_mm), "--units", "m", "--out", str(tmp_path / "o")])
+    assert f"target file {oval_mm} is 101.3 m across read in m" in err and "--units mm" in err
+    err = error_of(capsys, ["control", "--targets", str(oval_mm), "--units", "m", "--out", str(tmp_path / "o")])
+    assert f"target file {oval_mm} is 101.3 m across" in err
+    with pytest.raises(AssertionError, match="work started"):  # read in millimetres, the design starts
+        main(["design", "--targets", str(oval_mm), "--out", str(tmp_path / "o")])
+    assert f"target file {oval_mm}: read in millimetres (101 mm across)" in capsys.readouterr().err
+    cm = _stl(tmp_path / "oval_cm.stl", ws.target("oval"), 100.0)
+    err = error_of(capsys, ["design", "--targets", str(cm), "--out", str(tmp_path / "o")])
+    assert "is 10.13 units across: neither metres nor millimetres give a display" in err
+    torus = tmp_path / "torus.stl"
+    trimesh.creation.torus(0.04, 0.015).export(str(torus))
+    err = error_of(capsys, ["design", "--targets", str(torus), "--out", str(tmp_path / "o")])
+    assert err.startswith(f"warp-shape: error: target file {torus} is not star-shaped") and len(err) - len(str(torus)) < 400
+    assert "origin is not enclosed" in err and "target 0" not in err

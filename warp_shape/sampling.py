@@ -118,24 +118,17 @@ def check_star_shaped(mesh: TriMesh, *, origin=(0.0, 0.0, 0.0), directions: int 
     outside = entering & ~multi
     if not (multi.any() or none.any() or outside.any()):
         return {"directions": m}
-    parts = []
-    if multi.any():
-        parts.append(f"{multi.mean():.1%} of the rays see the surface more than once (up to "
-                     f"{int(counts.max())}{'+' if counts.max() >= _MAX_CROSSINGS else ''} crossings), "
-                     f"e.g. along {_fmt_dirs(dirs[multi])}")
-    if none.any():
-        parts.append(f"{none.mean():.1%} of the rays see no surface at all, so the origin is not "
-                     f"enclosed by it, e.g. along {_fmt_dirs(dirs[none])}")
-    if outside.any():
-        parts.append(f"{outside.mean():.1%} of the rays enter the solid first, so the origin lies "
-                     f"outside it, e.g. along {_fmt_dirs(dirs[outside])}")
+    failures = [(f, text) for f, text in ((multi, "see the surface more than once"),
+                                          (none, "see no surface (the origin is not enclosed)"),
+                                          (outside, "enter the solid first (the origin lies outside it)")) if f.any()]
+    parts = [f"{f.mean():.1%} {text}" for f, text in failures]  # the first with an example direction
+    parts[0] = parts[0].replace("%", "% of the rays", 1) + f", e.g. along {_fmt_dirs(dirs[failures[0][0]], 1)}"
     where = "the origin" if np.allclose(origin, 0.0) else f"the point {_fmt_dirs(origin[None])}"
     if np.linalg.norm(mesh.centroid() - origin) <= 1e-9 * reach:
         where += ", its volume centroid"
     raise ShapeError(
-        f"{name} is not star-shaped from {where} ({m} ray directions checked): " + "; ".join(parts)
-        + ". Radial sampling needs exactly one surface hit on every ray from the origin: use a "
-        "star-shaped target centred on a point that sees its whole surface.")
+        f"{name} is not star-shaped from {where}: " + "; ".join(parts)
+        + ". Radial sampling needs one hit per ray: use a star-shaped target, centred where it sees all of it.")
 
 
 # ---------------------------------------------------------------------------------------- sampler

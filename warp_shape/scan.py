@@ -50,7 +50,7 @@ from .mesh import TriMesh
 from .sampling import RadialSampler, radial_metrics
 
 __all__ = ["ScanComparison", "IcpConvergenceWarning", "compare_scan", "surface_samples", "load_scan", "icp", "kabsch",
-           "surface_distances", "detect_length_unit", "LENGTH_UNITS", "PLAUSIBLE_EXTENT_M"]
+           "surface_distances", "detect_length_unit", "length_unit_of", "LENGTH_UNITS", "PLAUSIBLE_EXTENT_M"]
 
 # Ignore pairs farther than this many robust standard deviations of the pair distances.
 INLIER_SIGMAS = 3.0
@@ -66,7 +66,7 @@ _PLANE_STEP_MAX = 0.05
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 #: Largest extent (m) of a plausible shape display or a scan of one; a file whose numbers fit this
 #: range read as metres is in metres, one whose numbers fit it read as millimetres in millimetres.
-PLAUSIBLE_EXTENT_M = (5e-3, 2.0)
+PLAUSIBLE_EXTENT_M = (0.02, 2.0)
 
 
 class IcpConvergenceWarning(UserWarning):
@@ -166,11 +166,12 @@ def detect_length_unit(points, what: str = "scan") -> str:
         if lo <= ext * factor <= hi:
             return unit
     raise ShapeError(f"{what} is {ext:.4g} units across: neither metres nor millimetres give a display "
-                     f"{lo * 1e3:g} mm to {hi:g} m across; give its unit (--units m or mm)")
+                     f"{lo * 1e3:g} mm to {hi:g} m across; scale the file to metres or millimetres")
 
 
-def _units_of(points, units: str, what: str) -> str:
-    """The unit ``points`` are read in: ``units``, or the detected one for ``"auto"``."""
+def length_unit_of(points, units: str, what: str) -> str:
+    """The unit ``points`` are read in: ``units`` ("m" or "mm", checked to give a plausible display,
+    ``PLAUSIBLE_EXTENT_M``), or for ``"auto"`` the one detected (``detect_length_unit``)."""
     if units == "auto":
         return detect_length_unit(points, what)
     if units not in LENGTH_UNITS:
@@ -503,9 +504,9 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
     if not finite.all():
         raise ShapeError(f"scan point {int(np.flatnonzero(~finite)[0])} is not finite")
     ref = _load_reference(reference)
-    scan_units = _units_of(pts, scan_units, "the scan")
+    scan_units = length_unit_of(pts, scan_units, "the scan")
     shipped = isinstance(reference, str) and not Path(reference).exists()
-    reference_units = "m" if shipped else _units_of(ref.vertices, reference_units, "the reference")
+    reference_units = "m" if shipped else length_unit_of(ref.vertices, reference_units, "the reference")
     pts = pts * LENGTH_UNITS[scan_units]
     ref = ref.scaled(LENGTH_UNITS[reference_units]) if reference_units != "m" else ref
     c_ref = ref.centroid()

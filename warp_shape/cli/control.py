@@ -7,8 +7,8 @@ from pathlib import Path
 
 import argparse
 
-from .options import (ControlProgress, actuator_selection, add_common_args, check_device, check_out, check_rerun,
-                      open_recorder, print_outputs, resolve_design_and_targets)
+from .options import (ControlProgress, actuator_selection, add_common_args, add_units_arg, check_device, check_out,
+                      check_rerun, open_recorder, print_outputs, resolve_design_and_targets)
 
 __all__ = ["register", "run"]
 
@@ -31,6 +31,7 @@ def register(subparsers) -> None:
     c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
     c.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
+    add_units_arg(c)
     add_common_args(c, out="out/control")
     c.set_defaults(func=run)
 
@@ -68,7 +69,7 @@ def run(args) -> int:
     check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)
-    design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets)
+    design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets, args.units)
     names = [n for n, _ in targets]
     # the scene's simulation settings (checked: unknown keys and bad values are errors), then the flags
     flags = {k: v for k, v in (("integrator", args.integrator), ("precision", args.precision)) if v is not None}

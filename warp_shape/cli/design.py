@@ -12,8 +12,8 @@ from __future__ import annotations
 import json
 import time
 
-from .options import (add_common_args, check_device, check_mold_flags, check_out, check_rerun, load_targets,
-                      open_recorder, print_outputs, run_progress)
+from .options import (add_common_args, add_units_arg, check_device, check_mold_flags, check_out, check_rerun,
+                      load_targets, open_recorder, print_outputs, run_progress)
 
 __all__ = ["register", "run"]
 
@@ -48,6 +48,7 @@ def register(subparsers) -> None:
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
     d.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
                    help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
+    add_units_arg(d)
     add_common_args(d)
     d.set_defaults(func=run)
 
@@ -90,7 +91,7 @@ def _problem(args):
     base = scene.base_mesh(args.subdivisions)
     named = list(zip(scene.target_names, scene.targets))
     if args.targets:
-        named = load_targets(args.targets)
+        named = load_targets(args.targets, args.units)
     if not named:
         raise DesignError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
     actuators, opts = _designer_options(scene, args)

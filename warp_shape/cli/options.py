@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .progress import Bar, ControlProgress, DesignProgress
 
-__all__ = ["add_common_args", "add_rerun_args", "open_recorder", "quiet_warp", "control_progress",
+__all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
            "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "check_mold_flags", "print_outputs", "run_progress", "Bar", "ControlProgress"]
 
@@ -34,6 +34,13 @@ def add_rerun_args(sp) -> None:
                     help="write a rerun recording (open it with: warp-shape view FILE.rrd)")
     sp.add_argument("--rerun-spawn", action="store_true", help="stream to a live rerun viewer (needs a display)")
     sp.add_argument("--rerun-every", type=int, default=1, help="log every k-th control step (the last is always logged)")
+
+
+def add_units_arg(sp) -> None:
+    """``--units auto|m|mm``: the length unit of target mesh files."""
+    sp.add_argument("--units", choices=("auto", "m", "mm"), default="auto",
+                    help="length unit of target mesh files: auto (default) reads a file as millimetres when its "
+                         "size is a display's in mm, else as metres; shipped targets and scenes are in metres")
 
 
 def open_recorder(args):
@@ -135,15 +142,33 @@ def run_progress(rounds: int, names) -> DesignProgress:
     return DesignProgress(rounds, n_targets=len(names))
 
 
-def load_targets(specs) -> list:
-    """Target names (oval pear heart cube) or mesh files -> [(name, TriMesh)]; an unknown name gets
-    the list of names and the closest one, an unreadable file a parse error."""
-    from ..targets import load_target
+def load_targets(specs, units: str = "auto") -> list:
+    """Target names (oval pear heart cube) or mesh files -> [(name, TriMesh)] in metres; an unknown
+    name gets the list of names and the closest one, an unreadable file a parse error. A file's
+    numbers are read in ``units`` (auto: detected, with a note on stderr where they are millimetres)
+    and the file is checked to be star-shaped, each problem named by the file, before any work."""
+    import numpy as np
 
-    return [load_target(spec) for spec in specs]
+    from ..sampling import check_star_shaped
+    from ..scan import LENGTH_UNITS, length_unit_of
+    from ..targets import TARGET_NAMES, load_target
+
+    out = []
+    for spec in specs:
+        name, mesh = load_target(spec)
+        if str(spec).strip().lower() not in TARGET_NAMES:  # a mesh file
+            unit = length_unit_of(mesh.vertices, units, f"target file {spec}")
+            if unit != "m":
+                mesh = mesh.scaled(LENGTH_UNITS[unit])
+                if units == "auto":
+                    span = float(np.max(np.ptp(mesh.vertices, axis=0))) * 1e3
+                    sys.stderr.write(f"target file {spec}: read in millimetres ({span:.0f} mm across)\n")
+            check_star_shaped(mesh, device="cpu", name=f"target file {spec}")
+        out.append((name, mesh))
+    return out
 
 
-def resolve_design_and_targets(scene: str | None, target_names):
+def resolve_design_and_targets(scene: str | None, target_names, units: str = "auto"):
     """The built-in Fig. 6 problem (no USD needed), or a scene file / shipped scene name; then the
     chosen targets: the scene's own by name, else shipped target names or mesh files."""
     from ..io.scene_read import load_scene
@@ -158,7 +183,7 @@ def resolve_design_and_targets(scene: str | None, target_names):
         targets = list(zip(sc.target_names, sc.targets))
     if target_names:
         own = dict(targets)
-        targets = [(name, own[name]) if name in own else load_targets([name])[0] for name in target_names]
+        targets = [(name, own[name]) if name in own else load_targets([name], units)[0] for name in target_names]
     return design, targets, settings
 
 

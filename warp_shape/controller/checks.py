@@ -19,13 +19,13 @@ from ..errors import ShapeError
 from ..mesh import TriMesh
 from ..sampling import RadialSampler
 
-__all__ = ["UNITS_RATIO", "check_target_units", "check_targets_against_rest"]
+__all__ = ["UNITS_RATIO", "check_target_units", "check_targets_against_rest", "target_labels"]
 
 # Linear scale ratios (target / rest) read as a unit mix-up: millimetres given as metres.
 UNITS_RATIO = (300.0, 3000.0)
 
 
-def _names(targets, names) -> list[str]:
+def target_labels(targets, names) -> list[str]:
     """Labels for messages: "target <name>" (a name that already says "target" is kept as it is)."""
     names = list(names) if names is not None else [str(j) for j in range(len(targets))]
     return [n if str(n).startswith("target") else f"target {n}" for n in names]
@@ -34,7 +34,7 @@ def _names(targets, names) -> list[str]:
 def check_target_units(rest: TriMesh, targets, names=None, *, what: str = "rest shape") -> None:
     """Raise ``ShapeError`` for a target about 1000x the size of ``rest`` (given in millimetres)."""
     v_rest = rest.volume()
-    for t, name in zip(targets, _names(targets, names)):
+    for t, name in zip(targets, target_labels(targets, names)):
         s = (t.volume() / v_rest) ** (1.0 / 3.0)
         if UNITS_RATIO[0] <= s <= UNITS_RATIO[1]:
             raise ShapeError(
@@ -83,7 +83,7 @@ def check_targets_against_rest(rest: TriMesh, targets, sampler: RadialSampler, n
     """Check centred ``targets`` (``sampler`` samples target j as its target j) against the membrane's
     ``rest`` shape before any simulation: units, size against the rest shape and ``max_stretch``, and
     the sampled target's volume and orientation. Raises ``ShapeError`` naming the problem and the fix."""
-    names = _names(targets, names)
+    names = target_labels(targets, names)
     check_target_units(rest, targets, names)
     for t, name in zip(targets, names):
         _check_size(rest, t, name, max_stretch)

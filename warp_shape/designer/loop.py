@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..controller import ControlSettings, control_many
-from ..controller.checks import check_target_units, check_targets_against_rest
+from ..controller.checks import check_target_units, check_targets_against_rest, target_labels
 from ..design import Design
 from ..material import Material
 from ..mesh import TriMesh
@@ -133,7 +133,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         settings = settings.replace(**overrides)
     control_settings = control_settings or ControlSettings()
     targets, names = check_targets(targets, target_names)
-    sampler = RadialSampler(targets, device=device)  # rejects non-star-shaped targets with the directions
+    sampler = RadialSampler(targets, device=device, names=target_labels(targets, names))  # rejects non-star shapes
     check_target_units(base, targets, names, what="base mesh")
     rest = initial_rest_shape(base, targets, settings.volume_scale, device) if settings.initialize else base.centered()
     check_targets_against_rest(rest, targets, sampler, names, max_stretch=control_settings.max_stretch)
