@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from warp_shape.cli import main
-from warp_shape.io.atomic import MANIFEST, StagedFolder, file_digest, manifest_problems, read_manifest
+from warp_shape.io.atomic import MANIFEST, OutputError, StagedFolder, file_digest, manifest_problems, read_manifest
 from warp_shape.io.outputs import is_run_output
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -256,3 +256,113 @@ def test_sigkill_at_ten_points_leaves_one_whole_set(tmp_path):
     assert run_killed_at(0, log, [*new_args, "--out", str(out)]) == 0  # past a killed run's leftovers
     assert assert_whole_set(out)["targets"] == ["pear"]
     assert not list(out.glob("*heart*")) and not (tmp_path / "out.partial").exists()
+
+
+# ------------------------------------------------------------------------------- the user's files in --out
+#: the files of a user's folder that look like a run's outputs (and one that does not)
+USER_FILES = ["control_plan.txt", "valve_wiring.pdf", "mold_photo.jpg", "molds_notes.txt", "actuation_video.mp4",
+              "report.md", "design.usda", "README.txt"]
+
+
+def no_control(monkeypatch):
+    import warp_shape.designer.loop as designer_loop
+
+    monkeypatch.setattr(designer_loop, "control_many", lambda *a, **k: pytest.fail("work started before the check"))
+
+
+def user_folder(folder: Path) -> dict:
+    """A folder no run wrote: files named like outputs, a readme and a sub-folder."""
+    (folder / "sub").mkdir(parents=True)
+    (folder / "sub" / "scan.ply").write_text("ply")
+    for name in USER_FILES:
+        (folder / name).write_text(f"mine: {name}")
+    return snapshot(folder)
+
+
+def test_a_folder_of_user_files_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    """No manifest and files in it: not a run's folder to replace, however its files are named; a
+    symbolic link to it is refused the same way, naming both."""
+    no_control(monkeypatch)
+    x = tmp_path / "X"
+    before = user_folder(x)
+    link = tmp_path / "L"
+    link.symlink_to(x)
+    for given, shown in ((x, str(x)), (link, f"{link} (a link to {x})")):
+        assert main(["design", "--out", str(given), *SMALL]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith(f"warp-shape: error: --out {shown} holds files no run wrote "
+                                                       f"(README.txt, actuation_video.mp4, control_plan.txt, ")
+        assert "and 3 more) and no manifest.json" in err and "give --out an empty or new folder" in err
+        assert snapshot(x) == before and (x / "report.md").read_text() == "mine: report.md"
+        assert not (tmp_path / "X.partial").exists() and link.is_symlink()
+
+
+def test_a_run_folder_keeps_other_files_and_refuses_to_replace_the_users(tmp_path, monkeypatch, capsys):
+    """In a folder of a run: a file no run wrote but named as outputs are, and a listed file changed
+    since, are refused before any work; every other file and folder is kept by the next run."""
+    out = tmp_path / "out"
+    fake_previous_set(out)
+    (out / "notes.txt").write_text("mine")
+    (out / "sub").mkdir()
+    (out / "sub" / "scan.ply").write_text("ply")
+    (out / "mold_photo.jpg").write_text("jpeg")
+    (out / "report.json").write_text('{"mine": 1}')  # listed in the manifest, edited since
+    before = snapshot(out)
+    with monkeypatch.context() as m:
+        no_control(m)
+        assert main(["design", "--out", str(out), *SMALL]) == 2
+        err = capsys.readouterr().err
+        assert f"--out {out} holds files named as a run's outputs that no run wrote (mold_photo.jpg)" in err
+        (out / "mold_photo.jpg").rename(out / "sub" / "mold_photo.jpg")
+        assert main(["design", "--out", str(out), *SMALL]) == 2
+        err = capsys.readouterr().err
+        assert f"--out {out}: report.json not as the run wrote (size or SHA-256 differs from manifest.json)" in err
+    assert (out / "report.json").read_text() == '{"mine": 1}' and set(snapshot(out)) == set(before) - {"mold_photo.jpg"}
+    (out / "report.json").unlink()  # the user takes the edited file away: nothing of theirs is listed now
+    assert main(["design", "--out", str(out), *SMALL, "--targets", "oval"]) == 0
+    assert assert_whole_set(out, foreign={"notes.txt", "sub"})["targets"] == ["oval"]
+    assert (out / "notes.txt").read_text() == "mine" and (out / "sub" / "mold_photo.jpg").read_text() == "jpeg"
+    assert not (out / "control_heart.csv").exists()  # the previous run's file, not written again: gone with it
+
+
+def test_a_link_given_as_out_replaces_the_folder_it_points_to_and_stays(tmp_path):
+    out, link = tmp_path / "out", tmp_path / "link"
+    fake_previous_set(out)
+    (out / "notes.txt").write_text("mine")
+    link.symlink_to(out)
+    staged = StagedFolder(link, owned=is_run_output)
+    staged.check()
+    assert staged.partial == tmp_path / "out.partial"
+    (staged.path / "report.json").write_text(json.dumps({"complete": True, "targets": ["oval"]}))
+    staged.commit(True)
+    assert link.is_symlink() and link.resolve() == out
+    assert set(snapshot(out)) == {"report.json", MANIFEST, "notes.txt"} and manifest_problems(out) == []
+    dangling = tmp_path / "dangling"
+    dangling.symlink_to(tmp_path / "nowhere")
+    with pytest.raises(OutputError, match="is a symbolic link to .*nowhere, which does not exist"):
+        StagedFolder(dangling).check()
+
+
+def test_the_staging_folder_and_the_root_are_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    """``<out>.partial`` is removed when a run starts: never a link nor a folder of other files.
+    ``--out /`` has no name to stage beside."""
+    no_control(monkeypatch)
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "keep.txt").write_text("mine")
+    (tmp_path / "out.partial").symlink_to(elsewhere)
+    assert main(["design", "--out", str(out), *SMALL]) == 2
+    err = capsys.readouterr().err
+    assert f"the staging folder {tmp_path / 'out.partial'} is a symbolic link" in err and err.count("\n") == 1
+    (tmp_path / "out.partial").unlink()
+    (tmp_path / "out.partial").mkdir()
+    (tmp_path / "out.partial" / "thesis.tex").write_text("mine")
+    assert main(["design", "--out", str(out), *SMALL]) == 2
+    assert "holds files no run wrote (thesis.tex)" in capsys.readouterr().err
+    assert (tmp_path / "out.partial" / "thesis.tex").exists() and (elsewhere / "keep.txt").exists()
+    assert snapshot(out) == before
+    assert main(["design", "--out", "/", *SMALL]) == 2
+    assert capsys.readouterr().err == ("warp-shape: error: --out / is the root folder; a run replaces its output "
+                                       "folder as a whole: give it a folder of its own, e.g. --out out\n")

@@ -48,20 +48,35 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """Entry point of ``warp-shape``: returns 0 on success, 2 on a clear input error, 130 on Ctrl-C."""
-    args = build_parser().parse_args(argv)
+    """Entry point of ``warp-shape``: returns 0 on success, 2 on a clear input error, 1 where a full or
+    failing disk refused a write, 130 on Ctrl-C (at any moment once this function runs)."""
     from ..errors import WarpShapeError
+    from .options import interrupts_noted, write_failure
 
+    with interrupts_noted():
+        try:
+            return _run(argv)
+        except WarpShapeError as exc:
+            print(f"warp-shape: error: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print("\nwarp-shape: interrupted", file=sys.stderr)
+            return 130
+        except OSError as exc:
+            line = write_failure(exc)
+            if line is None:
+                raise
+            print(f"warp-shape: error: {line}", file=sys.stderr)
+            return 1
+
+
+def _run(argv) -> int:
+    from .options import check_bounds
+
+    args = build_parser().parse_args(argv)
+    check_bounds(args)
     if args.command != "view":  # every command's Warp: no banner, no note that this CPU has no CUDA driver
         from .options import quiet_warp
 
         quiet_warp(getattr(args, "verbose", False), str(getattr(args, "device", "cpu")))
-
-    try:
-        return int(args.func(args) or 0)
-    except WarpShapeError as exc:
-        print(f"warp-shape: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("\nwarp-shape: interrupted", file=sys.stderr)
-        return 130
+    return int(args.func(args) or 0)

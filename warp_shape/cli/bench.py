@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from ..errors import DesignError
-from .options import check_device, check_out, print_outputs
+from .options import MAX_CANDIDATES, MAX_WORLDS, add_bounded, check_device, check_out, print_outputs
 
 __all__ = ["register", "run"]
 
@@ -23,13 +23,13 @@ def register(subparsers) -> None:
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
                                                                     "rays", "all"])
     b.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
-    b.add_argument("--subdivisions", type=int, nargs="+", default=[3, 4, 5, 6],
+    add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
-    b.add_argument("--worlds", type=int, nargs="+", default=[1],
+    add_bounded(b, "--worlds", 1, MAX_WORLDS, type=int, nargs="+", default=[1],
                    help="sim bench: worlds stepped as one batch, e.g. 1 64 1024 4096 (default 1)")
-    b.add_argument("--candidates", type=int, nargs="+", default=None,
+    add_bounded(b, "--candidates", 1, MAX_CANDIDATES, type=int, nargs="+", default=None,
                    help="design bench: also the default problem by the paper's placement and at each K, e.g. 1 2 4 8")
-    b.add_argument("--repeats", type=int, default=3, help="timing repeats (the best is kept)")
+    add_bounded(b, "--repeats", 1, 100, type=int, default=3, help="timing repeats (the best is kept)")
     b.add_argument("--out", default="out/bench", help="folder of the bench_<name>.json files")
     b.set_defaults(func=run)
 

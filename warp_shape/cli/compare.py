@@ -14,6 +14,7 @@ import warnings
 import numpy as np
 
 from ..errors import WarpShapeError
+from .options import add_bounded
 
 __all__ = ["register", "run", "format_comparison"]
 
@@ -46,7 +47,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu", help="Warp device, e.g. cpu or cuda:0 (default cpu)")
     p.add_argument("--method", choices=("point_to_plane", "point_to_point"), default="point_to_plane",
                    help="ICP update (default point_to_plane)")
-    p.add_argument("--max-iterations", type=int, default=200, help="ICP iteration limit (default 200)")
+    add_bounded(p, "--max-iterations", 1, 10000, type=int, default=200, help="ICP iteration limit (default 200)")
     p.set_defaults(func=run)
     return p
 

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import argparse
 
-from .options import (ControlProgress, actuator_selection, add_common_args, add_units_arg, check_device, check_out,
-                      check_rerun, open_recorder, print_outputs, resolve_design_and_targets)
+from .options import (MAX_CONTROL_STEPS, ControlProgress, actuator_selection, add_bounded, add_common_args,
+                      add_units_arg, check_device, check_out, check_rerun, open_recorder, print_outputs,
+                      resolve_design_and_targets, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -24,7 +25,7 @@ def register(subparsers) -> None:
                    help="overrides the scene's simulation:integrator (default rk4)")
     c.add_argument("--precision", default=None, choices=["float32", "float64"],
                    help="overrides the scene's simulation:precision (default float32)")
-    c.add_argument("--max-steps", type=int, default=300, help="control-step limit")
+    add_bounded(c, "--max-steps", 1, MAX_CONTROL_STEPS, type=int, default=300, help="control-step limit")
     c.add_argument("--method", default="inverse", choices=["inverse", "paper"],
                    help="inverse: the paper's law as warm start, then model-based control (default); paper: the "
                         "paper's law (eqs. 11-15)")
@@ -70,6 +71,7 @@ def run(args) -> int:
     check_device(args.device)
     check_rerun(args)
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets, args.units)
+    stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     names = [n for n, _ in targets]
     # the scene's simulation settings (checked: unknown keys and bad values are errors), then the flags
     flags = {k: v for k, v in (("integrator", args.integrator), ("precision", args.precision)) if v is not None}

@@ -12,8 +12,9 @@ from __future__ import annotations
 import json
 import time
 
-from .options import (add_common_args, add_units_arg, check_device, check_mold_flags, check_out, check_rerun,
-                      load_targets, open_recorder, print_outputs, run_progress)
+from .options import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS, add_bounded, add_common_args,
+                      add_units_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
+                      open_recorder, print_outputs, run_progress, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -27,8 +28,8 @@ def register(subparsers) -> None:
                    "(default: oval_heart)")
     d.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files "
                    "(default: the scene's targets)")
-    d.add_argument("--actuators", type=int, default=None, help="number of IPAMs to place (default: the scene's, "
-                   "else 4)")
+    add_bounded(d, "--actuators", 1, MAX_ACTUATORS, type=int, default=None,
+                help="number of IPAMs to place (default: the scene's, else 4)")
     d.add_argument("--subdivisions", type=int, default=None,
                    help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 2: 162, 3: 642, "
                         "4: 2562) instead of the scene's base mesh (default: the scene's, 642 vertices)")
@@ -39,9 +40,9 @@ def register(subparsers) -> None:
                         "what does not help it, refined in batches of worlds; never worse than paper on any "
                         "target), paper (Algorithm 1 as published) or greedy (the best of K candidate sets per "
                         "round by summed objective; trades targets off)")
-    d.add_argument("--candidates", type=int, default=None,
+    add_bounded(d, "--candidates", 1, MAX_CANDIDATES, type=int, default=None,
                    help="K: simulated: holds tried per target per refinement round; greedy: candidate sets per round")
-    d.add_argument("--refine-rounds", type=int, default=None,
+    add_bounded(d, "--refine-rounds", 0, MAX_REFINE_ROUNDS, type=int, default=None,
                    help="simulated placement: refinement rounds at most after the last round (default 5; 0: none)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
@@ -164,19 +165,27 @@ def _cell_room_hint(exc, args) -> str:
 
 
 def _keep_interrupted(staged, rounds_done: int) -> None:
+    """After Ctrl-C: the finished rounds (and any final outputs written) kept, sealed as they are, in
+    ``<out>`` where it holds no finished run, else in ``<out>.partial``; nothing where no round finished."""
     import sys
 
     if not rounds_done:
         staged.discard()
         print(f"\nno design round had finished; {staged.out} is unchanged", file=sys.stderr)
-    elif staged.holds_complete_set():
+        return
+    try:
+        complete = json.loads((staged.path / "report.json").read_text()).get("complete") is True
+    except (OSError, ValueError):
+        complete = False
+    if staged.holds_complete_set():
+        staged.seal(complete, command="design")
         staged.unlock()
         print(f"\n{rounds_done} finished round(s) kept in {staged.partial} ({staged.out} still holds the previous "
               f"finished run)", file=sys.stderr)
     else:
-        staged.commit(False, command="design")
-        print(f"\n{rounds_done} finished round(s) kept in {staged.out} (report.json says complete: false)",
-              file=sys.stderr)
+        staged.commit(complete, command="design")
+        print(f"\n{rounds_done} finished round(s) kept in {staged.out} (report.json says complete: "
+              f"{str(complete).lower()})", file=sys.stderr)
 
 
 def run(args) -> int:
@@ -190,6 +199,7 @@ def run(args) -> int:
     check_device(args.device)
     check_rerun(args)
     base, named, actuators, settings = _problem(args)
+    stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     t0 = time.perf_counter()
     res = _run_designer(args, base, named, actuators, settings, staged)
     wall = time.perf_counter() - t0
@@ -197,6 +207,14 @@ def run(args) -> int:
         write_design_outputs(res, staged.path, marker_height=args.marker_height, layer_thickness=args.layer_thickness,
                              extra_report=dict(complete=True, wall_seconds=wall, device=args.device),
                              kept=["rounds.json", "manifest.json"])
+        stop_if_interrupted()
+    except KeyboardInterrupt:
+        _keep_interrupted(staged, len(res.rounds))
+        raise
+    except BaseException:
+        staged.discard()
+        raise
+    try:
         out = staged.commit(True, command="design")
     except BaseException:
         staged.discard()

@@ -5,9 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..io.valve import DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ
-from .options import (actuator_selection, add_common_args, check_mold_flags, control_progress, load_targets,
-                      open_recorder)
+from ..io.valve import (DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ, MAX_VALVE_RATE_HZ, MIN_VALVE_FLOW_ML_S,
+                        MIN_VALVE_SLEW_KPA_S)
+from .options import (actuator_selection, add_bounded, add_common_args, check_mold_flags, control_progress,
+                      load_targets, open_recorder, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -26,12 +27,13 @@ def register(subparsers) -> None:
                    help="IPAM boss height on the mold core, m (0: none; at most a quarter of the device's radius)")
     e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
                    help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")
-    e.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ, metavar="HZ",
+    add_bounded(e, "--rate", 1e-3, MAX_VALVE_RATE_HZ, zero=True, type=float, default=DEFAULT_RATE_HZ, metavar="HZ",
                    help=f"valve CSV samples per second (default {DEFAULT_RATE_HZ:g}); 0: one row per control step")
-    e.add_argument("--max-slew", type=float, default=DEFAULT_MAX_SLEW_KPA_S, metavar="KPA_PER_S",
+    add_bounded(e, "--max-slew", MIN_VALVE_SLEW_KPA_S, 1e9, zero=True, type=float, default=DEFAULT_MAX_SLEW_KPA_S,
+                metavar="KPA_PER_S",
                    help=f"slowest valve: stretch the sequence so no pressure changes faster "
                         f"(default {DEFAULT_MAX_SLEW_KPA_S:g} kPa/s); 0: simulated timing")
-    e.add_argument("--max-flow", type=float, default=None, metavar="ML_PER_S",
+    add_bounded(e, "--max-flow", MIN_VALVE_FLOW_ML_S, 1e9, type=float, default=None, metavar="ML_PER_S",
                    help="syringe pump: stretch the sequence so the chamber air changes no faster (default: no limit)")
     e.add_argument("--passive", choices=["neutral", "zero"], default="neutral",
                    help="pressure written for IPAMs a target does not use: the simulated neutral pressure "
@@ -50,6 +52,7 @@ def run(args) -> int:
     from ..io.scene_write import save_scene
 
     scene = load_scene(args.scene)
+    stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     if scene.design is None:
         raise DesignError(f"{args.scene} holds no design (only targets); export needs a design scene, "
                           f"e.g. out/design.usda from warp-shape design or the shipped cube_fig6")

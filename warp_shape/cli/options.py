@@ -4,17 +4,30 @@ quieting, progress, targets and scenes by name, the closing list of outputs."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from .progress import Bar, ControlProgress, DesignProgress
 
 __all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
            "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
-           "check_out", "check_rerun", "check_mold_flags", "print_outputs", "run_progress", "Bar", "ControlProgress"]
+           "check_out", "check_rerun", "check_mold_flags", "print_outputs", "run_progress", "Bar", "ControlProgress",
+           "interrupts_noted", "stop_if_interrupted", "write_failure", "add_bounded", "check_bounds"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
+
+#: upper bounds of the flags that size a run (``add_bounded``): each is well past what the paper
+#: and the shipped scenes use, and below what exhausts a workstation's memory or disk
+MAX_ACTUATORS = 500  # IPAMs placed (the shipped problems place 4..20)
+MAX_CANDIDATES = 256  # holds or candidate sets per round, each a world of one batch
+MAX_REFINE_ROUNDS = 50
+MAX_CONTROL_STEPS = 100_000  # control steps of one run (default 300)
+MAX_SIM_STEPS = 200_000  # output steps of `simulate` (default 800)
+MAX_WORLDS = 4096
 
 
 def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:
@@ -26,6 +39,33 @@ def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:
     sp.add_argument("--verbose", action="store_true", help="show Warp's start-up and compile messages")
     if rerun:
         add_rerun_args(sp)
+
+
+def add_bounded(sp, flag: str, lo: float, hi: float, *, zero: bool = False, **kwargs):
+    """``sp.add_argument(flag, **kwargs)`` for a number (or numbers, with ``nargs``) that ``check_bounds``
+    holds to ``lo..hi`` (and 0, with ``zero``: the flag's "off") before any work; the help names the bounds."""
+    span = f"{'0 or ' if zero else ''}{lo:g}..{hi:g}"
+    kwargs["help"] = f"{kwargs.get('help', '')} [{span}]".strip()
+    action = sp.add_argument(flag, **kwargs)
+    sp.set_defaults(flag_bounds={**(sp.get_default("flag_bounds") or {}), action.dest: (flag, lo, hi, zero)})
+    return action
+
+
+def check_bounds(args) -> None:
+    """Every number a flag of ``add_bounded`` was given, within its bounds: a one-line error naming them
+    otherwise (rates, counts, resolutions and steps all request memory, disk or time in proportion)."""
+    import math
+
+    from ..errors import DesignError
+
+    for dest, (flag, lo, hi, zero) in (getattr(args, "flag_bounds", None) or {}).items():
+        value = getattr(args, dest, None)
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if v is None or (zero and v == 0) or (math.isfinite(v) and lo <= v <= hi):
+                continue
+            got = v if isinstance(v, int) else f"{v:g}"
+            raise DesignError(f"{flag} takes {'0 or ' if zero else ''}{lo:g}..{hi:g}, got {got}; give a value "
+                              f"within these bounds")
 
 
 def add_rerun_args(sp) -> None:
@@ -87,6 +127,54 @@ def quiet_warp(verbose: bool = False, device: str | None = None) -> None:
             wp.init()  # a no-op once Warp has started
 
 
+_INTERRUPTS: list = []  # Ctrl-C presses since ``interrupts_noted`` began
+
+
+@contextlib.contextmanager
+def interrupts_noted():
+    """Ctrl-C raises ``KeyboardInterrupt`` as usual and is also noted, so that one a library swallowed
+    (USD's module loading prints "Error occurred postprocessing module" and goes on) still stops the
+    run at the next ``stop_if_interrupted``. Main thread only; the previous handler is restored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_sigint(signum, frame):
+        _INTERRUPTS.append(signum)
+        raise KeyboardInterrupt
+
+    _INTERRUPTS.clear()
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def stop_if_interrupted() -> None:
+    """``KeyboardInterrupt`` where Ctrl-C was pressed since the command began (even if swallowed)."""
+    if _INTERRUPTS:
+        raise KeyboardInterrupt
+
+
+#: what a failing disk answers a write with, as the one line a user reads
+WRITE_ERRNOS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "the disk quota is used up",
+                errno.EFBIG: "a file is larger than the file system allows",
+                errno.EROFS: "the file system is read-only",
+                errno.EIO: "the disk answered with an input/output error"}
+
+
+def write_failure(exc: OSError) -> str | None:
+    """One line for a write a full, read-only or failing disk refused (naming the file and the fix);
+    None for any other ``OSError``."""
+    what = WRITE_ERRNOS.get(exc.errno)
+    if what is None:
+        return None
+    where = f" writing {exc.filename}" if exc.filename else ""
+    return (f"{what}{where}; no file was left half-written: free some space (or fix the disk) and run again, or "
+            f"give --out a folder on another disk")
+
+
 def check_device(device: str) -> str:
     """The Warp name of ``device``; a clear error (listing the devices here) where it is absent."""
     from ..model import check_device as check
@@ -118,8 +206,12 @@ def check_rerun(args) -> None:
         folder = p.parent
         while not folder.exists():
             folder = folder.parent
-        if not os.access(folder, os.W_OK | os.X_OK):
-            raise DesignError(f"--rerun {path}: {folder} is not writable")
+        from ..io.atomic import creation_refused
+
+        reason = "not a folder" if not folder.is_dir() else creation_refused(folder)
+        if reason is not None:
+            raise DesignError(f"--rerun {path}: {folder} is not writable ({reason}); give a path in a folder you "
+                              f"can write to, e.g. --rerun out/run.rrd")
 
 
 def check_mold_flags(args, radius: float) -> None:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .options import Bar, add_common_args, check_device, check_out, check_rerun, open_recorder, print_outputs
+from .options import (MAX_SIM_STEPS, Bar, add_bounded, add_common_args, check_device, check_out, check_rerun,
+                      open_recorder, print_outputs)
 
 __all__ = ["register", "run"]
 
@@ -19,7 +20,7 @@ def register(subparsers) -> None:
     s.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
     s.add_argument("--precision", default="float32", choices=["float32", "float64"])
     s.add_argument("--dt", type=float, default=1e-3, help="output step, s (internal substeps are automatic)")
-    s.add_argument("--subdivisions", type=int, default=3, help="icosphere subdivisions of the membrane")
+    add_bounded(s, "--subdivisions", 1, 6, type=int, default=3, help="icosphere subdivisions of the membrane")
     s.add_argument("--air-scale", type=float, default=1.6, help="final air amount relative to the rest amount")
     s.add_argument("--inflate-time", type=float, default=0.4, help="s")
     s.add_argument("--actuate-time", type=float, default=0.4, help="s")
@@ -34,11 +35,15 @@ def _step_counts(args) -> tuple[int, int]:
     for name, value in (("--dt", args.dt), ("--inflate-time", args.inflate_time), ("--actuate-time", args.actuate_time)):
         if not (value > 0 and np.isfinite(value)):
             raise StabilityError(f"{name} must be a positive number of seconds, got {value}")
-    n_inflate, n_actuate = int(round(args.inflate_time / args.dt)), int(round(args.actuate_time / args.dt))
+    n_inflate, n_actuate = (round(min(t / args.dt, 1e18)) for t in (args.inflate_time, args.actuate_time))
     if n_inflate < 1 or n_actuate < 1:
         raise StabilityError(f"--dt {args.dt:g} s takes no step of --inflate-time {args.inflate_time:g} s or "
                              f"--actuate-time {args.actuate_time:g} s; give --dt at most "
                              f"{min(args.inflate_time, args.actuate_time):g} s (default 0.001)")
+    if n_inflate + n_actuate > MAX_SIM_STEPS:
+        raise StabilityError(f"--inflate-time {args.inflate_time:g} s and --actuate-time {args.actuate_time:g} s at "
+                             f"--dt {args.dt:g} s are {n_inflate + n_actuate:.3g} output steps, more than "
+                             f"{MAX_SIM_STEPS}; give a larger --dt or shorter times")
     return n_inflate, n_actuate
 
 

@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from .options import MAX_ACTUATORS, add_bounded
+
 
 __all__ = ["register", "run"]
 
@@ -14,7 +16,8 @@ def _common(sp) -> None:
     sp.add_argument("scene", nargs="?", default=None, help="design problem: a shipped scene name or .usda file "
                     "(default oval_heart, as `warp-shape design`)")
     sp.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files")
-    sp.add_argument("--actuators", type=int, default=None, help="number of IPAMs of every run (default: the scene's)")
+    add_bounded(sp, "--actuators", 1, MAX_ACTUATORS, type=int, default=None,
+                help="number of IPAMs of every run (default: the scene's)")
     sp.add_argument("--set", dest="fixed", action="append", default=[], metavar="NAME=VALUE",
                     help="a setting for every run (repeatable), e.g. --set method=paper --set subdivisions=2")
     sp.add_argument("--out", default="sweep", help="sweep folder: results.csv, results.json, summary, runs/")
@@ -22,8 +25,8 @@ def _common(sp) -> None:
                     help="ray (default: one Ray task per run) or serial (one after another in this process)")
     sp.add_argument("--address", default=None, help="join the Ray cluster at HOST:PORT (or auto) instead of "
                     "starting a local instance")
-    sp.add_argument("--workers", type=int, default=None, help="runs at a time (default: the CPUs Ray sees)")
-    sp.add_argument("--retries", type=int, default=1, help="Ray retries of a run whose worker process died")
+    add_bounded(sp, "--workers", 1, 1024, type=int, default=None, help="runs at a time (default: the CPUs Ray sees)")
+    add_bounded(sp, "--retries", 0, 100, type=int, default=1, help="Ray retries of a run whose worker process died")
     sp.add_argument("--restart", action="store_true", help="discard the folder's earlier results and run all")
     sp.add_argument("--device", default="cpu", help="Warp device of each run: cpu or cuda (one GPU per Ray task)")
     sp.add_argument("--json", action="store_true", help="print the rows as JSON")

@@ -20,8 +20,8 @@ from pathlib import Path
 
 from ..errors import WarpShapeError
 
-__all__ = ["atomic_write", "atomic_target", "hold_lock", "release_lock", "finalize_permissions", "MANIFEST", "file_digest", "read_manifest",
-           "manifest_problems", "StagedFolder", "OutputError"]
+__all__ = ["atomic_write", "atomic_target", "hold_lock", "release_lock", "finalize_permissions", "MANIFEST", "file_digest",
+           "read_manifest", "manifest_problems", "creation_refused", "StagedFolder", "OutputError"]
 
 
 class OutputError(WarpShapeError, OSError):
@@ -168,14 +168,41 @@ def _link_tree(src: Path, dst: Path) -> None:
         link(src, dst)
 
 
-def _probe_writable(folder: Path, what: str) -> None:
+def _differs(path: Path, info: dict) -> bool:
+    """Whether an entry a manifest lists is there and no longer the file it records (another size or
+    SHA-256, or now a folder or a link)."""
+    if not os.path.lexists(path):
+        return False
+    if path.is_symlink() or not path.is_file():
+        return True
+    return path.stat().st_size != info.get("bytes") or file_digest(path) != info.get("sha256")
+
+
+def _listed(names, most: int = 5) -> str:
+    """``names`` sorted, at most ``most`` of them, and how many more."""
+    names = sorted(names)
+    more = f" and {len(names) - most} more" if len(names) > most else ""
+    return ", ".join(names[:most]) + more
+
+
+def creation_refused(folder) -> str | None:
+    """Why no file can be made in ``folder`` (the system's reason), tried by making one and removing
+    it again; None where one can. /proc and read-only mounts refuse here where ``os.access`` says
+    yes to root."""
     try:
         fd, tmp = tempfile.mkstemp(prefix=".warp-shape-probe.", dir=folder)
     except OSError as exc:
-        raise OutputError(f"{what} {folder} is not writable ({exc.strerror}); give --out a folder you can "
-                          f"write to") from None
+        return exc.strerror or type(exc).__name__
     os.close(fd)
     os.unlink(tmp)
+    return None
+
+
+def _probe_writable(folder: Path, what: str) -> None:
+    reason = creation_refused(folder)
+    if reason is not None:
+        raise OutputError(f"{what} {folder} is not writable ({reason}); give --out a folder you can "
+                          f"write to")
 
 
 class StagedFolder:
@@ -184,23 +211,38 @@ class StagedFolder:
     ``<out>`` only ever holds one whole set of outputs, listed with sizes and SHA-256 in its
     ``manifest.json``: the previous set until ``commit()`` exchanges the two folders in one rename
     (Linux; elsewhere two renames), the new set after. Files of the previous set that the new run
-    does not write are gone with it; other files in ``<out>`` (not in its manifest and not named as
-    ``owned`` says outputs of this kind are named) are carried over as hard links. A run that is
-    killed leaves ``<out>`` as it was and its finished part in ``<out>.partial``.
+    does not write are gone with it; every other entry of ``<out>`` (not in its manifest) is carried
+    over as hard links. ``check`` refuses, before any work, an ``<out>`` that is not a run's to
+    replace: files and no manifest (sub-folders alone are carried), files no run wrote under a name
+    ``owned`` says outputs of this kind have, files changed since the run wrote them. A symbolic link
+    given as ``<out>`` is followed: its target is the folder checked and replaced, and the link stays.
+    A run that is killed leaves ``<out>`` as it was and its finished part in ``<out>.partial``.
     """
 
     def __init__(self, out, owned=lambda name: False):
         self.out = Path(os.path.abspath(os.path.expanduser(str(out))))
+        if not self.out.name:
+            raise OutputError(f"--out {out} is the root folder; a run replaces its output folder as a whole: give "
+                              f"it a folder of its own, e.g. --out out")
+        self.link = None  # the symbolic link given as --out, where it was one
         if self.out.is_symlink():
-            self.out = self.out.resolve()
+            self.link, self.out = self.out, self.out.resolve()
         self.partial = self.out.with_name(self.out.name + ".partial")
         self.owned = owned
         self._begun = False
         self._lock_fd = None
 
+    @property
+    def shown(self) -> str:
+        """``<out>`` as messages name it: the link given and the folder it points to, where it is a link."""
+        return f"{self.link} (a link to {self.out})" if self.link is not None else str(self.out)
+
     def check(self, replaced: bool = True) -> None:
         """A clear ``OutputError`` now, before any work, where the outputs could not be written (and,
         with ``replaced``, where ``<out>`` is no folder of its own to be replaced as a whole)."""
+        if self.link is not None and not self.out.exists():
+            raise OutputError(f"--out {self.link} is a symbolic link to {self.out}, which does not exist; give --out "
+                              f"a folder (new or holding earlier outputs)")
         for p, what in ((self.out, "--out"), (self.partial, "the staging folder")):
             if p.exists() and not p.is_dir():
                 raise OutputError(f"{what} {p} is a file, not a folder; give --out a folder (new or holding "
@@ -215,25 +257,69 @@ class StagedFolder:
             _probe_writable(self.out, "--out")
             if replaced:
                 self._check_own_folder()
+        if replaced:
+            self._check_partial()
 
     def _check_own_folder(self) -> None:
-        """``<out>`` is replaced as a whole: refuse the current folder (or one holding it) and a
-        folder of many other files (a project, a home folder), which would be copied into each set."""
+        """``<out>`` is replaced as a whole: refuse the current folder (or one holding it), a folder
+        holding files no run wrote and no manifest, files a run could replace that no run wrote, files
+        changed since the run wrote them, and a folder of many other files (a project, a home folder),
+        which would be copied into each set."""
         cwd = Path.cwd().resolve()
         if self.out == cwd or self.out in cwd.parents:
-            raise OutputError(f"--out {self.out} holds the current folder; a run replaces its output folder as a "
+            raise OutputError(f"--out {self.shown} holds the current folder; a run replaces its output folder as a "
                               f"whole: give it a folder of its own, e.g. --out out")
-        previous = set((read_manifest(self.out) or {}).get("files", {}))
+        manifest = read_manifest(self.out)
+        if manifest is None:
+            foreign = [e.name for e in os.scandir(self.out)
+                       if not e.is_dir(follow_symlinks=False) or self.owned(e.name)]
+            if foreign:
+                raise OutputError(f"--out {self.shown} holds files no run wrote ({_listed(foreign)}) and no "
+                                  f"{MANIFEST}; a run replaces its output folder as a whole: give --out an empty or "
+                                  f"new folder")
+        else:
+            self._check_listed(manifest)
+        previous = set((manifest or {}).get("files", {}))
         count = 0
         for root, dirs, files in os.walk(self.out):
             if Path(root) == self.out:
-                dirs[:] = [d for d in dirs if not self.owned(d) and d not in previous]
-                files = [f for f in files if not self.owned(f) and f not in previous and f != MANIFEST]
+                dirs[:] = [d for d in dirs if d not in previous]
+                files = [f for f in files if f not in previous and f != MANIFEST]
             count += len(files) + len(dirs)
             if count > MAX_FOREIGN_ENTRIES:
-                raise OutputError(f"--out {self.out} holds more than {MAX_FOREIGN_ENTRIES} files that are not "
+                raise OutputError(f"--out {self.shown} holds more than {MAX_FOREIGN_ENTRIES} files that are not "
                                   f"outputs of a run; a run replaces its output folder as a whole (keeping such "
                                   f"files): give it a folder of its own, e.g. --out out")
+
+    def _check_listed(self, manifest: dict) -> None:
+        """In a folder of a run: no file the run did not write under a name a run writes (the new set
+        would replace it), no listed file changed since (the new set would drop the change)."""
+        listed = manifest["files"]
+        named = [e.name for e in os.scandir(self.out) if e.name not in listed and e.name != MANIFEST
+                 and self.owned(e.name)]
+        if named:
+            raise OutputError(f"--out {self.shown} holds files named as a run's outputs that no run wrote "
+                              f"({_listed(named)}); the next run would replace them: move them out of --out, or "
+                              f"give --out an empty or new folder")
+        changed = [name for name, info in listed.items() if _differs(self.out / name, info)]
+        if changed:
+            raise OutputError(f"--out {self.shown}: {_listed(changed)} not as the run wrote (size or SHA-256 differs "
+                              f"from {MANIFEST}); the next run would replace them: move them out of --out, or give "
+                              f"--out an empty or new folder")
+
+    def _check_partial(self) -> None:
+        """``<out>.partial`` is removed when the run starts: only where it is a folder of a run's files
+        (an earlier run's unfinished outputs, or links to files still in ``<out>``)."""
+        if self.partial.is_symlink():
+            raise OutputError(f"the staging folder {self.partial} is a symbolic link; a run writes its outputs "
+                              f"there: remove the link (or give another --out)")
+        if not self.partial.is_dir() or read_manifest(self.partial) is not None:
+            return
+        foreign = [e.name for e in os.scandir(self.partial) if not (self.owned(e.name) or e.name.startswith(".")
+                                                                    or (self.out / e.name).exists())]
+        if foreign:
+            raise OutputError(f"the staging folder {self.partial} holds files no run wrote ({_listed(foreign)}); "
+                              f"a run removes that folder when it starts: move them away, or give another --out")
 
     def lock(self) -> None:
         """Hold ``<parent>/.<out>.lock`` for the rest of the run: a second run into the same ``<out>``
@@ -282,12 +368,14 @@ class StagedFolder:
         return bool(m and m.get("complete"))
 
     def _carry_foreign(self) -> None:
+        """Every entry of ``<out>`` that its manifest does not list (checked by ``check``: none named
+        as the new set's files are) into the staging folder, as hard links."""
         if not self.out.is_dir():
             return
         previous = set((read_manifest(self.out) or {}).get("files", {}))
         for entry in self.out.iterdir():
             name = entry.name
-            if name == MANIFEST or name in previous or self.owned(name) or (self.partial / name).exists():
+            if name == MANIFEST or name in previous or (self.partial / name).exists():
                 continue
             _link_tree(entry, self.partial / name)
 

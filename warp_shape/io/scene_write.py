@@ -6,7 +6,10 @@ The format is ``docs/scene_format.md``; the attribute names and types come from 
 
 from __future__ import annotations
 
+import errno
 import math
+import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +23,7 @@ from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, IPAM_ATTRIBUTE
 from .usd_common import (IPAM_COLOR, TARGET_COLOR, TARGET_OPACITY, author_attribute, author_mesh, check_extension,
                          extent, face_colors, ipam_endpoints, load_pxr)
 
-__all__ = ["build_stage", "save_scene", "write_stage_atomic", "export_layer"]
+__all__ = ["build_stage", "save_scene", "write_stage_atomic", "export_layer", "usd_write_error"]
 
 #: Python type of a setting -> its USD type (bool before int: a bool is an int in Python)
 SETTING_TYPES = ((bool, "bool"), (int, "int64"), (float, "double"), (str, "string"))
@@ -155,8 +158,23 @@ def write_stage_atomic(stage, path) -> Path:
     path = Path(path)
     check_extension(path)
     with atomic_target(path) as tmp:
-        export_layer(stage.GetRootLayer(), str(tmp))
+        try:
+            export_layer(stage.GetRootLayer(), str(tmp))
+        except load_pxr().Tf.ErrorException as exc:
+            raise usd_write_error(exc, path) from None
     return path
+
+
+def usd_write_error(exc, path) -> Exception:
+    """USD's refusal to write ``path`` (a ``Tf.ErrorException`` of many lines) as one error: the
+    ``OSError`` of a full or failing disk, else a ``SceneError`` with USD's first reason."""
+    text = str(exc)
+    for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO):
+        if os.strerror(code) in text:
+            return OSError(code, os.strerror(code), str(path))
+    reasons = re.findall(r" : '(.*)'\s*$", text, re.M)
+    first = reasons[0] if reasons else (text.strip().splitlines() or [type(exc).__name__])[0]
+    return SceneError(f"USD could not write {path}: {first}")
 
 
 def save_scene(scene: Scene, path, *, target_references: dict | None = None) -> Path:

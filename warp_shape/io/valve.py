@@ -44,11 +44,16 @@ from ..material import GAS_CONSTANT
 from .atomic import atomic_write
 from .outputs import write_json
 
-__all__ = ["DEFAULT_RATE_HZ", "DEFAULT_MAX_SLEW_KPA_S", "row_times", "valve_schedule", "valve_csv_text",
+__all__ = ["DEFAULT_RATE_HZ", "DEFAULT_MAX_SLEW_KPA_S", "MAX_VALVE_RATE_HZ", "MIN_VALVE_SLEW_KPA_S",
+           "MIN_VALVE_FLOW_ML_S", "MAX_VALVE_ROWS", "row_times", "valve_schedule", "valve_csv_text",
            "valve_sidecar", "write_valve_outputs"]
 
 DEFAULT_RATE_HZ = 50.0
 DEFAULT_MAX_SLEW_KPA_S = 100.0
+MAX_VALVE_RATE_HZ = 10_000.0  # past any pressure regulator's update rate
+MIN_VALVE_SLEW_KPA_S = 0.1  # slower stretches a 100 kPa step past a quarter of an hour
+MIN_VALVE_FLOW_ML_S = 0.01
+MAX_VALVE_ROWS = 1_000_000  # about 100 MB of CSV
 _REFERENCE = dict(temperature_k=293.15, pressure_pa=101325.0)
 
 
@@ -123,8 +128,14 @@ def _stretched(cols: dict, max_slew_kpa_s: float | None, max_flow_ml_s: float | 
 
 
 def _resample(cols: dict, t: np.ndarray, rate_hz: float) -> dict:
-    """Columns on a uniform clock at ``rate_hz`` (linear; jam states and phase held), ending at t[-1]."""
-    n = int(np.floor(t[-1] * rate_hz + 1e-9)) + 1
+    """Columns on a uniform clock at ``rate_hz`` (linear; jam states and phase held), ending at t[-1];
+    more than ``MAX_VALVE_ROWS`` rows is an error, before any is made."""
+    rows = float(np.floor(t[-1] * rate_hz + 1e-9)) + 1
+    if rows > MAX_VALVE_ROWS:
+        raise DesignError(f"the valve sequence would have {rows:.3g} rows ({t[-1]:.4g} s at {rate_hz:g} Hz), more "
+                          f"than {MAX_VALVE_ROWS}: give a lower rate (--rate) or a faster slew or flow limit "
+                          f"(--max-slew, --max-flow)")
+    n = int(rows)
     ts = np.arange(n) / rate_hz
     if ts[-1] < t[-1] - 1e-12:
         ts = np.append(ts, t[-1])

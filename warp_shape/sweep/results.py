@@ -66,13 +66,19 @@ class ResultsTable:
                 raise SweepError(f"{self.csv_path} exists without results.json: not a sweep folder of this "
                                  f"version; use another --out")
             return self
-        data = json.loads(self.json_path.read_text())
+        try:
+            data = json.loads(self.json_path.read_text())
+            rows = [r for r in data.get("rows", []) if isinstance(r.get("run_id"), str)]
+        except (OSError, ValueError, AttributeError, TypeError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) else f"not a sweep's results table: {exc}"
+            raise SweepError(f"{self.json_path} cannot be read ({reason}); give --restart to discard the folder's "
+                             f"results and run every run again, or use another --out") from None
         old = data.get("sweep", {})
         if old != json.loads(json.dumps(self.description)):
             changed = sorted(k for k in set(old) | set(self.description) if old.get(k) != self.description.get(k))
             raise SweepError(f"{self.folder} holds a different sweep (differs in {', '.join(changed)}); "
                              f"use another --out, or --restart to discard its results")
-        self.rows = {r["run_id"]: r for r in data.get("rows", [])}
+        self.rows = {r["run_id"]: r for r in rows}
         return self
 
     def lock(self) -> None:

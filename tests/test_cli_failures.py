@@ -1,0 +1,190 @@
+"""The command line when things go wrong around it: Ctrl-C at any moment, a full disk, odd paths and
+absurd sizes. Each ends in one line (exit 130, 1 or 2), and a previous run's outputs are never lost."""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from warp_shape.cli import main
+from test_run_folders import SMALL, assert_whole_set, fake_previous_set, no_control, snapshot
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def one_line(capsys, rc: int, argv) -> str:
+    assert main(argv) == rc, argv
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and err.count("\n") == 0, err
+    return err
+
+
+# ------------------------------------------------------------------------------------------ Ctrl-C
+def test_ctrl_c_while_the_final_outputs_are_written_keeps_the_finished_rounds(tmp_path, monkeypatch, capsys):
+    """Into a folder holding a finished run: that run stays; the new one's rounds (and the final files
+    written so far) are kept whole in <out>.partial. Into a new folder: kept there, complete false."""
+    import warp_shape.io.outputs as outputs
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(outputs, "write_molds", interrupted)  # after design.usda and the sequences
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    assert main(["design", "--out", str(out), *SMALL, "--targets", "oval"]) == 130
+    assert "2 finished round(s) kept in" in capsys.readouterr().err  # rounds 0 and 1
+    assert snapshot(out) == before
+    partial = tmp_path / "out.partial"
+    report = assert_whole_set(partial)
+    assert report["complete"] is False and report["rounds_done"] == 2 and (partial / "design.usda").is_file()
+    fresh = tmp_path / "fresh"
+    assert main(["design", "--out", str(fresh), *SMALL, "--targets", "oval"]) == 130
+    assert "report.json says complete: false" in capsys.readouterr().err
+    assert assert_whole_set(fresh)["complete"] is False and not (tmp_path / "fresh.partial").exists()
+
+
+def test_a_ctrl_c_that_usd_swallows_at_start_up_still_stops_the_run(tmp_path, monkeypatch, capsys):
+    """USD's module loading catches a KeyboardInterrupt raised inside it ("Error occurred postprocessing
+    module") and goes on; the run stops all the same before any work, the previous outputs untouched."""
+    import warp_shape.io.scene_read as scene_read
+
+    real = scene_read.load_scene
+
+    def swallowing(*args, **kwargs):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+        except KeyboardInterrupt:
+            pass  # what USD does with it
+        return real(*args, **kwargs)
+
+    no_control(monkeypatch)
+    monkeypatch.setattr(scene_read, "load_scene", swallowing)
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    assert one_line(capsys, 130, ["design", "--out", str(out), *SMALL]) == "warp-shape: interrupted"
+    assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
+
+
+INTERRUPT_AT_START = r"""
+import os, signal, sys
+import warp_shape.cli.options as options
+options.quiet_warp = lambda *a, **k: os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while Warp starts
+from warp_shape.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_as_warp_starts_is_one_line_and_exit_130(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, "-c", INTERRUPT_AT_START, "simulate", "--out", str(tmp_path / "o")],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 130 and proc.stderr.strip() == "warp-shape: interrupted", proc.stderr
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------------------ full disk
+def full_disk(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(args[0]) if args else None)
+
+
+def test_a_full_disk_is_one_line_and_the_previous_outputs_stay(tmp_path, monkeypatch, capsys):
+    """ENOSPC from the figures (matplotlib's PNG through atomic_write) and from USD (a Tf.ErrorException
+    of many lines): one line naming the file and the fix, exit 1, the previous set whole."""
+    from pxr import Tf
+
+    import warp_shape.io.figures as figures
+    import warp_shape.io.scene_write as scene_write
+
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    with monkeypatch.context() as m:
+        m.setattr(figures, "atomic_write", full_disk)
+        err = one_line(capsys, 1, ["design", "--out", str(out), *SMALL, "--targets", "oval"])
+    assert err.startswith(f"warp-shape: error: no space left on the device writing {tmp_path / 'out.partial'}")
+    assert "free some space" in err and "--out a folder on another disk" in err
+    assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
+
+    usd_text = ("\n\tError in 'pxr::ArFilesystemWritableAsset::Write' at line 78 in file filesystemWritableAsset.cpp"
+                " : 'Error occurred writing file: No space left on device'\n\tError in 'pxr::SdfUsdaFileFormat::"
+                "WriteToFile' at line 516 in file usdaFileFormat.cpp : 'Could not close x.usda'")
+
+    def usd_full(layer, path):
+        raise Tf.ErrorException(usd_text)
+
+    monkeypatch.setattr(scene_write, "export_layer", usd_full)
+    err = one_line(capsys, 1, ["design", "--out", str(out), *SMALL, "--targets", "oval"])
+    assert err.startswith(f"warp-shape: error: no space left on the device writing {tmp_path / 'out.partial'}")
+    assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
+    other = scene_write.usd_write_error(Tf.ErrorException(usd_text.replace("No space left on device", "Bad")), "x.usda")
+    assert str(other) == "USD could not write x.usda: Error occurred writing file: Bad"
+
+
+# ------------------------------------------------------------------------------------------ odd paths
+def test_a_recording_path_nothing_can_be_written_to_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("rerun")
+    no_control(monkeypatch)
+    err = one_line(capsys, 2, ["design", "--out", str(tmp_path / "out"), *SMALL, "--rerun", "/proc/x.rrd"])
+    assert err.startswith("warp-shape: error: --rerun /proc/x.rrd: /proc is not writable (")
+    assert "e.g. --rerun out/run.rrd" in err and not (tmp_path / "out").exists()
+
+
+def test_a_corrupt_sweep_table_is_one_line_naming_the_fix(tmp_path, capsys):
+    folder = tmp_path / "s"
+    folder.mkdir()
+    (folder / "results.json").write_text('{"sweep": {"kind": "subsets"}, "rows": [')
+    err = one_line(capsys, 2, ["sweep", "subsets", "--targets", "oval", "--backend", "serial", "--out", str(folder)])
+    assert err.startswith(f"warp-shape: error: {folder / 'results.json'} cannot be read (not a sweep's results table")
+    assert "give --restart" in err
+
+
+# ------------------------------------------------------------------------------------------ absurd sizes
+@pytest.mark.parametrize("argv, message", [
+    (["export", "out/design.usda", "--what", "control", "--rate", "1e9"], "--rate takes 0 or 0.001..10000, got 1e+09"),
+    (["export", "out/design.usda", "--max-slew", "1e-6"], "--max-slew takes 0 or 0.1..1e+09, got 1e-06"),
+    (["export", "out/design.usda", "--max-flow", "1e-9"], "--max-flow takes 0.01..1e+09, got 1e-09"),
+    (["design", "--actuators", "100000"], "--actuators takes 1..500, got 100000"),
+    (["design", "--candidates", "100000"], "--candidates takes 1..256, got 100000"),
+    (["design", "--refine-rounds", "100000"], "--refine-rounds takes 0..50, got 100000"),
+    (["control", "--max-steps", "1000000000"], "--max-steps takes 1..100000, got 1000000000"),
+    (["simulate", "--subdivisions", "12"], "--subdivisions takes 1..6, got 12"),
+    (["simulate", "--dt", "1e-9"], "are 8e+08 output steps, more than 200000; give a larger --dt or shorter times"),
+    (["simulate", "--inflate-time", "1e300"], "more than 200000"),
+    (["bench", "sim", "--worlds", "1", "100000"], "--worlds takes 1..4096, got 100000"),
+    (["bench", "sim", "--subdivisions", "9"], "--subdivisions takes 1..7, got 9"),
+    (["bench", "control", "--repeats", "1000000"], "--repeats takes 1..100, got 1000000"),
+    (["compare", "scan.ply", "--to", "oval", "--max-iterations", "1000000000"], "--max-iterations takes 1..10000"),
+    (["sweep", "subsets", "--workers", "100000"], "--workers takes 1..1024, got 100000"),
+    (["sweep", "grid", "--param", "actuators=5", "--actuators", "0"], "--actuators takes 1..500, got 0"),
+])
+def test_every_size_a_flag_requests_is_bounded_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
+    """Rates, counts, resolutions and steps: a one-line error naming the bounds, before any file is
+    read or written (the scene and scan named here do not even exist)."""
+    monkeypatch.chdir(tmp_path)
+    err = one_line(capsys, 2, argv)
+    assert message in err and err.startswith("warp-shape: error: ")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_valve_sequence_past_its_row_bound_is_refused_before_it_is_made():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from warp_shape.errors import DesignError
+    from warp_shape.io.valve import MAX_VALVE_ROWS, valve_schedule
+
+    n = 3
+    history = {"time": np.linspace(0, 1, n), "phase": np.ones(n, int), "pressure_pa": np.zeros(n),
+               "air_mol": np.ones(n), "ipam0_pressure_pa": np.array([0.0, 2e5, 0.0])}
+    result = SimpleNamespace(history=history, design=None, passive_ipams=[])
+    rows = len(valve_schedule(result, rate_hz=100.0, max_slew_kpa_s=0.1)["time_s"])  # 4000 s
+    assert rows == 400_001 <= MAX_VALVE_ROWS
+    with pytest.raises(DesignError, match=r"would have 4e\+06 rows \(4000 s at 1000 Hz\), more than 1000000"):
+        valve_schedule(result, rate_hz=1000.0, max_slew_kpa_s=0.1)
+
