@@ -212,8 +212,16 @@ def test_view_opens_a_recording_or_says_why_not(tmp_path, monkeypatch, capsys):
     rrd.write_bytes(b"RRF2")
     calls = []
     monkeypatch.setattr(view.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    monkeypatch.setenv("DISPLAY", ":0")
     assert main(["view", str(rrd)]) == 0
-    assert calls == [[sys.executable, "-m", "rerun", str(rrd)]] and "opening" in capsys.readouterr().err
+    # the viewer's server listens on this machine only
+    assert calls == [[sys.executable, "-m", "rerun", str(rrd), "--bind", "127.0.0.1"]]
+    assert "opening" in capsys.readouterr().err
+    monkeypatch.delenv("DISPLAY")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    err = error_of(capsys, ["view", str(rrd)])  # headless: said in a line, before any viewer starts
+    assert "no display here" in err and f"copy {rrd} to a machine with one" in err and "rerun run.rrd" in err
+    assert len(calls) == 1
     monkeypatch.setitem(sys.modules, "rerun", None)  # rerun-sdk not installed
     err = error_of(capsys, ["view", str(rrd)])
     assert "pip install 'warp-shape[rerun]'" in err

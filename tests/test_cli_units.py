@@ -200,3 +200,47 @@ def test_target_files_are_read_in_their_unit_and_named_in_errors(mm_files, tmp_p
     err = error_of(capsys, ["design", "--targets", str(torus), "--out", str(tmp_path / "o")])
     assert err.startswith(f"warp-shape: error: target file {torus} is not star-shaped") and len(err) - len(str(torus)) < 400
     assert "origin is not enclosed" in err and "target 0" not in err
+
+
+# ------------------------------------------------------------------------- late checks and tracebacks
+def test_export_and_sweep_check_their_inputs_before_any_work(tmp_path, monkeypatch, capsys):
+    no_work(monkeypatch)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    err = error_of(capsys, ["export", "cube_fig6", "--out", str(a_file)])
+    assert f"--out {a_file} is a file, not a folder" in err
+    err = error_of(capsys, ["sweep", "grid", "--param", "actuators=1,2", "--backend", "serial", "--out", str(a_file)])
+    assert f"--out {a_file} is a file, not a folder" in err
+    err = error_of(capsys, ["sweep", "grid", "--param", "actuators=1,2", "--backend", "serial", "--out",
+                            str(a_file / "sub")])
+    assert f"{a_file} is a file, not a folder" in err
+    err = error_of(capsys, ["export", "cube_fig6", "--rate", "-5", "--out", str(tmp_path / "out")])
+    assert "--rate takes 0 or" in err and "got -5" in err
+    mesh = _stl(tmp_path / "oval.stl", ws.target("oval"))
+    err = error_of(capsys, ["export", str(mesh), "--out", str(tmp_path / "out")])
+    assert f"{mesh} is not a USD scene (.usda, .usdc, .usd)" in err and "pxr" not in err
+    assert not (tmp_path / "out").exists()
+
+
+def _cli(*argv, code: str | None = None):
+    cmd = [sys.executable, "-c", code] if code else [sys.executable, "-m", "warp_shape.cli", *argv]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
+
+
+def test_an_absent_cuda_device_is_one_line_of_our_own():
+    import warp as wp
+
+    if wp.is_cuda_available():
+        pytest.skip("this machine has CUDA: the device is there")
+    run = _cli("simulate", "--device", "cuda", "--inflate-time", "0.01", "--actuate-time", "0.01")
+    assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
+    assert run.stderr.startswith("warp-shape: error: device 'cuda' is not available") and "Warp CUDA" not in run.stderr
+
+
+def test_the_readme_api_example_prints_only_its_own_result():
+    block = re.search(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
+    run = _cli(code=block)
+    assert run.returncode == 0, run.stderr
+    printed = (run.stdout + run.stderr).splitlines()
+    assert not [ln for ln in printed if ln.startswith(("Module ", "Warp 1.", "   "))], printed
+    assert len(run.stdout.splitlines()) == 1  # the example's one print

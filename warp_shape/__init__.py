@@ -7,6 +7,9 @@ Quick start::
     sim = ws.Simulator(d, device="cpu")
     sim.air_moles *= 1.05
     sim.step(100)
+
+Importing the package lowers Warp's log level to warnings (no start-up banner, no line per kernel
+module loaded), unless it was changed before; ``warp.config.log_level = warp.LOG_INFO`` shows them.
 """
 
 from .controller import ControlResult, ControlSettings, control, control_many, replay
@@ -41,3 +44,9 @@ def __getattr__(name):
 
         return importlib.import_module(".sweep", __name__)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+import warp as _warp  # noqa: E402
+
+if _warp.config.log_level == _warp.LOG_INFO:  # Warp's default: a line per module loaded
+    _warp.config.log_level = _warp.LOG_WARNING

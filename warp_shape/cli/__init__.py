@@ -78,5 +78,5 @@ def _run(argv) -> int:
     if args.command != "view":  # every command's Warp: no banner, no note that this CPU has no CUDA driver
         from .options import quiet_warp
 
-        quiet_warp(getattr(args, "verbose", False), str(getattr(args, "device", "cpu")))
+        quiet_warp(getattr(args, "verbose", False))
     return int(args.func(args) or 0)

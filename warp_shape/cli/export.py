@@ -7,8 +7,8 @@ from pathlib import Path
 
 from ..io.valve import (DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ, MAX_VALVE_RATE_HZ, MIN_VALVE_FLOW_ML_S,
                         MIN_VALVE_SLEW_KPA_S)
-from .options import (actuator_selection, add_bounded, add_common_args, check_mold_flags, control_progress,
-                      load_targets, open_recorder, stop_if_interrupted)
+from .options import (actuator_selection, add_bounded, add_common_args, check_device, check_mold_flags, check_out,
+                      check_rerun, control_progress, load_targets, open_recorder, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -42,26 +42,35 @@ def register(subparsers) -> None:
     e.set_defaults(func=run)
 
 
-def run(args) -> int:
-    """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
-    from ..controller import ControlSettings, control_many
+def _checked_inputs(args):
+    """(scene, [(name, target)]) once every input is checked, before any work: ``--out``, the device,
+    the recording path, the scene (a design), the mold lengths and the targets."""
     from ..errors import DesignError
-    from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
-    from ..io.valve import write_valve_outputs
+    from ..io.atomic import StagedFolder
     from ..io.scene_read import load_scene
-    from ..io.scene_write import save_scene
+    from ..molds import equivalent_radius
 
+    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
+    check_device(args.device)
+    check_rerun(args)
     scene = load_scene(args.scene)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     if scene.design is None:
         raise DesignError(f"{args.scene} holds no design (only targets); export needs a design scene, "
                           f"e.g. out/design.usda from warp-shape design or the shipped cube_fig6")
-    from ..molds import equivalent_radius
-
     check_mold_flags(args, equivalent_radius(scene.design.rest))
-    named = list(zip(scene.target_names, scene.targets))
-    if args.targets:
-        named = load_targets(args.targets)
+    named = load_targets(args.targets) if args.targets else list(zip(scene.target_names, scene.targets))
+    return scene, named
+
+
+def run(args) -> int:
+    """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
+    from ..controller import ControlSettings, control_many
+    from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
+    from ..io.valve import write_valve_outputs
+    from ..io.scene_write import save_scene
+
+    scene, named = _checked_inputs(args)
     out = Path(args.out)
     written = []
     if "molds" in args.what:

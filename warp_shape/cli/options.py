@@ -93,9 +93,9 @@ def open_recorder(args):
 
 
 @contextlib.contextmanager
-def _without_cuda_driver_note():
-    """Run Warp's start-up with the C-level stderr held: Warp 1.19 prints its CUDA-driver note from
-    native code with no setting to turn it off. Everything else it printed is passed on."""
+def _held_stderr(drop):
+    """Run Warp with the C-level stderr held (Warp 1.19 prints its CUDA notes and errors from native
+    code, with no setting to turn them off); afterwards the lines ``drop(line)`` rejects are passed on."""
     import tempfile
 
     sys.stderr.flush()
@@ -108,23 +108,22 @@ def _without_cuda_driver_note():
             os.dup2(saved, 2)
             os.close(saved)
             held.seek(0)
-            rest = [ln for ln in held.read().splitlines(keepends=True) if CUDA_DRIVER_NOTE not in ln]
+            rest = [ln for ln in held.read().splitlines(keepends=True) if not drop(ln)]
             if rest:
                 sys.stderr.write(b"".join(rest).decode(errors="replace"))
                 sys.stderr.flush()
 
 
-def quiet_warp(verbose: bool = False, device: str | None = None) -> None:
-    """Silence Warp's banner and compile messages unless ``verbose`` (``wp.config.log_level``); on a
-    CPU run, start Warp without its note that no CUDA driver was found."""
+def quiet_warp(verbose: bool = False) -> None:
+    """Silence Warp's banner and compile messages unless ``verbose`` (``wp.config.log_level``) and
+    start Warp without its note that no CUDA driver was found (the device check says what matters)."""
     import warp as wp
 
     if verbose:
         return
     wp.config.log_level = wp.LOG_WARNING
-    if device is not None and str(device).startswith("cpu"):
-        with _without_cuda_driver_note():
-            wp.init()  # a no-op once Warp has started
+    with _held_stderr(lambda line: CUDA_DRIVER_NOTE in line):
+        wp.init()  # a no-op once Warp has started
 
 
 _INTERRUPTS: list = []  # Ctrl-C presses since ``interrupts_noted`` began
@@ -176,10 +175,17 @@ def write_failure(exc: OSError) -> str | None:
 
 
 def check_device(device: str) -> str:
-    """The Warp name of ``device``; a clear error (listing the devices here) where it is absent."""
+    """The Warp name of ``device``; a clear error (listing the devices here) where it is absent, without
+    the CUDA errors Warp prints while it looks for one."""
     from ..model import check_device as check
 
-    return check(device)
+    failed = []
+    with _held_stderr(lambda line: bool(failed) and line.startswith(b"Warp CUDA error")):
+        try:
+            return check(device)
+        except Exception:
+            failed.append(True)
+            raise
 
 
 def check_out(staged, replaced: bool = True) -> None:

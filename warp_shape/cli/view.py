@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["register", "run", "viewer_command"]
+__all__ = ["register", "run", "viewer_command", "display_problem"]
+
+#: The viewer's own server (for SDKs streaming to it) listens on this machine only, never on a network.
+VIEWER_BIND = "127.0.0.1"
 
 
 def register(subparsers) -> None:
@@ -32,7 +36,19 @@ def viewer_command(path) -> list[str]:
     except ImportError:
         raise WarpShapeError("viewing recordings needs rerun-sdk: pip install 'warp-shape[rerun]' "
                              "(or open the file with any rerun viewer of the same version)") from None
-    return [sys.executable, "-m", "rerun", str(p)]
+    return [sys.executable, "-m", "rerun", str(p), "--bind", VIEWER_BIND]
+
+
+def display_problem(path) -> str | None:
+    """Why the viewer could open no window here (a Linux machine with neither an X nor a Wayland
+    display), with how to open ``path`` elsewhere; None where there is a display."""
+    if not sys.platform.startswith("linux") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return None
+    import rerun
+
+    return (f"no display here (DISPLAY and WAYLAND_DISPLAY are unset), so the viewer cannot open a window; copy "
+            f"{path} to a machine with one and open it there: pip install rerun-sdk=={rerun.__version__}; "
+            f"rerun {Path(path).name}")
 
 
 def run(args) -> int:
@@ -40,6 +56,9 @@ def run(args) -> int:
     from ..errors import WarpShapeError
 
     cmd = viewer_command(args.path)
+    problem = display_problem(args.path)
+    if problem:
+        raise WarpShapeError(problem)
     print(f"opening {args.path} in the rerun viewer ...", file=sys.stderr)
     try:
         return subprocess.call(cmd)

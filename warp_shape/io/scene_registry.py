@@ -28,6 +28,14 @@ def list_scenes() -> list[str]:
     return sorted(names)
 
 
+def _scene_file(p: Path) -> Path:
+    """``p``, a file, if its name is a USD scene's; a mesh or other file is named as such."""
+    if p.suffix.lower() not in SCENE_EXTENSIONS:
+        raise SceneError(f"{p} is not a USD scene ({', '.join(SCENE_EXTENSIONS)}); give a scene such as "
+                         f"out/design.usda (a mesh file is a target: --targets {p.name})")
+    return p
+
+
 def resolve_scene(path_or_name) -> Path:
     """The file of a scene given as a path, or by the name of a shipped scene (``list_scenes()``)."""
     if not isinstance(path_or_name, (str, Path)) or not str(path_or_name).strip():
@@ -40,7 +48,7 @@ def resolve_scene(path_or_name) -> Path:
             raise SceneError(f"scene file not found: {p}")
         if not p.is_file():
             raise SceneError(f"scene path {p} is not a file (a folder?); give the .usda/.usdc file")
-        return p
+        return _scene_file(p)
     name = str(path_or_name)
     for d in scene_dirs():
         for ext in SCENE_EXTENSIONS:
@@ -49,7 +57,7 @@ def resolve_scene(path_or_name) -> Path:
                 return cand
     p = Path(name)
     if p.is_file():
-        return p
+        return _scene_file(p)
     raise SceneError(f"unknown scene {name!r}{suggest(name, list_scenes())}; shipped scenes: "
                      f"{', '.join(list_scenes()) or '(none found)'} (or give a .usda file)")
 

@@ -66,6 +66,17 @@ def _description(kind, problem, params: list[Param], device) -> dict:
                 params={p.name: list(p.values) for p in params}, device=device)
 
 
+def _check_folder(out: Path) -> None:
+    """The sweep folder, or the nearest existing folder above it, must be a folder (not a file)."""
+    probe = out
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        where = "" if probe == out else f": {probe} is a file"
+        raise SweepError(f"--out {out}{where or ' is a file'}, not a folder; give the sweep a folder (new, or "
+                         f"holding an earlier sweep to resume)")
+
+
 def sweep(kind: str = "subsets", scene: str | None = None, *, targets=None, actuators: int | None = None,
           params=None, fixed: dict | None = None, out="sweep", backend: str = "ray", workers: int | None = None,
           address: str | None = None, device: str = "cpu", retries: int = 1, restart: bool = False,
@@ -87,6 +98,7 @@ def sweep(kind: str = "subsets", scene: str | None = None, *, targets=None, actu
         raise SweepError(f"unknown backend {backend!r}; choose one of {list(BACKENDS)}")
     if workers is not None and workers < 1:
         raise SweepError(f"workers must be >= 1, got {workers}")
+    _check_folder(Path(out))
     if backend == "ray":
         require_ray()  # before any work: say how to install it
     fixed = dict(fixed or {})
