@@ -24,7 +24,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from warp_shape.io.atomic import atomic_write
-from warp_shape.io.outputs import write_json
+from warp_shape.io.atomic import write_json
 
 __all__ = ["PLANS", "TARGET_VERTEX_STEPS", "run_tests", "bench_steps", "bench_designs", "markdown", "main"]
 

@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="out")
     ap.add_argument("--skip-ten", action="store_true", help="leave out the ten-target table (the longest part)")
     args = ap.parse_args(argv)
-    from warp_shape.io.outputs import write_json
+    from warp_shape.io.atomic import write_json
 
     rows, plans = fig6_rows()
     print("Fig. 6 (642 vertices) to the cube: the paper's law vs model-based control, by IPAM pressure limit")

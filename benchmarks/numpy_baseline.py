@@ -19,7 +19,7 @@ from warp_shape.design import Design
 from warp_shape.errors import DesignError
 from warp_shape.material import GAS_CONSTANT
 from warp_shape.model import host_model
-from warp_shape.physics.ipam import natural_length_np
+from warp_shape.physics.ipam_law import natural_length_np
 
 __all__ = ["NumpyMembrane"]
 

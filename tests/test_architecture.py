@@ -3,7 +3,9 @@
 Layers, lowest first (docs/architecture.md): kernels -> foundation -> physics -> shapes -> controller
 -> designer -> I/O -> command line and benchmarks. A module may import project modules of its own
 layer or below, at module level and inside functions; below the I/O layer nothing imports an I/O
-library (USD, rerun, matplotlib) or the I/O package.
+library (USD, rerun, matplotlib) or the I/O package. The project's import graph (every import: module
+level, inside functions and under ``TYPE_CHECKING``) has no circle, and imports inside functions do not
+grow in number.
 """
 
 from __future__ import annotations
@@ -59,20 +61,23 @@ def layer_of(module: str) -> int | None:
     return None if best is None else best[1]
 
 
+def imported_from(module: str, path: Path, node: ast.ImportFrom) -> str:
+    """The absolute name of the module a ``from ... import`` reads, relative imports resolved."""
+    if not node.level:
+        return node.module
+    base = module.split(".")
+    base = base[: len(base) - node.level + (1 if path.name == "__init__.py" else 0)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
 def imported_modules(module: str, path: Path, tree: ast.AST):
     """(line, imported module) for every import in the file, relative imports resolved."""
-    is_package = path.name == "__init__.py"
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
                 yield node.lineno, alias.name
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = module.split(".")
-                base = base[: len(base) - node.level + (1 if is_package else 0)]
-                name = ".".join(base + ([node.module] if node.module else []))
-            else:
-                name = node.module
+            name = imported_from(module, path, node)
             yield node.lineno, name
             for alias in node.names:  # `from package import submodule`
                 yield node.lineno, f"{name}.{alias.name}"
@@ -160,3 +165,173 @@ def test_no_private_name_crosses_a_module():
                 if isinstance(base, ast.Name) and base.id in modules and base.id not in ("self", "cls"):
                     found.append(f"{path.relative_to(ROOT)}:{node.lineno} uses {ast.unparse(node)}")
     assert not found, "private names used across modules:\n" + "\n".join(found)
+
+
+# ------------------------------------------------------------------------------------ the import graph
+#: Import circles known and being removed, each as its set of modules. Only this one: the inverse
+#: control method calls back up into the control loop (controller/inverse.py imports
+#: controller/loop.py's control_many, loop.py dispatches to inverse.py); it goes when control methods
+#: become a registry, and this entry with it.
+KNOWN_CIRCLES = [{"warp_shape.controller.loop", "warp_shape.controller.inverse"}]
+
+
+def import_graph() -> dict[str, dict[str, int]]:
+    """{module: {project module it imports: first line}} over every import of every project module
+    (module level, inside functions, under TYPE_CHECKING); ``from package import submodule`` is an
+    edge to the submodule."""
+    graph = {}
+    for module, path in FILES:
+        edges = graph.setdefault(module, {})
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = imported_from(module, path, node)
+                names = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names]
+            else:
+                continue
+            for name in names:
+                target = project_module(name) if name.startswith("warp_shape") else None
+                if target is not None and target != module:
+                    edges.setdefault(target, node.lineno)
+    return graph
+
+
+def circles(graph: dict[str, dict]) -> list[list[str]]:
+    """One circle (a list of modules, each importing the next and the last the first) per strongly
+    connected group of modules in ``graph`` (Tarjan's algorithm, iterative)."""
+    index, low, on_stack, stack, groups = {}, {}, set(), [], []
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(graph.get(root, ())))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            v, children = work[-1]
+            for w in children:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(graph.get(w, ()))))
+                    break
+                if w in on_stack:
+                    low[v] = min(low[v], index[w])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[v])
+                if low[v] == index[v]:
+                    group = set()
+                    while True:
+                        w = stack.pop()
+                        on_stack.discard(w)
+                        group.add(w)
+                        if w == v:
+                            break
+                    if len(group) > 1:
+                        groups.append(group)
+    return [circle_in(graph, group) for group in groups]
+
+
+def circle_in(graph: dict[str, dict], group: set[str]) -> list[str]:
+    """A shortest circle through the alphabetically first module of a strongly connected group."""
+    start = min(group)
+    previous, frontier = {start: None}, [start]
+    while frontier:
+        nxt = []
+        for v in frontier:
+            for w in graph.get(v, ()):
+                if w == start:
+                    path = [v]
+                    while previous[path[-1]] is not None:
+                        path.append(previous[path[-1]])
+                    return path[::-1]
+                if w in group and w not in previous:
+                    previous[w] = v
+                    nxt.append(w)
+        frontier = nxt
+    raise AssertionError(f"{sorted(group)} is not strongly connected")
+
+
+def describe(graph: dict[str, dict], circle: list[str]) -> str:
+    paths = dict(FILES)
+    steps = [f"{a} ({paths[a].relative_to(ROOT)}:{graph[a][b]})" for a, b in zip(circle, circle[1:] + circle[:1])]
+    return " -> ".join(steps + [circle[0]])
+
+
+def test_circles_are_found():
+    graph = {"a": {"b": 1}, "b": {"c": 1, "d": 1}, "c": {"a": 1}, "d": {}, "e": {"e": 1, "d": 1}}
+    assert [sorted(c) for c in circles(graph)] == [["a", "b", "c"]]
+    assert circles({"x": {"y": 1}, "y": {"z": 1}, "z": {}}) == []
+    assert circle_in({"a": {"b": 1, "c": 1}, "b": {"c": 1}, "c": {"a": 1}}, {"a", "b", "c"}) == ["a", "c"]
+
+
+def test_import_graph_resolves_relative_and_function_level_imports():
+    graph = import_graph()
+    assert "warp_shape.io.atomic" in graph["warp_shape.io.valve"]  # from .atomic import ...
+    assert "warp_shape.controller.inverse" in graph["warp_shape.controller.loop"]  # inside a function
+    assert "warp_shape.model" in graph["warp_shape.physics.ipam"]  # under TYPE_CHECKING
+
+
+def test_no_import_circle():
+    graph = import_graph()
+    found = circles(graph)
+    known = [c for c in found if set(c) in KNOWN_CIRCLES]
+    new = [describe(graph, c) for c in found if set(c) not in KNOWN_CIRCLES]
+    assert not new, "import circles (move the shared piece below both, or import in one direction only):\n" + \
+        "\n".join(new)
+    gone = [sorted(k) for k in KNOWN_CIRCLES if k not in [set(c) for c in known]]
+    assert not gone, f"the known circle {gone} is gone: remove it from KNOWN_CIRCLES"
+
+
+def test_host_design_imports_no_kernel():
+    """``Design`` (the host-side description) and what it imports, their packages included, reach no
+    Warp kernel module: the float64 laws it uses live in kernel-free modules of their family."""
+    graph = import_graph()
+    seen, todo = set(), ["warp_shape.design"]
+    while todo:
+        m = todo.pop()
+        if m in seen:
+            continue
+        seen.add(m)
+        parents = [".".join(m.split(".")[:n]) for n in range(2, m.count(".") + 1)]
+        todo += [t for t in list(graph.get(m, ())) + parents if t in MODULES]
+    kernels = sorted(m for m in seen if layer_of(m) == 0)
+    assert not kernels, f"warp_shape.design reaches the kernel modules {kernels}"
+
+
+# ------------------------------------------------------------------------------------ imports inside functions
+#: Project imports inside functions, at most. Imports belong at module top; the ones left inside
+#: functions keep `warp-shape`'s start-up quick (Warp, USD) or sit in the known circle above. Lower
+#: this number when you move one up; never raise it.
+MAX_FUNCTION_LEVEL_IMPORTS = 101
+
+
+def function_level_imports() -> list[str]:
+    """``path:line module`` of every project import inside a function, over every project module."""
+    found = []
+    for module, path in FILES:
+        def visit(node, in_function):
+            for child in ast.iter_child_nodes(node):
+                inside = in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+                if in_function and isinstance(child, ast.ImportFrom):
+                    name = imported_from(module, path, child)
+                    if name.startswith("warp_shape"):
+                        found.append(f"{path.relative_to(ROOT)}:{child.lineno} {name}")
+                elif in_function and isinstance(child, ast.Import):
+                    found.extend(f"{path.relative_to(ROOT)}:{child.lineno} {a.name}" for a in child.names
+                                 if a.name.startswith("warp_shape"))
+                visit(child, inside)
+
+        visit(ast.parse(path.read_text()), False)
+    return found
+
+
+def test_function_level_imports_do_not_grow():
+    found = function_level_imports()
+    assert len(found) <= MAX_FUNCTION_LEVEL_IMPORTS, (
+        f"{len(found)} project imports inside functions (at most {MAX_FUNCTION_LEVEL_IMPORTS}); move new ones to "
+        f"the module's top:\n" + "\n".join(found))

@@ -11,7 +11,7 @@ import numpy as np
 from .errors import DesignError, check_number
 from .material import Material
 from .mesh import TriMesh
-from .physics.ipam import natural_length_np, pressure_for_length_np
+from .physics.ipam_law import natural_length_np, pressure_for_length_np
 
 __all__ = ["Design", "Ipam", "Cell"]
 

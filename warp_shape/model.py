@@ -14,7 +14,7 @@ import warp as wp
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
-from .physics.bending import dihedral_angles_np
+from .physics.bending_law import dihedral_angles_np
 
 __all__ = ["Model", "State", "Control", "build_model", "check_device", "HostModel", "host_model", "PRECISIONS",
            "cell_anchor_faces"]

@@ -23,7 +23,8 @@ from .integrators import BlowupWatch, blowup_error, make_solver
 from .model import Control, State, build_model, check_device, host_model
 from .physics import FORCE_TERMS
 from .physics.bending import bending_energy_np
-from .physics.ipam import axial_force_np, ipam_energy_np, ipam_lengths_np, natural_length_np
+from .physics.ipam import ipam_energy_np
+from .physics.ipam_law import axial_force_np, ipam_lengths_np, natural_length_np
 from .physics.jamming import eval_jam, jammed_factor_np
 from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, volumes_np
 from .physics.springs import spring_energy_np

@@ -135,7 +135,7 @@ def run(args) -> int:
 
     from ..benchmarks.sim import format_rows
     from ..io.atomic import StagedFolder
-    from ..io.outputs import write_json
+    from ..io.atomic import write_json
 
     check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)

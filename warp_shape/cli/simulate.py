@@ -94,7 +94,7 @@ def _drive(sim, design, args, rec, bar) -> list[dict]:
 def run(args) -> int:
     """Run the Fig. 6 sequence; write ``simulate.json``; print a table (or the JSON)."""
     from ..io.atomic import StagedFolder
-    from ..io.outputs import write_json
+    from ..io.atomic import write_json
     from ..scenarios import cube_fig6_design
     from ..simulator import Simulator
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import HostModel
-from ..physics.ipam import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
+from ..physics.ipam_law import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
 from ..physics.pressure import volumes_np
 from ..sampling import RadialSampler, fit_objective, mare, mpre, pcc
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ..errors import WarpShapeError
 
-__all__ = ["atomic_write", "atomic_target", "hold_lock", "release_lock", "finalize_permissions", "MANIFEST", "file_digest",
+__all__ = ["atomic_write", "write_json", "atomic_target", "hold_lock", "release_lock", "finalize_permissions", "MANIFEST", "file_digest",
            "read_manifest", "manifest_problems", "creation_refused", "StagedFolder", "OutputError"]
 
 
@@ -58,6 +58,11 @@ def atomic_write(path, data: bytes | str) -> Path:
     with atomic_target(path) as tmp:
         tmp.write_bytes(data.encode() if isinstance(data, str) else data)
     return Path(path)
+
+
+def write_json(path, data) -> Path:
+    """Write JSON (indented by 2) atomically; returns the path."""
+    return atomic_write(path, json.dumps(data, indent=2) + "\n")
 
 
 # ------------------------------------------------------------------------------------ whole output folders

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_write
+from .atomic import atomic_write, write_json
 
-__all__ = ["write_json", "control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
+__all__ = ["control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
            "write_molds", "round_record", "record_round", "write_round_outputs", "write_figures_or_skip",
            "write_design_outputs", "is_run_output", "RUN_OUTPUT_PREFIXES", "RUN_OUTPUT_NAMES"]
 
@@ -32,11 +32,6 @@ def is_run_output(name: str) -> bool:
     """Whether a file name is one a design or control run writes (``RUN_OUTPUT_NAMES`` and
     ``RUN_OUTPUT_PREFIXES``); an output folder's other files are kept when a new run replaces it."""
     return name in RUN_OUTPUT_NAMES or name.startswith(RUN_OUTPUT_PREFIXES)
-
-
-def write_json(path, data) -> Path:
-    """Write JSON (indented by 2) through a temporary file and a rename."""
-    return atomic_write(path, json.dumps(data, indent=2) + "\n")
 
 
 def control_csv_text(result) -> str:

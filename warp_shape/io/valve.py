@@ -41,8 +41,7 @@ import numpy as np
 
 from ..errors import DesignError
 from ..material import GAS_CONSTANT
-from .atomic import atomic_write
-from .outputs import write_json
+from .atomic import atomic_write, write_json
 
 __all__ = ["DEFAULT_RATE_HZ", "DEFAULT_MAX_SLEW_KPA_S", "MAX_VALVE_RATE_HZ", "MIN_VALVE_SLEW_KPA_S",
            "MIN_VALVE_FLOW_ML_S", "MAX_VALVE_ROWS", "row_times", "valve_schedule", "valve_csv_text",

@@ -9,11 +9,12 @@ import numpy as np
 from warp_shape.kernels import bending as kb
 
 from . import Launch
+from .bending_law import dihedral_angles_np
 
 if TYPE_CHECKING:
     from ..model import Model, State
 
-__all__ = ["eval_bending", "dihedral_angles_np", "bending_energy_np", "hinge_gradient_norms", "bending_rows_np",
+__all__ = ["eval_bending", "bending_energy_np", "hinge_gradient_norms", "bending_rows_np",
            "hinge_gradients_np"]
 
 
@@ -25,18 +26,6 @@ def eval_bending(model: Model, state: State, x, f, launch: Launch, paper: bool =
     launch(kb.eval_bending_kernel, (x.shape[0], model.n_edges),
            [model.hinges, s(model.bending_stiffness), s(model.jam_bend_factor), int(paper), x,
             state.rest_angle, state.jammed, f])
-
-
-def dihedral_angles_np(x: np.ndarray, hinges: np.ndarray) -> np.ndarray:
-    """Signed dihedral angles (float64) of hinges (v0, v1 | v2, v3); x is (..., V, 3)."""
-    x0, x1, x2, x3 = (x[..., hinges[:, k], :] for k in range(4))
-    e = x1 - x0
-    n_a = np.cross(e, x2 - x0)
-    n_b = np.cross(x0 - x1, x3 - x1)
-    len_e = np.linalg.norm(e, axis=-1)
-    sin_t = np.einsum("...i,...i->...", np.cross(n_a, n_b), e) / len_e
-    cos_t = np.einsum("...i,...i->...", n_a, n_b)
-    return np.arctan2(sin_t, cos_t)
 
 
 def bending_energy_np(x: np.ndarray, hinges: np.ndarray, rest_angle: np.ndarray, kt: np.ndarray) -> np.ndarray:

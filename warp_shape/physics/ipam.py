@@ -1,4 +1,7 @@
-"""IPAM actuators: launch wrapper and the host-side law (lengths, natural length, force, energy, bound)."""
+"""IPAM actuators: launch wrapper and the model's host-side terms (energy, stability rows and operator).
+
+The law itself (lengths, natural length, axial force, its inverse) is in ``ipam_law``, free of Warp
+kernels, so the host-side ``Design`` can use it."""
 
 from __future__ import annotations
 
@@ -9,13 +12,13 @@ import numpy as np
 from warp_shape.kernels import ipam as kip
 
 from . import Launch
+from .ipam_law import natural_length_np
 from .springs import spring_rows_np
 
 if TYPE_CHECKING:
     from ..model import Control, HostModel, Model
 
-__all__ = ["eval_ipams", "ipam_lengths_np", "centroid_distances_np", "natural_length_np", "axial_force_np", "pressure_for_length_np",
-           "ipam_energy_np", "ipam_rows_np", "ipam_operator_terms"]
+__all__ = ["eval_ipams", "ipam_energy_np", "ipam_rows_np", "ipam_operator_terms"]
 
 
 def eval_ipams(model: Model, x, v, control: Control, f, launch: Launch):
@@ -26,36 +29,6 @@ def eval_ipams(model: Model, x, v, control: Control, f, launch: Launch):
     launch(kip.eval_ipam_kernel, (x.shape[0], 3 * model.n_ipams),
            [model.ipam_sub_pairs, model.ipam_sub_offsets, model.ipam_stiffness, model.ipam_area_over_k,
             model.ipam_free_length, model.ipam_damping, x, v, control.ipam_pressure, control.ipam_enabled, f])
-
-
-def ipam_lengths_np(x: np.ndarray, faces: np.ndarray, ipam_faces: np.ndarray) -> np.ndarray:
-    """(W, n) IPAM lengths L in m: the distance between the centroids of each IPAM's end faces
-    ipam_faces (n, 2), at positions x (W, V, 3)."""
-    ends = faces[ipam_faces.reshape(-1)]  # (2 n, 3): a0, b0, a1, b1, ...
-    return centroid_distances_np(x[:, ends].mean(axis=2).reshape(x.shape[0], -1, 2, 3), None)
-
-
-def centroid_distances_np(centroids: np.ndarray, ipam_faces: np.ndarray | None) -> np.ndarray:
-    """(W, n) distance between the end-face centroids of each IPAM: ``centroids`` (W, F, 3) of every
-    face with ``ipam_faces`` (n, 2), or (W, n, 2, 3) of the end faces already paired (ipam_faces None)."""
-    if ipam_faces is not None:
-        centroids = centroids[:, ipam_faces]
-    return np.linalg.norm(centroids[:, :, 1] - centroids[:, :, 0], axis=-1)
-
-
-def natural_length_np(free_length, area_over_k, pressure):
-    """Natural length L_n = L0 + (A/k) P in m at gauge pressure P (Pa); broadcasts."""
-    return free_length + area_over_k * pressure
-
-
-def axial_force_np(k, length, natural):
-    """Axial force F = k (L - L_n) in N, positive = tension; broadcasts."""
-    return k * (length - natural)
-
-
-def pressure_for_length_np(free_length, area_over_k, length):
-    """Gauge pressure (Pa) at which the natural length equals ``length`` (inverse of natural_length_np)."""
-    return (length - free_length) / area_over_k
 
 
 def ipam_energy_np(x: np.ndarray, host: HostModel, pressure: np.ndarray, enabled: np.ndarray | None = None) -> np.ndarray:

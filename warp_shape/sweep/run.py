@@ -71,8 +71,8 @@ def read_outputs(folder: Path) -> dict:
 def _outputs(task: RunTask, result, records: list, wall: float) -> dict:
     """Every file ``warp-shape design`` leaves for this result (rounds.json, the design outputs and the
     manifest), written in a temporary folder; {relative path: bytes}."""
-    from ..io.atomic import StagedFolder
-    from ..io.outputs import is_run_output, write_design_outputs, write_json
+    from ..io.atomic import StagedFolder, write_json
+    from ..io.outputs import is_run_output, write_design_outputs
 
     with tempfile.TemporaryDirectory(prefix="warp_shape_run_") as tmp:
         staged = StagedFolder(Path(tmp) / "run", owned=is_run_output)
