@@ -5,13 +5,21 @@ finite positions, a scene, a mesh); anything else (another exception type, NaN, 
 past its time limit) is counted as "other" and listed. tests/test_fuzz.py runs the same cases
 (smaller N) and asserts there are none of those.
 
-    python scripts/fuzz_counts.py [--n 400] [--seed 0] [--timeout 20]
+The command line's cases (``fuzz_cli``) count three more classes: ``folders`` (user files, a run's
+folder with extras, links and staging folders as ``--out``: refused in one line with every file as
+it was, or swapped in keeping every file the manifest does not list), ``faults`` (Ctrl-C, raised or
+swallowed, and a full disk at every phase of a design run: one line, exit 130 or 1, the previous
+set whole) and ``sizes`` (every bounded flag past its bounds: one line naming them, nothing written).
+
+    python scripts/fuzz_counts.py [--n 400] [--cli 130] [--seed 0] [--timeout 20]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import os
 import signal
 import sys
 import tempfile
@@ -333,6 +341,384 @@ def file_case(rng, folder: Path, bases: dict, n: int):
     return run
 
 
+# ------------------------------------------------------------------ command-line cases: folders, faults, sizes
+# Three classes, each case ending in a one-line refusal (clear) or a run that kept everything (valid):
+# "folders": an --out of user files, a run's folder with extras, links, a staging folder that is not
+# a run's, checked and swapped by StagedFolder, and refused by `warp-shape design` in one line;
+# "faults": Ctrl-C (raised, or swallowed as USD does) or a full disk (ENOSPC, USD's Tf error) at every
+# phase of a design run; "sizes": every bounded flag of every command given a value past its bounds.
+SMALL_DESIGN = ["--subdivisions", "2", "--actuators", "1", "--placement", "paper", "--targets", "oval"]
+USER_NAMES = ["control_plan.txt", "valve_wiring.pdf", "mold_photo.jpg", "molds_notes.txt", "actuation_video.mp4",
+              "report.md", "design.usda", "rounds.json", "manifest.json", "README.txt", "notes.txt", ".DS_Store"]
+SET_NAMES = ["design.usda", "report.json", "report.md", "rounds.json", "control_oval.csv", "valve_oval.csv",
+             "mold_core_mm.stl"]
+FOLDER_KINDS = ["absent", "empty", "subfolders", "user", "ours", "ours+extras", "ours+named", "ours+edited",
+                "ours+folder", "link:ours+extras", "link:user", "link:empty", "dangling", "partial:user",
+                "partial:link", "partial:leftover", "root"]
+#: (module, attribute) of each phase of a design run, in order; the k-th call of it is where the fault lands
+PHASES = [("warp_shape.io.scene_read", "load_scene"), ("replay", "round"),
+          ("warp_shape.io.outputs", "write_round_outputs"), ("warp_shape.io.atomic.StagedFolder", "seal"),
+          ("warp_shape.io.scene_write", "export_layer"), ("warp_shape.io.outputs", "write_control_outputs"),
+          ("warp_shape.io.valve", "write_valve_outputs"), ("warp_shape.io.outputs", "write_molds"),
+          ("warp_shape.io.outputs", "write_figures_or_skip"), ("warp_shape.io.report", "design_markdown"),
+          ("warp_shape.io.atomic.StagedFolder", "commit"), ("warp_shape.io.atomic", "_exchange"), ("os", "replace")]
+FAULTS = ["interrupt", "swallowed", "disk", "usd"]
+ABSURD_INTS = [10**12, -10**12, 2**63, -1]
+ABSURD_FLOATS = [1e300, -1e300, float("nan"), float("inf"), 1e-300, -1.0]
+
+
+def tree(folder: Path) -> dict:
+    """{relative path: SHA-256, 'dir' or '-> link target'} of everything under ``folder`` (links not followed)."""
+    from warp_shape.io.atomic import file_digest
+
+    out = {}
+    if not folder.is_dir():
+        return out
+    for p in sorted(folder.rglob("*")):
+        rel = str(p.relative_to(folder))
+        out[rel] = f"-> {os.readlink(p)}" if p.is_symlink() else "dir" if p.is_dir() else file_digest(p)
+    return out
+
+
+def _fake_set(out: Path, names) -> None:
+    from warp_shape.io.atomic import StagedFolder
+    from warp_shape.io.outputs import is_run_output
+
+    staged = StagedFolder(out, owned=is_run_output)
+    for name in names:
+        (staged.path / name).write_text(json.dumps({"complete": True, "targets": ["oval"], "name": name}))
+    staged.commit(True)
+
+
+def _user_files(folder: Path, rng, names=USER_NAMES) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in rng.choice(names, size=int(rng.integers(1, min(5, len(names) + 1))), replace=False):
+        (folder / name).write_text(f"mine: {name} {rng.random()}")
+
+
+def folder_case(rng, root: Path) -> tuple[Path, bool]:
+    """An --out of one of ``FOLDER_KINDS`` under ``root``: (the path to give, whether a run may use it)."""
+    kind = _pick(rng, FOLDER_KINDS)
+    out = root / "out"
+    base = kind.split(":")[-1]
+    target = root / "target" if kind.startswith("link:") else out
+    if base in ("empty", "subfolders") or base.startswith("ours"):
+        target.mkdir(parents=True)
+    if base == "subfolders":
+        _user_files(target / "control", rng)
+    elif base == "user":
+        _user_files(target, rng)
+    elif base.startswith("ours"):
+        _fake_set(target, rng.choice(SET_NAMES, size=int(rng.integers(1, 4)), replace=False))
+        if base in ("ours+extras", "ours+folder"):
+            _user_files(target, rng, ["README.txt", "notes.txt", ".DS_Store"])
+            _user_files(target / "sub", rng)
+        if base == "ours+named":
+            (target / "mold_photo.jpg").write_text("mine")
+        if base == "ours+edited":
+            listed = json.loads((target / "manifest.json").read_text())["files"]
+            (target / _pick(rng, sorted(listed))).write_text("edited by hand")
+        if base == "ours+folder":
+            (target / "sub" / "report.md").write_text("mine")  # output names below the top level are the user's
+    if kind.startswith("link:"):
+        out.symlink_to(target)
+    elif kind == "dangling":
+        out.symlink_to(root / "nowhere")
+    elif kind.startswith("partial:"):
+        partial = root / "out.partial"
+        if base == "user":
+            _user_files(partial, rng, ["thesis.tex", "notes.txt"])
+        elif base == "link":
+            (root / "elsewhere").mkdir()
+            partial.symlink_to(root / "elsewhere")
+        else:
+            _user_files(partial, rng, SET_NAMES)  # an earlier run's unfinished outputs: removed
+    if kind == "root":
+        return Path("/"), False
+    usable = kind in ("absent", "empty", "subfolders", "ours", "ours+extras", "ours+folder", "link:ours+extras",
+                      "link:empty", "partial:leftover")
+    return out, usable
+
+
+def _kept(before: dict, after: dict, listed) -> str:
+    """What of ``before`` (a tree) is missing or changed in ``after``, ignoring the run's own ``listed`` files."""
+    lost = [k for k, v in before.items() if k.split("/")[0] not in listed and k.split("/")[0] != "manifest.json"
+            and after.get(k) != v]
+    return ", ".join(lost[:5])
+
+
+def run_folder_case(rng, root: Path) -> tuple[str, str]:
+    """Check and (where accepted) swap a new set into one ``folder_case``: a refusal must leave every
+    file as it was and read as one line through the command line; a swap must keep every file its
+    manifest does not list."""
+    from warp_shape.io.atomic import OutputError, StagedFolder, manifest_problems, read_manifest
+    from warp_shape.io.outputs import is_run_output
+
+    given, usable = folder_case(rng, root)
+    before = tree(root)
+    try:
+        staged = StagedFolder(given, owned=is_run_output)
+        staged.check()
+    except OutputError as exc:
+        if tree(root) != before:
+            return "other", f"a refusal changed files: {exc}"
+        if usable:
+            return "other", f"refused a folder a run may use: {exc}"
+        return _refused_in_one_line(given, root, before)
+    if not usable:
+        return "other", f"accepted {given}, which holds what a run may not replace"
+    old = set((read_manifest(staged.out) or {}).get("files", {}))
+    names = rng.choice(SET_NAMES, size=int(rng.integers(1, 4)), replace=False)
+    for name in names:
+        (staged.path / name).write_text(f"new {name}")
+    staged.commit(True)
+    inside = staged.out.relative_to(root) if staged.out.is_relative_to(root) else None
+    lost = _kept({k[len(str(inside)) + 1:]: v for k, v in before.items() if inside and k.startswith(f"{inside}/")},
+                 tree(staged.out), old | set(names))
+    if lost or manifest_problems(staged.out) or (given.is_symlink() != (before.get("out", "").startswith("->"))):
+        return "other", f"lost or changed {lost or 'the set or the link'} swapping into {given}"
+    return "valid", ""
+
+
+def _refused_in_one_line(given: Path, root: Path, before: dict) -> tuple[str, str]:
+    import contextlib
+    import io
+
+    import warp_shape.designer.loop as designer_loop
+    from warp_shape.cli import main
+
+    def no_work(*a, **k):
+        raise AssertionError("work started")
+
+    real, designer_loop.control_many = designer_loop.control_many, no_work
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            rc = main(["design", "--out", str(given), *SMALL_DESIGN])
+    except AssertionError:
+        return "other", f"design --out {given}: work started"
+    finally:
+        designer_loop.control_many = real
+    text = err.getvalue().strip()
+    if rc != 2 or "\n" in text or not text.startswith("warp-shape: error: ") or tree(root) != before:
+        return "other", f"design --out {given}: rc {rc}, {text[:200]!r}"
+    return "clear", "OutputError"
+
+
+class Replay:
+    """One small design run for real (``warp_shape.designer.design``), then replayed: its rounds handed
+    to ``on_round`` and its result returned at once, so each fault case costs only the writing."""
+
+    def __init__(self):
+        import warp_shape as ws
+        from warp_shape.designer import DesignSettings, design
+
+        self.rounds = []
+        self.result = design(ws.icosphere(2, 0.04), [ws.target("oval", resolution=2)], actuators=1,
+                             target_names=["oval"], settings=DesignSettings(placement="paper"),
+                             on_round=lambda *a: self.rounds.append(a))
+        self.fault = None  # set per case: called with ("replay", "round") before each round
+
+    def __call__(self, *args, on_round=None, **kwargs):
+        for r in self.rounds:
+            if self.fault is not None:
+                self.fault()
+            if on_round is not None:
+                on_round(*r)
+        return self.result
+
+
+def _raiser(fault: str, path: str):
+    from pxr import Tf
+
+    if fault == "interrupt":
+        raise KeyboardInterrupt
+    if fault == "swallowed":  # Ctrl-C inside USD's module loading: caught there, the run goes on
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+        except KeyboardInterrupt:
+            return
+    if fault == "usd":
+        raise Tf.ErrorException(f"\n\tError in 'Write' at line 78 in file x.cpp : 'Error occurred writing file: "
+                                f"No space left on device'\n\tError in 'WriteToFile' : 'Could not close {path}'")
+    raise OSError(28, "No space left on device", path)
+
+
+def _patched(phase, k: int, fault: str, replay: Replay, hit: list):
+    """(object, attribute, replacement) list: the k-th call of ``phase`` meets ``fault``."""
+    import importlib
+
+    module, attr = phase
+    calls = [0]
+
+    def at_kth(first_arg=None):
+        calls[0] += 1
+        if calls[0] == k:
+            hit.append(phase)
+            _raiser(fault, str(first_arg))
+
+    if module == "replay":
+        replay.fault = at_kth
+        return []
+    if module.endswith(".StagedFolder"):
+        owner = getattr(importlib.import_module(module.rsplit(".", 1)[0]), "StagedFolder")
+    else:
+        owner = importlib.import_module(module)
+    real = getattr(owner, attr)
+
+    def wrapper(*a, **kw):
+        paths = [x for x in a if isinstance(x, (str, Path))]
+        at_kth(paths[-1] if paths else "output")
+        return real(*a, **kw)
+
+    return [(owner, attr, wrapper)]
+
+
+def run_fault_case(rng, root: Path, replay: Replay, phase=None, fault=None) -> tuple[str, str]:
+    """`warp-shape design` into a folder holding a finished run (with a user's file) or into a new one,
+    a fault at one phase: one line and exit 130 (Ctrl-C) or 1 (full disk), the previous set and the
+    user's file as they were, <out> and <out>.partial each one whole set or absent."""
+    import contextlib
+    import io
+
+    import warp_shape.designer as designer
+    from warp_shape.cli import main
+    from warp_shape.io.atomic import manifest_problems, read_manifest
+
+    phase = phase or PHASES[int(rng.integers(len(PHASES)))]
+    fault = fault or _pick(rng, {"load_scene": ["interrupt", "swallowed"], "export_layer": ["interrupt", "disk", "usd"]}
+                           .get(phase[1], ["interrupt", "disk"]))
+    k = int(rng.integers(1, 4)) if phase[1] in ("seal", "replace", "round") else 1
+    out = root / "out"
+    if rng.random() < 0.6:
+        _fake_set(out, ["report.json", "control_heart.csv"])
+        (out / "notes.txt").write_text("mine")
+    before = tree(out)
+    hit: list = []
+    patches = [(designer, "design", replay)] + _patched(phase, k, fault, replay, hit)
+    saved = [(o, a, getattr(o, a)) for o, a, _ in patches]
+    err = io.StringIO()
+    try:
+        for o, a, v in patches:
+            setattr(o, a, v)
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            rc = main(["design", "--out", str(out), *SMALL_DESIGN])
+    except BaseException as exc:  # noqa: BLE001 - a fault that escaped main is what this counts
+        return "other", f"{phase[1]} #{k} {fault}: {type(exc).__name__} escaped main"
+    finally:
+        for o, a, v in saved:
+            setattr(o, a, v)
+        replay.fault = None
+    text = err.getvalue().strip()
+    last = text.splitlines()[-1] if text else ""
+    what = f"{phase[1]} #{k} {fault}"
+    want = {"interrupt": 130, "swallowed": 130, "disk": 1, "usd": 1}[fault] if hit else 0
+    if rc != want or "Traceback" in text or (hit and not (last == "warp-shape: interrupted" if want == 130 else
+                                                          last.startswith("warp-shape: error: no space left"))):
+        return "other", f"{what}: rc {rc} (wanted {want}), {last[:160]!r}"
+    for folder in (out, root / "out.partial"):
+        if folder.exists() and manifest_problems(folder):
+            return "other", f"{what}: {folder.name} is not one whole set: {manifest_problems(folder)[:2]}"
+    now = tree(out)
+    if before and (now != before if rc != 0 else now.get("notes.txt") != before["notes.txt"]):
+        return "other", f"{what}: the previous set or the user's file changed"
+    if rc == 0 and not (read_manifest(out) or {}).get("complete"):
+        return "other", f"{what}: exit 0 without a complete set"
+    return ("clear", fault) if hit else ("valid", "")
+
+
+def run_size_case(rng, root: Path, flag_table=None) -> tuple[str, str]:
+    """One bounded flag of one command given a value past its bounds: exit 2 and one line naming the
+    flag and its bounds, before anything is read or written (the command's other inputs need not exist)."""
+    import contextlib
+    import io
+
+    from warp_shape.cli import main
+
+    flag_table = flag_table or bounded_flags()
+    command, flag, lo, hi, is_int = flag_table[int(rng.integers(len(flag_table)))]
+    pool = ABSURD_INTS if is_int else ABSURD_FLOATS
+    value = _pick(rng, [v for v in pool if not lo <= v <= hi or v != v] or [hi * 10 + 1])
+    argv = [*command, f"{flag}={value}"]
+    cwd = os.getcwd()
+    err = io.StringIO()
+    try:
+        os.chdir(root)
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            rc = main(argv)
+    except BaseException as exc:  # noqa: BLE001
+        return "other", f"{' '.join(argv)}: {type(exc).__name__} escaped main"
+    finally:
+        os.chdir(cwd)
+    text = err.getvalue().strip()
+    if rc != 2 or "\n" in text or f"{flag} takes" not in text or any(root.iterdir()):
+        return "other", f"{' '.join(argv)}: rc {rc}, {text[:160]!r}"
+    return "clear", flag
+
+
+def bounded_flags() -> list:
+    """(command argv, flag, lo, hi, integer?) of every flag the parser bounds (``add_bounded``)."""
+    import argparse
+
+    from warp_shape.cli import build_parser
+
+    rows = []
+
+    def walk(parser, prefix):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, child in action.choices.items():
+                    walk(child, [*prefix, name])
+        for dest, (flag, lo, hi, _zero) in (parser.get_default("flag_bounds") or {}).items():
+            kind = next(a.type for a in parser._actions if a.dest == dest)
+            needs = {"export": ["out/design.usda"], "compare": ["scan.ply", "--to", "oval"],
+                     "grid": ["--param", "actuators=5"]}
+            rows.append(([*prefix, *needs.get(prefix[-1], [])], flag, lo, hi, kind is int))
+
+    walk(build_parser(), [])
+    return rows
+
+
+def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | None = None, verbose: bool = False) -> dict:
+    """``n`` folder cases, ``n`` size cases and ``faults`` (default ``n``) fault cases (every phase in
+    turn, a random fault and call); {"counts": {class: Counter}, "others": [details]}."""
+    import logging
+
+    import warp as wp
+
+    wp.config.quiet = True
+    logging.getLogger("trimesh").setLevel(logging.CRITICAL)
+    rng = np.random.default_rng(seed)
+    tmp = tempfile.TemporaryDirectory() if folder is None else None
+    base = Path(tmp.name) if tmp else Path(folder)
+    counts = {"folders": Counter(), "faults": Counter(), "sizes": Counter()}
+    others: list[str] = []
+    flags = bounded_flags()
+    faults = n if faults is None else faults
+    replay = Replay() if faults else None
+    jobs = [("folders", i, lambda root: run_folder_case(rng, root)) for i in range(n)]
+    jobs += [("sizes", i, lambda root: run_size_case(rng, root, flags)) for i in range(n)]
+    jobs += [("faults", i, lambda root, i=i: run_fault_case(rng, root, replay, phase=PHASES[i % len(PHASES)]))
+             for i in range(faults)]
+    try:
+        for family, i, case in jobs:
+            root = base / f"{family}{i}"
+            root.mkdir(parents=True)
+            try:
+                kind, detail = case(root)
+            except Exception as exc:  # noqa: BLE001 - what escapes a case is what this counts
+                kind, detail = "other", f"{type(exc).__name__}: {str(exc)[:120]}"
+            counts[family][kind] += 1
+            if kind == "other":
+                others.append(f"{family} case {i}: {detail}")
+                if verbose:
+                    print(f"{family} case {i}: {detail}", file=sys.stderr)
+    finally:
+        if tmp:
+            tmp.cleanup()
+    return {"counts": counts, "others": others}
+
+
 # ---------------------------------------------------------------------------------------------- driver
 def fuzz(n: int, seed: int = 0, timeout: float = 20.0, folder: Path | None = None, verbose: bool = False) -> dict:
     """Run ``n`` API cases and ``n`` file cases; return {family: Counter} and the "other" details."""
@@ -372,14 +758,19 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=400, help="API cases and file cases each")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds before a case counts as a hang")
+    ap.add_argument("--cli", type=int, default=130, help="command-line cases of each class: folders, faults (every "
+                    "phase in turn), sizes")
     args = ap.parse_args(argv)
     res = fuzz(args.n, args.seed, args.timeout, verbose=True)
+    cli = fuzz_cli(args.cli, args.seed, faults=args.cli, verbose=True)
+    res["counts"].update(cli["counts"])
+    res["others"] += cli["others"]
     total = Counter()
     for family, c in res["counts"].items():
         total.update(c)
-        print(f"{family:<6} tried {sum(c.values()):5d}  clear error {c['clear']:5d}  valid {c['valid']:5d}  "
+        print(f"{family:<7} tried {sum(c.values()):5d}  clear error {c['clear']:5d}  valid {c['valid']:5d}  "
               f"other {c['other']:5d}")
-    print(f"{'all':<6} tried {sum(total.values()):5d}  clear error {total['clear']:5d}  valid {total['valid']:5d}  "
+    print(f"{'all':<7} tried {sum(total.values()):5d}  clear error {total['clear']:5d}  valid {total['valid']:5d}  "
           f"other {total['other']:5d}")
     kinds = Counter(o.split(": ", 1)[1].split(":")[0] for o in res["others"])
     for k, v in kinds.most_common():

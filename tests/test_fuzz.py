@@ -48,3 +48,29 @@ def test_fuzz_detects_a_foreign_exception_nan_and_a_hang():
             pass
 
     assert fz.outcome(endless, 0.2) == ("other", "hang (over 0.2 s)")
+
+
+# ------------------------------------------------------------------ the command line: folders, faults, sizes
+@pytest.mark.slow
+def test_fuzz_cli_folders_faults_and_sizes_lose_nothing_and_answer_in_one_line(tmp_path):
+    """Every --out kind, a fault at every phase of a design run (each phase once), every bounded flag
+    past its bounds: one-line refusals or runs that kept every file, never anything else."""
+    fz = _fuzz_module()
+    res = fz.fuzz_cli(30, seed=1, folder=tmp_path, faults=len(fz.PHASES))
+    assert res["others"] == []
+    c = res["counts"]
+    assert c["folders"]["clear"] > 5 and c["folders"]["valid"] > 5, dict(c["folders"])
+    assert c["sizes"]["clear"] == 30
+    assert c["faults"]["clear"] >= len(fz.PHASES) - 2, dict(c["faults"])  # nearly every phase met its fault
+
+
+def test_fuzz_cli_detects_a_swap_that_loses_the_users_files(tmp_path, monkeypatch):
+    """The harness itself: a folder check that lets everything through is caught (user files lost or
+    a folder accepted that holds what a run may not replace)."""
+    import warp_shape.io.atomic as atomic
+
+    fz = _fuzz_module()
+    monkeypatch.setattr(atomic.StagedFolder, "check", lambda self, replaced=True: None)
+    res = fz.fuzz_cli(12, seed=1, folder=tmp_path, faults=0)
+    assert res["counts"]["folders"]["other"] > 0
+    assert any("accepted" in o or "lost" in o for o in res["others"])
