@@ -28,7 +28,6 @@ class Solver:
     """Advances State by one internal step h with Control held constant."""
 
     name = "base"
-    order = 0
     # dt_stable = stability_constant / (omega_max + gamma_max)
     stability_constant = 1.0
 
@@ -83,7 +82,6 @@ class SemiImplicitSolver(Solver):
     """Symplectic Euler: first order, one force evaluation per step."""
 
     name = "semi_implicit"
-    order = 1
     stability_constant = 1.9  # omega h < 2 for the undamped oscillator
 
     def step(self, h: float, launch: Launch):
@@ -100,7 +98,6 @@ class RK4Solver(Solver):
     """Classical explicit fourth-order Runge-Kutta (the paper's reference integrator)."""
 
     name = "rk4"
-    order = 4
     stability_constant = 2.5  # RK4 reaches |lambda h| ~ 2.8 on both axes
 
     def __init__(self, model: Model, state: State, control: Control, paper_bending: bool = False):

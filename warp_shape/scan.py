@@ -392,25 +392,6 @@ def _nearest_distances(points: np.ndarray, queries: np.ndarray, radius: float, d
     return out.numpy().astype(np.float64)
 
 
-def _radial_hits(points: np.ndarray, faces: np.ndarray, probes: np.ndarray, device) -> np.ndarray:
-    """Distance from the origin along each probe direction to an open mesh (NaN where missed)."""
-    from .kernels import raycast
-
-    mesh = wp.Mesh(points=wp.array(points.astype(np.float32), dtype=wp.vec3, device=device),
-                   indices=wp.array(faces.reshape(-1).astype(np.int32), dtype=wp.int32, device=device))
-    n = len(probes)
-    ids = wp.array(np.array([mesh.id], dtype=np.uint64), dtype=wp.uint64, device=device)
-    q = wp.array(probes[None].astype(np.float32), dtype=wp.vec3, device=device)
-    hits = wp.empty((1, n), dtype=wp.vec3, device=device)
-    radii = wp.empty((1, n), dtype=wp.float32, device=device)
-    face = wp.empty((1, n), dtype=wp.int32, device=device)
-    fails = wp.zeros(1, dtype=wp.int32, device=device)
-    max_t = 4.0 * float(np.max(np.linalg.norm(points, axis=1)))
-    wp.launch(raycast.radial_sample_kernel, dim=(1, n), inputs=[ids, max_t, 1e-4, q],
-              outputs=[hits, radii, face, fails], device=device)
-    return radii.numpy()[0].astype(np.float64)  # misses are NaN: uncovered
-
-
 def surface_samples(mesh: TriMesh, n: int, seed: int = 0) -> np.ndarray:
     """(n, 3) points spread uniformly by area over a mesh's surface (random, seeded)."""
     rng = np.random.default_rng(seed)

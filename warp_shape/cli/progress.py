@@ -50,10 +50,6 @@ class Bar:
         """The text beside the bar for ``text``, what runs now."""
         return text
 
-    def advance(self, n: int = 1) -> None:
-        """Count ``n`` more units of finished work."""
-        self.tqdm.update(n)
-
     def to(self, done: int) -> None:
         """Set the count of finished work to ``done`` (never back)."""
         if done > self.tqdm.n:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bounded_step", "predicted_objective"]
+__all__ = ["bounded_step"]
 
 
 def _solve_free(J: np.ndarray, e: np.ndarray, lam: float, d: np.ndarray, free: np.ndarray) -> np.ndarray:
@@ -46,8 +46,3 @@ def bounded_step(J: np.ndarray, e: np.ndarray, lam: float, lo: np.ndarray, hi: n
             break
         free |= back
     return np.clip(d, lo, hi)
-
-
-def predicted_objective(J: np.ndarray, e: np.ndarray, d: np.ndarray) -> float:
-    """The linear model's ``|e + J d|`` after the step ``d``."""
-    return float(np.linalg.norm(e + J @ d))

@@ -9,7 +9,8 @@ sets the row's controls and steps until the row's time. Nothing is measured or f
 On the CPU a result of a single-target run (``control``) replays bit for bit: the same state,
 the same settings and the same calls give the same floating-point operations. The worlds of a batch
 (``control_many``) share one internal step count, the smallest stable one over the batch, so one of
-them replayed alone can take other internal steps; ``replay_many`` replays a whole batch exactly.
+them replayed alone can take other internal steps; ``replay_simulator`` with the whole batch
+replays it exactly.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from ..design import Design
 from ..errors import DesignError
 from .worlds import mask_passive, passive_masks
 
-__all__ = ["replay", "replay_many", "replay_simulator"]
+__all__ = ["replay", "replay_simulator"]
 
 
 def _schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -74,8 +75,3 @@ def replay(design: Design, result, *, device: str = "cpu") -> np.ndarray:
     """(V, 3) float64 positions, m, at the end of ``result``'s control sequence replayed open loop
     from rest on ``design``."""
     return np.asarray(replay_simulator(design, [result], device=device).positions).reshape(-1, 3)
-
-
-def replay_many(design: Design, results, *, device: str = "cpu") -> np.ndarray:
-    """(W, V, 3) float64 positions of a batch of results replayed together (one world each)."""
-    return np.asarray(replay_simulator(design, results, device=device).positions).reshape(len(results), -1, 3)
