@@ -1,4 +1,5 @@
-"""Kernels shared by every force family: thread indexing, starting a force evaluation, edge read-outs.
+"""Kernels shared by every force family: thread indexing, starting a force evaluation, edge read-outs,
+world copies between batches.
 
 Every kernel is generic over the precision: positions/velocities are ``wp.vec3f`` or ``wp.vec3d``
 and every scalar follows them. Worlds share one Model: State/Control arrays carry a leading world
@@ -78,3 +79,17 @@ def edge_state_kernel(
     x1 = x_in[w, h[1]]
     length_out[w, e] = wp.length(x1 - x0)
     angle_out[w, e] = dihedral_angle(x0, x1, x_in[w, h[2]], x_in[w, h[3]])
+
+
+@wp.kernel(enable_backward=False)
+def copy_worlds_kernel(
+    # State in:
+    src: wp.array3d(dtype=Any),  # (K, W_src, N) per-world rows of one array
+    src_world: wp.array(dtype=wp.int32),  # (n,) the source world of each copy
+    dst_world: wp.array(dtype=wp.int32),  # (n,) the destination world of each copy
+    # Out:
+    dst: wp.array3d(dtype=Any),  # (K, W_dst, N)
+):
+    """dst[k, dst_world[j], i] = src[k, src_world[j], i]: world copies between two batches."""
+    j, k, i = wp.tid()
+    dst[k, dst_world[j], i] = src[k, src_world[j], i]

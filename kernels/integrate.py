@@ -76,9 +76,10 @@ def rk4_stage_fused(
     air_in: wp.array(dtype=wp.float64),  # (W,) mol
     # State in:
     volume_in: wp.array2d(dtype=wp.float64),  # (W, 4) volume at each stage point, m^3
+    xv_in: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities at the start of the step (only read)
     # Out (read and updated):
     fg_out: wp.array3d(dtype=Any),  # (2, W, V) the stage's forces without pressure, dV/dx; reset for the next stage
-    xv_out: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities: advanced at the last stage
+    xv_out: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities at the end of the step: written at the last stage
     stage_xv_out: wp.array3d(dtype=Any),  # (2, W, V) scratch: the next stage point
     acc_out: wp.array3d(dtype=Any),  # (2, W, V) scratch: weighted sums of the stage slopes
     status_out: wp.array(dtype=wp.int32),  # (W,) worst blow-up code (see flag_blowup)
@@ -86,7 +87,7 @@ def rk4_stage_fused(
     """Classical RK4 on y = (x, v), y' = (v, f/m) with pressure applied here; controls held."""
     w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
     p = gauge_pressure(air_in[w], volume_in[w, stage], gas_rt, p_atm)
-    kx = xv_out[1, w, i]  # the velocity at the stage point
+    kx = xv_in[1, w, i]  # the velocity at the stage point
     if stage > 0:
         kx = stage_xv_out[1, w, i]
     kv = (fg_out[0, w, i] + fg_out[1, w, i] * type(h)(p)) * inv_mass[i]
@@ -106,15 +107,15 @@ def rk4_stage_fused(
         c = half * h
         if stage == 2:
             c = h
-        stage_xv_out[0, w, i] = xv_out[0, w, i] + kx * c
-        v_next = xv_out[1, w, i] + kv * c
+        stage_xv_out[0, w, i] = xv_in[0, w, i] + kx * c
+        v_next = xv_in[1, w, i] + kv * c
         stage_xv_out[1, w, i] = v_next
         fg_out[0, w, i] = v_next * (-viscous_damping)
         fg_out[1, w, i] = v_next * type(h)(0.0)
     else:
         sixth = h / type(h)(6.0)
-        x_new = xv_out[0, w, i] + acc_out[0, w, i] * sixth
-        v_new = xv_out[1, w, i] + acc_out[1, w, i] * sixth
+        x_new = xv_in[0, w, i] + acc_out[0, w, i] * sixth
+        v_new = xv_in[1, w, i] + acc_out[1, w, i] * sixth
         xv_out[0, w, i] = x_new
         xv_out[1, w, i] = v_new
         flag_blowup(x_new, v_new, x_bound, v_bound, w, status_out)
@@ -136,15 +137,16 @@ def integrate_semi_implicit_fused(
     # State in:
     fg_in: wp.array3d(dtype=Any),  # (2, W, V) forces without pressure (N), dV/dx (m^2)
     volume_in: wp.array2d(dtype=wp.float64),  # (W, slots) m^3, slot 0
-    # Out (read and updated):
-    xv_out: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities
+    xv_in: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities at the start of the step (only read)
+    # Out:
+    xv_out: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities at the end of the step
     status_out: wp.array(dtype=wp.int32),  # (W,) worst blow-up code (see flag_blowup)
 ):
     """Semi-implicit (symplectic) Euler with the pressure force applied here."""
     w, i = world_and_index(wp.tid(), n_vertices, n_worlds)
     p = gauge_pressure(air_in[w], volume_in[w, 0], gas_rt, p_atm)
-    v_new = xv_out[1, w, i] + (fg_in[0, w, i] + fg_in[1, w, i] * type(h)(p)) * (h * inv_mass[i])
-    x_new = xv_out[0, w, i] + v_new * h
+    v_new = xv_in[1, w, i] + (fg_in[0, w, i] + fg_in[1, w, i] * type(h)(p)) * (h * inv_mass[i])
+    x_new = xv_in[0, w, i] + v_new * h
     xv_out[1, w, i] = v_new
     xv_out[0, w, i] = x_new
     flag_blowup(x_new, v_new, x_bound, v_bound, w, status_out)

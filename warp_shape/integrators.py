@@ -1,4 +1,5 @@
-"""Time integrators: advance the State by one internal step with the Control held (RK4, semi-implicit)."""
+"""Time integrators: one internal step from a state into another with the control held (RK4,
+semi-implicit), ``solver.step(state_in, state_out, control, dt)`` as in Newton."""
 
 from __future__ import annotations
 
@@ -25,16 +26,19 @@ BLOWUP_CODES = {4: "positions became non-finite", 3: "velocities became non-fini
 
 
 class Solver:
-    """Advances State by one internal step h with Control held constant."""
+    """Advances a state by one internal step with the control held constant, for states of ``worlds``
+    worlds of ``model``. Stateless over states: ``step(state_in, state_out, control, dt)`` reads
+    state_in and writes state_out's positions and velocities; the solver owns only scratch (forces,
+    volumes, RK4 stage points) and the blow-up codes ``status``."""
 
     name = "base"
     # dt_stable = stability_constant / (omega_max + gamma_max)
     stability_constant = 1.0
 
-    def __init__(self, model: Model, state: State, control: Control, paper_bending: bool = False):
-        self.model, self.state, self.control = model, state, control
+    def __init__(self, model: Model, worlds: int, paper_bending: bool = False):
+        self.model = model
         self.paper_bending = paper_bending
-        W, V = state.x.shape
+        W, V = worlds, model.n_vertices
         dev = model.device
         self.fg = wp.zeros((2, W, V), dtype=model.vec3, device=dev)  # forces without pressure; dV/dx
         self.f, self.gradv = self.fg[0], self.fg[1]  # (W, V) views
@@ -65,16 +69,33 @@ class Solver:
         m = self.model
         return [wp.float64(m.gas_rt), wp.float64(m.atmospheric_pressure)]
 
-    def begin(self, launch: Launch):
-        """Start the first force evaluation of a step at the current state."""
-        eval_init_step(self.model, self.state.xv, self.fg, self.volume, launch)
+    def launcher(self, launch: Launch | None) -> Launch:
+        """``launch``, or a direct launch on the model's device when None."""
+        if launch is not None:
+            return launch
+        return lambda kernel, dim, inputs: wp.launch(kernel, dim, inputs, device=self.model.device)
 
-    def forces(self, xv, x, v, slot: int, launch: Launch):
-        """Accumulate every force family but pressure (applied by the stage kernel) at xv = (x, v)."""
-        eval_hinges(self.model, self.state, xv, self.fg, self.volume, slot, launch, self.paper_bending)
-        eval_ipams(self.model, x, v, self.control, self.f, launch)
+    def begin(self, state_in: State, launch: Launch):
+        """Start the first force evaluation of a step at state_in."""
+        eval_init_step(self.model, state_in.xv, self.fg, self.volume, launch)
 
-    def step(self, h: float, launch: Launch):  # pragma: no cover - abstract
+    def forces(self, state_in: State, control: Control, xv, x, v, slot: int, launch: Launch):
+        """Accumulate every force family but pressure (applied by the stage kernel) at xv = (x, v),
+        with state_in's jam fields."""
+        eval_hinges(self.model, state_in, xv, self.fg, self.volume, slot, launch, self.paper_bending)
+        eval_ipams(self.model, x, v, control, self.f, launch)
+
+    def prepare(self, state_in: State, state_out: State) -> None:
+        """Check the pair of states; state_out takes state_in's jam fields (a step does not change them).
+        ``state_out is state_in`` steps in place (the state is not kept)."""
+        if state_in.worlds != self.status.shape[0] or state_out.worlds != state_in.worlds:
+            raise ValueError(f"this solver steps states of {self.status.shape[0]} worlds, got {state_in.worlds} "
+                             f"and {state_out.worlds}")
+        if not state_out.shares_jam(state_in):
+            state_out.share_jam(state_in)
+
+    def step(self, state_in: State, state_out: State, control: Control, dt: float,
+             launch: Launch | None = None):  # pragma: no cover - abstract
         raise NotImplementedError
 
 
@@ -84,14 +105,16 @@ class SemiImplicitSolver(Solver):
     name = "semi_implicit"
     stability_constant = 1.9  # omega h < 2 for the undamped oscillator
 
-    def step(self, h: float, launch: Launch):
-        st, m = self.state, self.model
-        W, V = st.x.shape
-        self.begin(launch)
-        self.forces(st.xv, st.x, st.v, 0, launch)
+    def step(self, state_in: State, state_out: State, control: Control, dt: float, launch: Launch | None = None):
+        """One internal step ``dt`` (s) from state_in into state_out (see ``Solver``)."""
+        m, launch = self.model, self.launcher(launch)
+        self.prepare(state_in, state_out)
+        W, V = state_in.x.shape
+        self.begin(state_in, launch)
+        self.forces(state_in, control, state_in.xv, state_in.x, state_in.v, 0, launch)
         launch(ki.integrate_semi_implicit_fused, (W * V,),
-               [m.inv_mass, *self.pressure_args(), m.scalar(h), W, V, *self.check_args(h), self.control.air,
-                self.fg, self.volume, st.xv, self.status])
+               [m.inv_mass, *self.pressure_args(), m.scalar(dt), W, V, *self.check_args(dt), control.air,
+                self.fg, self.volume, state_in.xv, state_out.xv, self.status])
 
 
 class RK4Solver(Solver):
@@ -100,37 +123,39 @@ class RK4Solver(Solver):
     name = "rk4"
     stability_constant = 2.5  # RK4 reaches |lambda h| ~ 2.8 on both axes
 
-    def __init__(self, model: Model, state: State, control: Control, paper_bending: bool = False):
-        super().__init__(model, state, control, paper_bending)
-        shape, dev, vec3 = state.xv.shape, model.device, model.vec3
+    def __init__(self, model: Model, worlds: int, paper_bending: bool = False):
+        super().__init__(model, worlds, paper_bending)
+        shape, dev, vec3 = self.fg.shape, model.device, model.vec3
         self.stage_xv = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) the next stage point
         self.xs, self.vs = self.stage_xv[0], self.stage_xv[1]
         self.acc = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) weighted slope sums
 
-    def step(self, h: float, launch: Launch):
-        st, m = self.state, self.model
-        W, V = st.x.shape
-        hs = m.scalar(h)
-        self.begin(launch)
+    def step(self, state_in: State, state_out: State, control: Control, dt: float, launch: Launch | None = None):
+        """One internal step ``dt`` (s) from state_in into state_out (see ``Solver``)."""
+        m, launch = self.model, self.launcher(launch)
+        self.prepare(state_in, state_out)
+        W, V = state_in.x.shape
+        hs = m.scalar(dt)
+        self.begin(state_in, launch)
         for stage in range(4):
             if stage == 0:
-                self.forces(st.xv, st.x, st.v, stage, launch)
+                self.forces(state_in, control, state_in.xv, state_in.x, state_in.v, stage, launch)
             else:
-                self.forces(self.stage_xv, self.xs, self.vs, stage, launch)
+                self.forces(state_in, control, self.stage_xv, self.xs, self.vs, stage, launch)
             launch(ki.rk4_stage_fused, (W * V,),
                    [m.inv_mass, m.scalar(m.viscous_damping), *self.pressure_args(), hs, stage, W, V,
-                    *self.check_args(h), self.control.air, self.volume, self.fg, st.xv, self.stage_xv, self.acc,
-                    self.status])
+                    *self.check_args(dt), control.air, self.volume, state_in.xv, self.fg, state_out.xv,
+                    self.stage_xv, self.acc, self.status])
 
 
 INTEGRATORS = {"rk4": RK4Solver, "semi_implicit": SemiImplicitSolver}
 
 
-def make_solver(integrator: str, model: Model, state: State, control: Control, paper_bending: bool = False) -> Solver:
+def make_solver(integrator: str, model: Model, worlds: int = 1, paper_bending: bool = False) -> Solver:
     """The solver for an integrator name ('rk4', 'semi_implicit' and the aliases SimulationSettings
-    accepts); unknown names raise ``DesignError``."""
+    accepts) for states of ``worlds`` worlds of ``model``; unknown names raise ``DesignError``."""
     key = SimulationSettings(integrator=integrator).integrator
-    return INTEGRATORS[key](model, state, control, paper_bending)
+    return INTEGRATORS[key](model, worlds, paper_bending)
 
 
 def blowup_error(status: np.ndarray, step: int, time: float, h: float, dt_stable: float) -> SimulationError:

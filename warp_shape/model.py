@@ -11,13 +11,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from warp_shape.kernels import common as kc
+
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
 from .physics.bending_law import dihedral_angles_np
 
-__all__ = ["Model", "State", "Control", "build_model", "check_device", "HostModel", "host_model", "PRECISIONS",
-           "cell_anchor_faces"]
+__all__ = ["Model", "State", "Control", "WorldRef", "copy_worlds", "build_model", "check_device", "HostModel",
+           "host_model", "PRECISIONS", "cell_anchor_faces"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -83,6 +85,16 @@ class Model:
     @property
     def has_ipams(self) -> bool:
         return self.n_ipams > 0
+
+    def state(self, worlds: int = 1, jam_from: State | None = None) -> State:
+        """A new ``State`` of ``worlds`` worlds at rest (rest positions, zero velocities, nothing
+        jammed); with ``jam_from`` it shares that state's jam fields (the same arrays) instead."""
+        return State(self, worlds, jam_from)
+
+    def control(self, worlds: int = 1, air_moles: float | None = None) -> Control:
+        """A new ``Control`` of ``worlds`` worlds: ``air_moles`` (mol; the rest air when None), IPAM
+        pressures zero, every IPAM enabled."""
+        return Control(self, worlds, self.host.rest_air if air_moles is None else air_moles)
 
 
 def face_owners(topo) -> np.ndarray:
@@ -242,37 +254,70 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32",
 
 
 class State:
-    """Per-world dynamic state: positions, velocities and the jammed rest values of the edges.
+    """Per-world state: positions and velocities (what a step advances) and the jam fields (what a
+    jam changes and a step only reads). Allocated by ``Model.state``.
 
     The step kernels take few, packed arrays (on CPU every array argument costs loads on every
     element), so related fields share one buffer and the named fields are views into it:
     ``xv`` (2, W, V) holds positions ``x`` and velocities ``v``; ``edge`` (4, W, E) holds each edge's
     ``rest_length`` (m), ``rest_angle`` (rad), ``stretch_stiffness`` (N/m) and ``bend_stiffness``
     (N m/rad), the last two already multiplied by the jam factors where the edge is jammed.
+    The jam fields are ``edge``, ``jammed`` and the host arrays ``cell_jammed``, ``cell_jam_time`` and
+    ``cell_enabled``; ``jam_from`` (a state of the same model and worlds) makes them that state's.
     """
 
-    def __init__(self, model: Model, worlds: int):
+    def __init__(self, model: Model, worlds: int, jam_from: State | None = None):
         dev, vec3, np_dtype = model.device, model.vec3, model.np_dtype
         W, V, E = worlds, model.n_vertices, model.n_edges
-        h = model.host
         xv = np.zeros((2, W, V, 3), dtype=np_dtype)
-        xv[0] = h.rest_vertices
+        xv[0] = model.host.rest_vertices
+        self.worlds = W
+        self._set_xv(wp.array(xv, dtype=vec3, device=dev))
+        if jam_from is not None:
+            if jam_from.worlds != W:
+                raise ValueError(f"jam_from has {jam_from.worlds} worlds, this state {W}")
+            self.share_jam(jam_from)
+            return
+        h = model.host
         edge = np.empty((4, W, E), dtype=np_dtype)
         edge[0], edge[1] = h.rest_length, h.rest_angle
         edge[2], edge[3] = h.edge_stiffness, model.bending_stiffness
-        self.worlds = W
-        self.xv = wp.array(xv, dtype=vec3, device=dev)  # (2, W, V): x (m), v (m/s)
+        self._set_jam(wp.array(edge, dtype=model.scalar, device=dev), wp.zeros((W, E), dtype=wp.int32, device=dev),
+                      np.zeros((W, model.n_cells), dtype=bool), np.full((W, model.n_cells), np.nan),
+                      np.ones((W, model.n_cells), dtype=bool))
+
+    def _set_xv(self, xv: wp.array) -> None:
+        self.xv = xv  # (2, W, V): x (m), v (m/s)
         self.x = self.xv[0]  # (W, V) m
         self.v = self.xv[1]  # (W, V) m/s
-        self.edge = wp.array(edge, dtype=model.scalar, device=dev)  # (4, W, E)
+
+    def _set_jam(self, edge, jammed, cell_jammed, cell_jam_time, cell_enabled) -> None:
+        self.edge = edge  # (4, W, E)
         self.rest_length = self.edge[0]  # (W, E) m
         self.rest_angle = self.edge[1]  # (W, E) rad
         self.stretch_stiffness = self.edge[2]  # (W, E) N/m, jam factor applied
         self.bend_stiffness = self.edge[3]  # (W, E) N m/rad, jam factor applied
-        self.jammed = wp.zeros((W, E), dtype=wp.int32, device=dev)  # (W, E) 1 where jammed
-        self.cell_jammed = np.zeros((W, model.n_cells), dtype=bool)  # host mirror, (W, n_cell)
-        self.cell_jam_time = np.full((W, model.n_cells), np.nan)  # (W, n_cell) s
-        self.cell_enabled = np.ones((W, model.n_cells), dtype=bool)  # (W, n_cell) False: the cell never jams there
+        self.jammed = jammed  # (W, E) int32, 1 where jammed
+        self.cell_jammed = cell_jammed  # host mirror, (W, n_cell) bool
+        self.cell_jam_time = cell_jam_time  # (W, n_cell) s, NaN where not jammed
+        self.cell_enabled = cell_enabled  # (W, n_cell) bool, False: the cell never jams there
+
+    def clone(self) -> State:
+        """A copy of this state with jam fields of its own (device arrays copied on the device)."""
+        out = State.__new__(State)
+        out.worlds = self.worlds
+        out._set_xv(wp.clone(self.xv))
+        out._set_jam(wp.clone(self.edge), wp.clone(self.jammed), self.cell_jammed.copy(), self.cell_jam_time.copy(),
+                     self.cell_enabled.copy())
+        return out
+
+    def share_jam(self, other: State) -> None:
+        """Make the jam fields ``other``'s (the same arrays: a jam of either is seen by both)."""
+        self._set_jam(other.edge, other.jammed, other.cell_jammed, other.cell_jam_time, other.cell_enabled)
+
+    def shares_jam(self, other: State) -> bool:
+        """Whether this state's jam fields are ``other``'s."""
+        return self.edge is other.edge and self.cell_jammed is other.cell_jammed
 
 
 class Control:
@@ -286,3 +331,45 @@ class Control:
         n = max(model.n_ipams, 1)  # a (W, 1) placeholder keeps the array valid; never launched when no IPAMs
         self.ipam_pressure = wp.zeros((worlds, n), dtype=wp.float64, device=dev)  # (W, n_ipam) Pa gauge
         self.ipam_enabled = wp.array(np.ones((worlds, n), dtype=np.int32), dtype=wp.int32, device=dev)  # (W, n_ipam)
+
+    def clone(self) -> Control:
+        """A copy of these controls (copied on the device)."""
+        out = Control.__new__(Control)
+        out.air, out.ipam_pressure, out.ipam_enabled = (wp.clone(self.air), wp.clone(self.ipam_pressure),
+                                                        wp.clone(self.ipam_enabled))
+        return out
+
+
+@dataclass(frozen=True)
+class WorldRef:
+    """World ``world`` of a state and its control (a snapshot of a simulator: ``Simulator.snapshot``)."""
+
+    state: State
+    control: Control
+    world: int
+
+
+def copy_worlds(src: State, src_control: Control, src_worlds, dst: State, dst_control: Control, dst_worlds,
+                device: str) -> None:
+    """Copy worlds ``src_worlds`` (n,) of (src, src_control) into worlds ``dst_worlds`` (n,) of (dst,
+    dst_control) on the device: positions, velocities, the jam fields of the edges, the air and the
+    IPAM pressures, and the host jam flags and times of the cells (the IPAM and cell masks stay the
+    destination's). A source world may go to several destinations; destinations must differ, and
+    must not be read as a source of the same copy."""
+    si = np.asarray(src_worlds, dtype=np.int32).reshape(-1)
+    di = np.asarray(dst_worlds, dtype=np.int32).reshape(-1)
+    if si.shape != di.shape or len(set(di.tolist())) != len(di):
+        raise ValueError(f"copy_worlds needs one distinct destination per source world, got {si} -> {di}")
+    if src is dst and set(si.tolist()) & set(di.tolist()):
+        raise ValueError("copy_worlds within one state needs sources apart from destinations")
+    if not len(si):
+        return
+    s_idx, d_idx = wp.array(si, dtype=wp.int32, device=device), wp.array(di, dtype=wp.int32, device=device)
+    pairs = [(src.xv, dst.xv), (src.edge, dst.edge), (src.jammed, dst.jammed), (src_control.air, dst_control.air),
+             (src_control.ipam_pressure, dst_control.ipam_pressure)]
+    for a, b in pairs:
+        a3 = a if a.ndim == 3 else a.reshape((1, a.shape[0], -1))
+        b3 = b if b.ndim == 3 else b.reshape((1, b.shape[0], -1))
+        wp.launch(kc.copy_worlds_kernel, (len(si), a3.shape[0], a3.shape[2]), [a3, s_idx, d_idx, b3], device=device)
+    dst.cell_jammed[di] = src.cell_jammed[si]
+    dst.cell_jam_time[di] = src.cell_jam_time[si]

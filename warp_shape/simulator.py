@@ -20,7 +20,7 @@ from .design import Design
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused
 from .integrators import BlowupWatch, blowup_error, make_solver
-from .model import Control, State, build_model, check_device, host_model
+from .model import State, WorldRef, build_model, check_device, copy_worlds, host_model
 from .physics import FORCE_TERMS
 from .physics.bending import bending_energy_np
 from .physics.ipam import ipam_energy_np
@@ -83,14 +83,14 @@ class Simulator:
         host = host_model(design)  # built once: checked, then copied to the device
         check_storable(host, design.material, s.precision)
         self.model = m = build_model(design, self.device, s.precision, host=host)
-        air0 = host.rest_air
-        try:
-            self.state = State(m, self.worlds)
-            self.control = Control(m, self.worlds, air0)
+        try:  # two states: each internal step goes from one into the other (self.plan.parity: the current)
+            first = m.state(self.worlds)
+            self._states = (first, m.state(self.worlds, jam_from=first))
+            self.control = m.control(self.worlds)
         except (MemoryError, ValueError, RuntimeError) as exc:  # arrays too large to allocate
             raise DesignError(f"worlds = {self.worlds} copies of a {m.n_vertices}-vertex design do not fit in "
                               f"memory ({exc}); use fewer worlds") from None
-        self.solver = make_solver(s.integrator, m, self.state, self.control, paper_bending=(s.bending == "paper"))
+        self.solver = make_solver(s.integrator, m, self.worlds, paper_bending=(s.bending == "paper"))
         self.integrator = self.solver.name
         # probe buffers for read-outs outside the step loop
         self._fg_probe = wp.zeros_like(self.solver.fg)  # (2, W, V) forces, dV/dx
@@ -102,7 +102,7 @@ class Simulator:
         # device and copied only where the host waits anyway (BlowupWatch)
         self.blowup_watch = BlowupWatch(self.solver.status)
         # stepping: the plan of one internal step, rebuilt when the stable estimate changes the step
-        self.plan = StepPlan(self.device, s.launch_mode)
+        self.plan = StepPlan(self.device, s.launch_mode)  # before the first use of self.state
         self._substeps = None
         self._dt_stable = None
         self._dirty = True
@@ -117,7 +117,7 @@ class Simulator:
         self._checkpoint = Checkpoint(self.state.xv)
         self._broken: SimulationError | None = None
         self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
-        self._volume_cmd = None  # recorded volume launch of the chamber check (immediate mode)
+        self._volume_cmds = [None, None]  # per state: the recorded volume launch of the chamber check
         self._update_plan()
 
     # ------------------------------------------------------------------ world helpers
@@ -146,6 +146,11 @@ class Simulator:
         wp.launch(kernel, dim, inputs, device=self.device)
 
     # ------------------------------------------------------------------ state access
+    @property
+    def state(self) -> State:
+        """The current ``State`` (one of the two the steps alternate between)."""
+        return self._states[self.plan.parity]
+
     @property
     def positions(self) -> np.ndarray:
         """(V, 3) float64 positions in m ((W, V, 3) with several worlds)."""
@@ -284,6 +289,33 @@ class Simulator:
             raise
         self._dirty = True
 
+    # ------------------------------------------------------------------ worlds between simulators
+    def snapshot(self) -> list[WorldRef]:
+        """Every world's state now (positions, velocities, jam fields, air, IPAM pressures), copied on
+        the device: one ``WorldRef`` per world, for ``load_worlds`` of this or another simulator of
+        the same design and precision."""
+        state, control = self.state.clone(), self.control.clone()
+        return [WorldRef(state, control, w) for w in range(self.worlds)]
+
+    def load_worlds(self, worlds: list[WorldRef]) -> None:
+        """Load one world per world of this simulator (``len(worlds) == self.worlds``), copied on the
+        device from their snapshots (``snapshot``); time is left as it is. The IPAM and cell masks stay
+        this simulator's."""
+        if len(worlds) != self.worlds:
+            raise ValueError(f"load_worlds needs one world per world ({self.worlds}), got {len(worlds)}")
+        groups: dict[int, list] = {}
+        for dst, ref in enumerate(worlds):
+            groups.setdefault(id(ref.state), []).append((ref, dst))
+        for group in groups.values():
+            ref = group[0][0]
+            copy_worlds(ref.state, ref.control, [r.world for r, _ in group], self.state, self.control,
+                        [d for _, d in group], self.device)
+        if self.solver.recenter(self.state.x.numpy()):  # as for positions set: the blow-up region follows
+            self.plan.invalidate()
+        self._geometry_version += 1
+        self._dirty = True
+        self._recover()
+
     # ------------------------------------------------------------------ read-outs
     def forces(self, term: str | None = None) -> np.ndarray:
         """Total force on every vertex (N), all terms and damping included; or one term of
@@ -302,14 +334,15 @@ class Simulator:
     def _volumes(self) -> np.ndarray:
         """(W,) chamber volumes, m^3, through one recorded launch (no Python launch path: ``step`` reads
         them after every output step on CPU)."""
-        if self._volume_cmd is None:
-            cmds = []
-            eval_volume(self.model, self.state.x, self._vol_probe,
-                        lambda k, dim, inputs: cmds.append(wp.launch(k, dim, inputs, device=self.device,
-                                                                     record_cmd=True)))
-            self._volume_cmd = cmds[0]
+        if self._volume_cmds[0] is None:  # one per state, both recorded at the first use
+            for p, state in enumerate(self._states):
+                cmds = []
+                eval_volume(self.model, state.x, self._vol_probe,
+                            lambda k, dim, inputs: cmds.append(wp.launch(k, dim, inputs, device=self.device,
+                                                                         record_cmd=True)))
+                self._volume_cmds[p] = cmds[0]
         self._vol_probe.zero_()
-        self._volume_cmd.launch()
+        self._volume_cmds[self.plan.parity].launch()
         return self._vol_probe.numpy().copy()
 
     def volume(self):
@@ -425,7 +458,7 @@ class Simulator:
                                  st.x.numpy().astype(np.float64), self.dt, self._dt_stable, self.settings.max_substeps)
         self._substeps = n
         if h != self.plan.h or not self.plan.built:
-            self.plan.build(self.solver, h)
+            self.plan.build(self.solver, h, self._states, self.control)
         self._dirty = False
 
     def _report(self, found):
@@ -455,7 +488,7 @@ class Simulator:
     _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at")
 
     def _save(self) -> None:
-        self._checkpoint.save(self.state.xv, {k: getattr(self, k) for k in self._KEPT})
+        self._checkpoint.save(self.state.xv, {"parity": self.plan.parity, **{k: getattr(self, k) for k in self._KEPT}})
 
     def _finite(self) -> bool:
         return bool(np.all(np.isfinite(self.state.xv.numpy())))
@@ -463,8 +496,10 @@ class Simulator:
     def _restore(self, exc: BaseException) -> None:
         """Back to the last good state after ``exc`` interrupted a step; a state that is not finite
         even there (changed behind the API's back) leaves the simulator refusing further steps."""
+        self.plan.parity = self._checkpoint.host["parity"]  # the state the checkpoint was taken of
         for k, v in self._checkpoint.restore(self.state.xv).items():
-            setattr(self, k, v)
+            if k != "parity":
+                setattr(self, k, v)
         self.blowup_watch.reset()
         self._dirty = True  # the stable step is estimated anew for the restored state
         if isinstance(exc, SimulationError) and not self._finite():

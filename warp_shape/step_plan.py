@@ -11,12 +11,16 @@ __all__ = ["StepPlan", "Checkpoint"]
 
 
 class StepPlan:
-    """One internal step of a solver, prepared for replay.
+    """One internal step of a solver between two states, prepared for replay in both directions.
 
-    ``build(solver, h)`` records the launches of ``solver.step(h, launch)`` (and their kernel names);
-    with mode ``"graph"`` it captures them into a graph (recorded launches where capture is not
-    supported), with ``"record"`` it keeps the recorded launches and with ``"direct"`` it launches
-    the solver's kernels anew every step. ``run(count)`` takes that many internal steps.
+    ``build(solver, h, states, control)`` records the launches of ``solver.step(states[0], states[1],
+    control, h)`` and of the step back (their kernel names: those of one step); with mode ``"graph"``
+    it captures each direction into a graph (a captured graph binds its arrays, so one per
+    direction; recorded launches where capture is not supported), with ``"record"`` it keeps the
+    recorded launches and with ``"direct"`` it launches the solver's kernels anew every step.
+    ``run(count)`` takes that many internal steps, each from the current state (``states[parity]``)
+    into the other, so a step never overwrites the state it starts from; ``parity`` says which
+    state holds the latest step.
     """
 
     def __init__(self, device: str, mode: str = "graph"):
@@ -27,9 +31,12 @@ class StepPlan:
         self.kind = None  # what build() prepared: "graph", "record" or "direct"; None before
         self.h = None  # the internal step (s) the plan was built for
         self.kernel_names: list[str] = []  # kernel names launched by one internal step
+        self.parity = 0  # the index in ``states`` of the current state
         self.solver = None
-        self.commands: list = []
-        self.graph = None
+        self.states: tuple = ()
+        self.control = None
+        self.commands: list = [[], []]  # per direction: the recorded launches of states[p] -> states[1 - p]
+        self.graphs: list = [None, None]
 
     @property
     def built(self) -> bool:
@@ -44,8 +51,7 @@ class StepPlan:
         """Launch a kernel now on the plan's device (the ``launch`` callable of direct mode)."""
         wp.launch(kernel, dim, inputs, device=self.device)
 
-    def build(self, solver, h: float) -> None:
-        """Prepare the launches of one internal step ``h`` (s) of ``solver``."""
+    def _record(self, solver, h: float, state_in, state_out, control) -> tuple[list, list]:
         names: list[str] = []
         cmds: list = []
 
@@ -53,32 +59,53 @@ class StepPlan:
             names.append(kernel.key)
             cmds.append(wp.launch(kernel, dim, inputs, device=self.device, record_cmd=True))
 
-        solver.step(h, record)
+        solver.step(state_in, state_out, control, h, record)
+        return names, cmds
+
+    def _capture(self, cmds: list):
+        with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+            for cmd in cmds:
+                cmd.launch()
+        return capture.graph
+
+    def build(self, solver, h: float, states: tuple | None = None, control=None) -> None:
+        """Prepare the launches of one internal step ``h`` (s) of ``solver`` between ``states`` (a pair
+        of states of its model) under ``control`` (both: those of the last build when None)."""
+        a, b = states if states is not None else self.states
+        control = control if control is not None else self.control
+        names, forward = self._record(solver, h, a, b, control)
+        _, back = self._record(solver, h, b, a, control)
         self.solver, self.h, self.kernel_names = solver, h, names
-        self.commands, self.graph, self.kind = cmds, None, "record"
+        self.states, self.control = (a, b), control
+        self.commands, self.graphs, self.kind = [forward, back], [None, None], "record"
         if self.mode == "direct":
             self.kind = "direct"
         elif self.mode == "graph":
             try:
-                with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
-                    for cmd in cmds:
-                        cmd.launch()
-                self.graph, self.kind = capture.graph, "graph"
+                self.graphs = [self._capture(forward), self._capture(back)]
+                self.kind = "graph"
             except Exception:  # capture unsupported here: recorded launches are the next best
-                self.kind = "record"
+                self.graphs, self.kind = [None, None], "record"
 
     def run(self, count: int) -> None:
-        """Take ``count`` internal steps."""
+        """Take ``count`` internal steps, each from the current state into the other."""
+        p = self.parity
         if self.kind == "graph":
+            graphs = self.graphs
             for _ in range(count):
-                wp.capture_launch(self.graph)
+                wp.capture_launch(graphs[p])
+                p = self.parity = 1 - p
         elif self.kind == "record":
+            commands = self.commands
             for _ in range(count):
-                for cmd in self.commands:
+                for cmd in commands[p]:
                     cmd.launch()
+                p = self.parity = 1 - p
         else:
+            st = self.states
             for _ in range(count):
-                self.solver.step(self.h, self.direct)
+                self.solver.step(st[p], st[1 - p], self.control, self.h, self.direct)
+                p = self.parity = 1 - p
 
 
 class Checkpoint:
@@ -94,14 +121,22 @@ class Checkpoint:
         self.xv = wp.clone(xv)
         self.cpu = xv.device.is_cpu
         # on CPU both arrays are host memory: numpy views of them copy without a launch
-        self.views = (xv.numpy(), self.xv.numpy()) if self.cpu else None
+        self.kept_view = self.xv.numpy() if self.cpu else None
+        self.views: list = []  # (array, its numpy view) of every array saved or restored (CPU)
         self.host: dict = {}
         self.current = False
+
+    def _view(self, xv: wp.array):
+        for arr, view in self.views:
+            if arr is xv:
+                return view
+        self.views.append((xv, xv.numpy()))
+        return self.views[-1][1]
 
     def save(self, xv: wp.array, host: dict) -> None:
         """Keep ``xv`` (copied on its device) and ``host`` (a dict of plain values)."""
         if self.cpu:
-            np.copyto(self.views[1], self.views[0])
+            np.copyto(self.kept_view, self._view(xv))
         else:
             wp.copy(self.xv, xv)
         self.host = dict(host)
@@ -110,7 +145,7 @@ class Checkpoint:
     def restore(self, xv: wp.array) -> dict:
         """Copy the kept state back into ``xv``; return the host values kept with it."""
         if self.cpu:
-            np.copyto(self.views[0], self.views[1])
+            np.copyto(self._view(xv), self.kept_view)
         else:
             wp.copy(xv, self.xv)
         self.current = True

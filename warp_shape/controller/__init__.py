@@ -35,8 +35,8 @@ observation of every world), ``laws`` (control laws as strategies: the paper's),
 per-step record, its columns documented there), ``loop`` (control / control_many), ``result``
 (ControlResult, plain data); model-based control: ``inverse`` (the driver), ``plans`` (jam plans),
 ``trajectory`` (the recorded main sequence of a plan), ``explore`` (scratch batches of worlds),
-``refine`` (Gauss-Newton iterations), ``gauss_newton`` (the bounded damped step), ``worlds`` (world
-states as host data), ``replay`` (a recorded sequence re-simulated open loop).
+``refine`` (Gauss-Newton iterations), ``gauss_newton`` (the bounded damped step), ``worlds`` (passive
+masks and speeds per world), ``replay`` (a recorded sequence re-simulated open loop).
 """
 
 from ..model import cell_anchor_faces

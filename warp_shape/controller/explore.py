@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import HostModel
+from ..model import HostModel, WorldRef
 from ..sampling import RadialSampler
 from .observe import fit_of, ipam_neutral_pressures, vertex_area_shares
-from .worlds import WorldState, mask_passive, max_speeds, put_worlds, take_worlds
+from .worlds import mask_passive, max_speeds
 
 __all__ = ["Settled", "Explorer"]
 
@@ -31,7 +31,7 @@ class Settled:
     objective: np.ndarray  # (B,) the fit objective
     mare: np.ndarray  # (B,) mean |r - R|, m
     speed: np.ndarray  # (B,) largest vertex speed at the end, m/s
-    states: list  # (B,) WorldState at the end
+    states: list  # (B,) model.WorldRef: each world at the end (a snapshot on the device)
 
 
 class Explorer:
@@ -54,12 +54,12 @@ class Explorer:
             self._sims[worlds] = Simulator(self.design, device=self.device, settings=self.sim_settings, worlds=worlds)
         return self._sims[worlds]
 
-    def settle(self, states: list[WorldState], air: np.ndarray, pressures: np.ndarray, targets: np.ndarray) -> Settled:
-        """Worlds started from ``states`` under controls ``air`` (B,) mol and ``pressures`` (B, n_ipam)
+    def settle(self, states: list[WorldRef], air: np.ndarray, pressures: np.ndarray, targets: np.ndarray) -> Settled:
+        """Worlds started from ``states`` (copied on the device) under controls ``air`` (B,) mol and ``pressures`` (B, n_ipam)
         Pa (passive IPAMs: neutral instead), settled ``settle_steps`` steps, measured on ``targets`` (B,)."""
         B = len(states)
         sim = self._sim(B)
-        put_worlds(sim, states)
+        sim.load_worlds(states)
         sim.air_moles = np.asarray(air, dtype=np.float64)
         passive = self.passive[np.asarray(targets)] if self.dev.n_ipams else np.zeros((B, 0), bool)
         mask_passive(sim, passive)
@@ -84,4 +84,4 @@ class Explorer:
         r, R = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
         fit = fit_of(x, sampled, self.dev.faces, self.target_volume[targets])
         return Settled(r=r, R=R, weights=vertex_area_shares(sampled, self.dev.faces), objective=fit["objective"],
-                       mare=fit["mare"], speed=max_speeds(sim), states=take_worlds(sim))
+                       mare=fit["mare"], speed=max_speeds(sim), states=sim.snapshot())

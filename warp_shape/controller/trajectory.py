@@ -18,7 +18,6 @@ from .history import History
 from .laws import Controls
 from .observe import Observation, Observer, ipam_neutral_pressures
 from .settings import ControlSettings
-from .worlds import take_worlds
 
 __all__ = ["Trajectory", "PHASE_PLANNED"]
 
@@ -102,5 +101,5 @@ class Trajectory:
                 self.jam_steps[w, j] = self.step
 
     def states(self) -> list:
-        """The current state of every world (``worlds.WorldState``)."""
-        return take_worlds(self.sim)
+        """The current state of every world (``model.WorldRef``, a snapshot on the device)."""
+        return self.sim.snapshot()
