@@ -77,7 +77,7 @@ def _designs() -> list:
 
 def _drive(recorder: OverloadRecorder) -> None:
     """Every launch the simulator makes: both integrators, both bending variants, every force term
-    read-out, jamming, edge read-outs and volumes, with two worlds."""
+    read-out, jamming, edge read-outs, volumes and world copies, with two worlds."""
     for precision in PRECISIONS:
         recorder.precision = precision
         for design in _designs():
@@ -91,6 +91,7 @@ def _drive(recorder: OverloadRecorder) -> None:
                         sim.forces(term)
                     sim.edge_state()
                     sim.volume()
+                    sim.load_worlds(sim.snapshot()[::-1])
                     if design.n_cells:
                         sim.jam(0)
 
