@@ -244,3 +244,66 @@ def test_the_readme_api_example_prints_only_its_own_result():
     printed = (run.stdout + run.stderr).splitlines()
     assert not [ln for ln in printed if ln.startswith(("Module ", "Warp 1.", "   "))], printed
     assert len(run.stdout.splitlines()) == 1  # the example's one print
+
+
+# ------------------------------------------------------------------------------------------------ help
+def _parsers(parser, name="warp-shape"):
+    import argparse
+
+    yield name, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub, child in action.choices.items():
+                yield from _parsers(child, f"{name} {sub}")
+
+
+def test_every_command_has_a_description_and_every_option_help():
+    import argparse
+
+    from warp_shape.cli import build_parser
+
+    for name, parser in _parsers(build_parser()):
+        has_sub = any(isinstance(a, argparse._SubParsersAction) for a in parser._actions)
+        assert parser.description or has_sub, f"{name} has no description"
+        for action in parser._actions:
+            if action.help != argparse.SUPPRESS and not isinstance(action, argparse._SubParsersAction):
+                assert action.help, f"{name} {action.option_strings or action.dest} has no help text"
+
+
+# -------------------------------------------------------------------------------------- small things
+def test_sweeping_a_mold_length_says_what_it_is(tmp_path, monkeypatch, capsys):
+    no_work(monkeypatch)
+    err = error_of(capsys, ["sweep", "grid", "--param", "layer_thickness=0.003,0.005", "--backend", "serial",
+                            "--out", str(tmp_path / "sw")])
+    assert "layer_thickness is a mold length (warp-shape design/export --layer-thickness, m)" in err
+    assert "material.thickness" not in err and not (tmp_path / "sw").exists()
+
+
+def test_the_package_metadata_builds_without_license_warnings():
+    """setuptools from 77 on warns about the license table and setuptools before 77 refuses the SPDX
+    string that replaces it: the build requirement keeps isolated builds below 77, and the metadata
+    reads here (setuptools of builds without isolation) without a warning of its own."""
+    import tomllib
+    import warnings
+
+    from packaging.requirements import Requirement
+    from setuptools.config.pyprojecttoml import read_configuration
+
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    setuptools_req = next(Requirement(r) for r in data["build-system"]["requires"] if r.startswith("setuptools"))
+    if isinstance(data["project"]["license"], dict):
+        assert "76.9" in setuptools_req.specifier and "77.0" not in setuptools_req.specifier
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        config = read_configuration(ROOT / "pyproject.toml")
+    assert config["project"]["name"] == "warp-shape"
+    assert not [w for w in caught if "license" in str(w.message).lower()]
+
+
+def test_the_recording_of_a_design_is_in_its_manifest(tmp_path, capsys):
+    rrd, out = tmp_path / "run.rrd", tmp_path / "out"
+    assert main(["design", "--subdivisions", "2", "--actuators", "1", "--placement", "paper", "--targets", "oval",
+                 "--rerun", str(rrd), "--out", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["recording"] == {"path": str(rrd), "bytes": rrd.stat().st_size} and rrd.stat().st_size > 1000
+    assert not (tmp_path / ".out.lock").exists()

@@ -19,9 +19,11 @@ TRADEOFF_COLUMNS = ["vertices", "integrator", "step", "substeps", "precision", "
 
 def register(subparsers) -> None:
     """Add the ``bench`` subcommand."""
-    b = subparsers.add_parser("bench", help="speed benchmarks (tables + JSON)")
+    b = subparsers.add_parser("bench", help="speed benchmarks (tables + JSON)",
+                              description="Speed benchmarks: a table on stdout and bench_<name>.json in --out per bench.")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
-                                                                    "rays", "all"])
+                                                                    "rays", "all"],
+                   help="; ".join(f"{k}: {v}" for k, v in ABOUT.items()) + "; all: every one")
     b.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
     add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")

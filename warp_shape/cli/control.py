@@ -16,7 +16,10 @@ __all__ = ["register", "run"]
 
 def register(subparsers) -> None:
     """Add the ``control`` subcommand."""
-    c = subparsers.add_parser("control", help="drive a design to target shapes; writes the control sequences")
+    c = subparsers.add_parser("control", help="drive a design to target shapes; writes the control sequences",
+                              description="Control a design (a scene, default the Fig. 6 device) to each target "
+                                          "shape: the paper's law, then model-based control by default; writes "
+                                          "control_<target>.csv|json and a figure per target.")
     c.add_argument("scene", nargs="?", default=None, help="problem: cube_fig6 (default) or a scene file/name")
     c.add_argument("--targets", nargs="+", help="target names (oval pear heart cube) or mesh files "
                    "(default: the scene's targets)")

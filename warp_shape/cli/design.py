@@ -14,7 +14,7 @@ import time
 
 from .options import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS, add_bounded, add_common_args,
                       add_units_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
-                      open_recorder, print_outputs, run_progress, stop_if_interrupted)
+                      open_recorder, print_outputs, recording_entry, run_progress, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -215,7 +215,7 @@ def run(args) -> int:
         staged.discard()
         raise
     try:
-        out = staged.commit(True, command="design")
+        out = staged.commit(True, command="design", **recording_entry(args))
     except BaseException:
         staged.discard()
         raise

@@ -15,9 +15,13 @@ __all__ = ["register", "run"]
 
 def register(subparsers) -> None:
     """Add the ``export`` subcommand."""
-    e = subparsers.add_parser("export", help="molds (STL), control sequences (CSV/JSON) and USD of a design scene")
+    e = subparsers.add_parser("export", help="molds (STL), control sequences (CSV/JSON) and USD of a design scene",
+                              description="Write the fabrication and content outputs of a design scene (e.g. "
+                                          "out/design.usda): molds, control and valve sequences, USD.")
     e.add_argument("scene", help="a design scene: a .usda/.usdc file (e.g. out/design.usda) or a shipped name")
-    e.add_argument("--what", nargs="+", default=["molds", "control", "usd"], choices=["molds", "control", "usd"])
+    e.add_argument("--what", nargs="+", default=["molds", "control", "usd"], choices=["molds", "control", "usd"],
+                   help="molds: mold_*.stl and molds_<units>.json; control: control and valve sequences per target "
+                        "(simulated again); usd: design.usda (with control: actuation_<target>.usdc)")
     e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
     e.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")

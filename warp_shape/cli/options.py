@@ -15,7 +15,8 @@ from .progress import Bar, ControlProgress, DesignProgress
 
 __all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
            "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
-           "check_out", "check_rerun", "check_mold_flags", "print_outputs", "run_progress", "Bar", "ControlProgress",
+           "check_out", "check_rerun", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
+           "ControlProgress",
            "interrupts_noted", "stop_if_interrupted", "write_failure", "add_bounded", "check_bounds"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
@@ -294,6 +295,15 @@ def actuator_selection(args, scene_settings, names) -> dict:
         return {}
     ipams, cells = selection_from_settings(scene_settings, names)
     return dict(passive_ipams=ipams, passive_cells=cells) if any(ipams) or any(cells) else {}
+
+
+def recording_entry(args) -> dict:
+    """The manifest's entry for the run's ``--rerun`` recording (its absolute path and size), or none."""
+    path = getattr(args, "rerun", None)
+    if not path:
+        return {}
+    p = Path(path).expanduser().absolute()
+    return {"recording": {"path": str(p), "bytes": p.stat().st_size if p.is_file() else None}}
 
 
 def print_outputs(out, names, args, next_step: str = "") -> None:

@@ -16,9 +16,13 @@ __all__ = ["register", "run"]
 
 def register(subparsers) -> None:
     """Add the ``simulate`` subcommand."""
-    s = subparsers.add_parser("simulate", help="inflate and actuate the Fig. 6 sphere-with-five-IPAMs device")
-    s.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"])
-    s.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    s = subparsers.add_parser("simulate", help="inflate and actuate the Fig. 6 sphere-with-five-IPAMs device",
+                              description="Inflate the paper's Fig. 6 device (a silicone sphere with five IPAMs and a "
+                                          "jamming cell at every IPAM end), jam its cells, then drive the corner IPAMs "
+                                          "to push and the pole IPAM to pull; writes simulate.json (section IV-C).")
+    s.add_argument("--integrator", default="rk4", choices=["rk4", "semi_implicit"],
+                   help="time integrator: rk4 (the paper's reference) or semi_implicit (Euler, about 3x faster)")
+    s.add_argument("--precision", default="float32", choices=["float32", "float64"], help="floating-point precision")
     s.add_argument("--dt", type=float, default=1e-3, help="output step, s (internal substeps are automatic)")
     add_bounded(s, "--subdivisions", 1, 6, type=int, default=3, help="icosphere subdivisions of the membrane")
     s.add_argument("--air-scale", type=float, default=1.6, help="final air amount relative to the rest amount")

@@ -39,11 +39,16 @@ def register(subparsers) -> None:
     s = subparsers.add_parser("sweep", help="many designs: every subset of targets, or a grid of settings "
                               "(on Ray; docs/sweeps.md)")
     kinds = s.add_subparsers(dest="kind", required=True)
-    sub = kinds.add_parser("subsets", help="design for every non-empty subset of the targets (Fig. 11)")
+    sub = kinds.add_parser("subsets", help="design for every non-empty subset of the targets (Fig. 11)",
+                           description="Design a display for every non-empty subset of the targets (the paper's "
+                                       "Fig. 11), each run a `warp-shape design` into runs/, rows in results.csv.")
     _common(sub)
     sub.add_argument("--param", action="append", default=[], metavar="NAME=V1,V2",
                      help="also sweep a setting over these values (repeatable)")
-    grid = kinds.add_parser("grid", help="design for every combination of setting values (Fig. 12)")
+    grid = kinds.add_parser("grid", help="design for every combination of setting values (Fig. 12)",
+                            description="Design a display for every combination of the --param values (the "
+                                        "paper's Fig. 12), each run a `warp-shape design` into runs/, rows in "
+                                        "results.csv.")
     _common(grid)
     grid.add_argument("--param", action="append", default=[], required=True, metavar="NAME=V1,V2",
                       help="a swept setting and its values (repeatable): actuators, subdivisions, or any "

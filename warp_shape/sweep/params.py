@@ -36,6 +36,13 @@ SPECIAL = {"actuators": (int, "number of IPAMs placed"),
            "subdivisions": (int, "base mesh: an icosphere of 1..6 subdivisions (2: 162 vertices, 3: 642)")}
 
 
+#: names that look like settings but change no design or fit: name -> what they are instead
+NOT_SWEPT = {name: f"{name} is a mold length (warp-shape design/export --{name.replace('_', '-')}, m), not a design "
+                   f"setting: it changes no design and no fit, so a sweep has nothing to compare; give it to "
+                   f"`warp-shape export runs/<run>/design.usda --{name.replace('_', '-')} VALUE` for the molds"
+             for name in ("layer_thickness", "marker_height")}
+
+
 class SweepError(WarpShapeError, ValueError):
     """A sweep cannot run as asked: an unknown parameter or value, a missing engine, a clashing output folder."""
 
@@ -82,6 +89,8 @@ def resolve_param(name: str) -> tuple[str, str, type]:
     an unknown or ambiguous name raises ``SweepError`` with the closest names."""
     known = known_params()
     group, _, field_name = name.rpartition(".")
+    if field_name in NOT_SWEPT and field_name not in known:
+        raise SweepError(NOT_SWEPT[field_name])
     choices = known.get(field_name, [])
     if group:
         choices = [c for c in choices if c[0] == group]
