@@ -307,3 +307,25 @@ def test_the_recording_of_a_design_is_in_its_manifest(tmp_path, capsys):
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["recording"] == {"path": str(rrd), "bytes": rrd.stat().st_size} and rrd.stat().st_size > 1000
     assert not (tmp_path / ".out.lock").exists()
+
+
+def test_a_viewer_that_fails_gets_a_word_of_our_own(tmp_path, monkeypatch, capsys):
+    import warp_shape.cli.view as view
+
+    rrd = tmp_path / "run.rrd"
+    rrd.write_bytes(b"RRF2")
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(view.subprocess, "call", lambda cmd: 1)  # e.g. no usable window system after all
+    assert main(["view", str(rrd)]) == 1
+    assert "the rerun viewer ended with exit status 1" in capsys.readouterr().err
+
+
+def test_the_icp_warning_does_not_advise_the_method_in_use():
+    from warp_shape.scan import IcpConvergenceWarning, compare_scan
+
+    ref = ws.icosphere(3, R)
+    pts = ws.icosphere(2, R).vertices[:120] * [1.0, 1.1, 0.9] + 0.01
+    for method, advice in (("point_to_plane", False), ("point_to_point", True)):
+        with pytest.warns(IcpConvergenceWarning) as caught:
+            compare_scan(pts, ref, method=method, max_iterations=1)
+        assert ("--method point_to_plane" in str(caught[0].message)) is advice, method

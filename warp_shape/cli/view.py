@@ -61,6 +61,11 @@ def run(args) -> int:
         raise WarpShapeError(problem)
     print(f"opening {args.path} in the rerun viewer ...", file=sys.stderr)
     try:
-        return subprocess.call(cmd)
+        status = subprocess.call(cmd)
     except OSError as exc:
         raise WarpShapeError(f"could not start the rerun viewer ({exc})") from None
+    if status != 0:
+        print(f"warp-shape view: the rerun viewer ended with exit status {status} (its own messages above); "
+              f"{args.path} is unchanged: open it with rerun on another machine if this one cannot show it",
+              file=sys.stderr)
+    return status

@@ -39,8 +39,8 @@ def check_target_units(rest: TriMesh, targets, names=None, *, what: str = "rest 
         if UNITS_RATIO[0] <= s <= UNITS_RATIO[1]:
             raise ShapeError(
                 f"{name} is {s:.0f}x the size of the {what} (volume {t.volume():.3g} m^3 against "
-                f"{v_rest:.3g} m^3): it looks like millimetres: scale it by 1e-3 (target.scaled(1e-3)); "
-                f"warp_shape works in metres")
+                f"{v_rest:.3g} m^3): it looks like millimetres: scale it by 1e-3 (target.scaled(1e-3); on the "
+                f"command line a mesh file is read in millimetres with --units mm); warp_shape works in metres")
 
 
 def _check_size(rest: TriMesh, t: TriMesh, name: str, max_stretch: float) -> None:
