@@ -22,6 +22,7 @@ import numpy as np
 import warp as wp
 
 from .errors import ShapeError
+from .kernels import raycast
 from .mesh import TriMesh
 
 __all__ = [
@@ -39,13 +40,6 @@ FLAT_SPREAD = 1.0e-6
 _MAX_CROSSINGS = 8
 
 _samplers: "weakref.WeakKeyDictionary[TriMesh, dict]" = weakref.WeakKeyDictionary()
-
-
-def _kernels():
-    # imported lazily so that importing warp_shape does not compile or load kernel modules
-    from .kernels import raycast
-
-    return raycast
 
 
 def fibonacci_directions(n: int) -> np.ndarray:
@@ -101,13 +95,12 @@ def check_star_shaped(mesh: TriMesh, *, origin=(0.0, 0.0, 0.0), directions: int 
                          f"on its surface (vertex {int(np.argmin(lens))})")
     dirs = np.concatenate([fibonacci_directions(directions), rel_v / lens[:, None],
                            rel_c / np.linalg.norm(rel_c, axis=1, keepdims=True)])
-    k = _kernels()
     wmesh = _wp_mesh_obj if _wp_mesh_obj is not None else _wp_mesh(mesh, device)
     o = wp.vec3(*origin.astype(np.float32))
     d_wp = wp.array(dirs.astype(np.float32), dtype=wp.vec3, device=device)
     counts = wp.zeros(len(dirs), dtype=wp.int32, device=device)
     entering = wp.zeros(len(dirs), dtype=wp.int32, device=device)
-    wp.launch(k.count_crossings_kernel, dim=len(dirs),
+    wp.launch(raycast.count_crossings_kernel, dim=len(dirs),
               inputs=[wmesh.id, o, 4.0 * reach, RAY_JITTER, 1e-6 * reach, _MAX_CROSSINGS, d_wp],
               outputs=[counts, entering], device=device)
     counts = counts.numpy()
@@ -189,7 +182,6 @@ class RadialSampler:
         caller must call ``raise_failures(points, faces)`` later: failed rays hold NaN hits and a
         negative face (``RAY_MISS`` -1: nothing hit; ``RAY_NO_DIRECTION`` -2: query at the origin).
         """
-        k = _kernels()
         if points.ndim != 2 or points.dtype != wp.vec3:
             raise ShapeError(f"points must be a 2-D array of wp.vec3 (W, N), got {points.ndim}-D {points.dtype}")
         w, n = points.shape
@@ -200,7 +192,7 @@ class RadialSampler:
         radii = radii_out if radii_out is not None else wp.empty((w, n), dtype=wp.float32, device=dev)
         faces = faces_out if faces_out is not None else wp.empty((w, n), dtype=wp.int32, device=dev)
         self._failures.zero_()
-        wp.launch(k.radial_sample_kernel, dim=(w, n), inputs=[mesh_ids, self.max_t, RAY_JITTER, points],
+        wp.launch(raycast.radial_sample_kernel, dim=(w, n), inputs=[mesh_ids, self.max_t, RAY_JITTER, points],
                   outputs=[hits, radii, faces, self._failures], device=dev)
         if check and int(self._failures.numpy()[0]) > 0:
             self.raise_failures(points, faces, mesh_ids)

@@ -46,8 +46,10 @@ import numpy as np
 import warp as wp
 
 from .errors import MeshError, ShapeError
+from .kernels import raycast
 from .mesh import TriMesh
 from .sampling import RadialSampler, radial_metrics
+from .targets import TARGET_NAMES, target
 
 __all__ = ["ScanComparison", "IcpConvergenceWarning", "compare_scan", "surface_samples", "load_scan", "icp", "kabsch",
            "surface_distances", "detect_length_unit", "length_unit_of", "LENGTH_UNITS", "PLAUSIBLE_EXTENT_M"]
@@ -188,8 +190,6 @@ def _load_reference(reference) -> TriMesh:
     if isinstance(reference, TriMesh):
         return reference
     if isinstance(reference, str) and not Path(reference).exists():
-        from .targets import TARGET_NAMES, target
-
         if reference.strip().lower() in TARGET_NAMES:
             return target(reference)
         raise ShapeError(f"reference {reference!r} is neither a mesh file nor a target "
@@ -233,8 +233,6 @@ class _Closest:
     """Closest points on a mesh for batches of query points (device buffers reused)."""
 
     def __init__(self, mesh, device):
-        from .kernels import raycast
-
         vertices, faces = load_scan(mesh)
         if faces is None or len(faces) == 0:
             raise ShapeError("closest-point queries need a mesh with triangles, got a point cloud")
@@ -380,8 +378,6 @@ def _candidate_rotations(ax_scan: np.ndarray, ax_ref: np.ndarray) -> list[np.nda
 def _nearest_distances(points: np.ndarray, queries: np.ndarray, radius: float, device,
                        skip_self: bool) -> np.ndarray:
     """Distance from each query to the nearest of ``points`` (-1 beyond ``radius``), on a hash grid."""
-    from .kernels import raycast
-
     grid = wp.HashGrid(64, 64, 64, device=device)
     p = wp.array(points.astype(np.float32), dtype=wp.vec3, device=device)
     grid.build(p, radius)

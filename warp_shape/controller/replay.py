@@ -19,6 +19,7 @@ import numpy as np
 
 from ..design import Design
 from ..errors import DesignError
+from ..simulator import Simulator
 from .worlds import mask_passive, passive_masks
 
 __all__ = ["replay", "replay_simulator"]
@@ -43,8 +44,6 @@ def replay_simulator(design: Design, results, *, device: str = "cpu"):
     """A simulator with one world per result (all of ``design``, same simulation settings) after
     replaying every result's control sequence from rest; worlds whose sequence ends earlier hold
     their last controls while the others run on."""
-    from ..simulator import Simulator
-
     results = list(results)
     if not results:
         raise DesignError("replay needs at least one control result")

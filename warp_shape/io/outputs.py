@@ -16,7 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..molds import mold_set
 from .atomic import atomic_write, write_json
+from .figures import write_figures
+from .report import design_markdown
+from .scene_schema import Scene
+from .scene_write import save_scene
+from .usd_animation import export_animation, playback_times
+from .valve import write_valve_outputs
 
 __all__ = ["control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
            "write_molds", "round_record", "record_round", "write_round_outputs", "write_figures_or_skip",
@@ -58,8 +65,6 @@ def write_control_usd(result, path, target_name: str = "target", playback: str =
     curves, pressures, forces and jam state time-sampled once per control step, the target as a ghost,
     and the controller and simulation settings. ``playback``: ``"valve"`` plays the sequence as long
     as its valve schedule lasts, ``"simulated"`` at the simulator's clock (``usd_animation``)."""
-    from .usd_animation import export_animation, playback_times
-
     h = result.history
     n_ipam, n_cell = len(result.ipam_forces), len(result.jammed)
     per = lambda key, n: np.stack([h[key.format(i)] for i in range(n)], axis=1) if n else None  # noqa: E731
@@ -92,8 +97,6 @@ def write_molds(design, out_dir, *, marker_height: float, layer_thickness: float
     with IPAM bosses), ``mold_shell_bottom_<u>.stl`` and ``mold_shell_top_<u>.stl`` (the two-part
     shell whose cavity is the rest shape offset by the jamming layer), and ``molds_<u>.json``
     (units, sizes, split plane, keys, pour and vent, IPAM markers, per part extents and volume)."""
-    from ..molds import mold_set
-
     out = Path(out_dir)
     molds = mold_set(design, units=units, marker_height=marker_height, layer_thickness=layer_thickness)
     written = [atomic_write(out / f"{name}_{units}.stl", mesh.export(file_type="stl"))
@@ -140,8 +143,6 @@ def write_round_outputs(out_dir, names, records, rounds) -> list[Path]:
 def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
     """The report figures (PNG); skipped, with a note on stderr, where matplotlib is missing."""
     try:
-        from .figures import write_figures
-
         return write_figures(result, out_dir, target_names=target_names)
     except ImportError as exc:
         print(f"figures skipped: {exc}", file=sys.stderr)
@@ -156,10 +157,6 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     ``report.md`` and ``report.json`` (the result's report, ``extra_report`` entries and the list of
     outputs, with the names in ``kept``: files of the run already in ``out_dir`` such as
     ``rounds.json``), written last."""
-    from .scene_schema import Scene
-    from .scene_write import save_scene
-    from .report import design_markdown
-
     out = Path(out_dir)
     names = result.target_names
     settings = {"designer": {"actuators": result.design.n_ipams, "cell_radius": result.settings.cell_radius},
@@ -167,8 +164,6 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
     written += write_control_outputs(result.results, names, out, usd=True)
-    from .valve import write_valve_outputs
-
     written += write_valve_outputs(result.results, names, out)
     written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
     written += write_figures_or_skip(result, out)

@@ -14,7 +14,13 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+import warp as wp
 
+from ..controller import ControlSettings
+from ..designer import DesignSettings, design
+from ..io.atomic import StagedFolder, write_json
+from ..io.outputs import is_run_output, record_round, write_design_outputs
+from ..material import Material
 from .plan import RunTask
 
 __all__ = ["execute", "row_of", "error_row", "read_outputs"]
@@ -22,10 +28,6 @@ __all__ = ["execute", "row_of", "error_row", "read_outputs"]
 
 def _settings(task: RunTask):
     """(DesignSettings, ControlSettings, Material, design() keywords) of a run."""
-    from ..controller import ControlSettings
-    from ..designer import DesignSettings
-    from ..material import Material
-
     s = task.settings
     simulation = ControlSettings().simulation.replace(**s.get("simulation", {}))
     control = ControlSettings().replace(simulation=simulation, **s.get("controller", {}))
@@ -71,9 +73,6 @@ def read_outputs(folder: Path) -> dict:
 def _outputs(task: RunTask, result, records: list, wall: float) -> dict:
     """Every file ``warp-shape design`` leaves for this result (rounds.json, the design outputs and the
     manifest), written in a temporary folder; {relative path: bytes}."""
-    from ..io.atomic import StagedFolder, write_json
-    from ..io.outputs import is_run_output, write_design_outputs
-
     with tempfile.TemporaryDirectory(prefix="warp_shape_run_") as tmp:
         staged = StagedFolder(Path(tmp) / "run", owned=is_run_output)
         write_json(staged.path / "rounds.json", dict(targets=list(task.target_names), rounds=list(records)))
@@ -87,11 +86,6 @@ def _outputs(task: RunTask, result, records: list, wall: float) -> dict:
 def execute(task: RunTask) -> tuple[dict, dict]:
     """Design, write the outputs (as ``warp-shape design``), return (row, {file: bytes}); never raises
     for a failed design: the row carries the error."""
-    import warp as wp
-
-    from ..designer import design
-    from ..io.outputs import record_round
-
     wp.config.quiet = True
     wp.config.log_level = wp.LOG_WARNING
     t0 = time.perf_counter()
