@@ -141,10 +141,18 @@ def test_device_world_copy_equals_the_host_copy_bit_for_bit():
     assert host.state.xv.numpy().tobytes() == device.state.xv.numpy().tobytes()
 
 
-def test_copy_worlds_refuses_repeated_destinations():
+def test_world_copies_refuse_what_does_not_fit():
     sim = _moving()
     other = sim.model.state(2)
-    with pytest.raises(ValueError, match="distinct destination"):
+    with pytest.raises(ws.DesignError, match="distinct destination"):
         copy_worlds(sim.state, sim.control, [0, 1], other, sim.model.control(2), [1, 1], sim.device)
-    with pytest.raises(ValueError, match="one world per world"):
+    with pytest.raises(ws.DesignError, match="out of range"):
+        copy_worlds(sim.state, sim.control, [2], other, sim.model.control(2), [0], sim.device)
+    with pytest.raises(ws.DesignError, match="one world per world"):
         sim.load_worlds(sim.snapshot()[:1])
+    for bigger in (ws.Simulator(ws.Design(ws.icosphere(2, 0.04)), worlds=2),
+                   ws.Simulator(_device(), worlds=2, precision="float64")):
+        before = bigger.state.xv.numpy().copy()
+        with pytest.raises(ws.DesignError, match="same design and precision"):
+            bigger.load_worlds(sim.snapshot())
+        assert np.array_equal(bigger.state.xv.numpy(), before)

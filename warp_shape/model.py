@@ -18,8 +18,8 @@ from .errors import DesignError
 from .material import GAS_CONSTANT
 from .physics.bending_law import dihedral_angles_np
 
-__all__ = ["Model", "State", "Control", "WorldRef", "copy_worlds", "build_model", "check_device", "HostModel",
-           "host_model", "PRECISIONS", "cell_anchor_faces"]
+__all__ = ["Model", "State", "Control", "WorldRef", "copy_worlds", "check_layout", "build_model", "check_device",
+           "HostModel", "host_model", "PRECISIONS", "cell_anchor_faces"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -349,6 +349,15 @@ class WorldRef:
     world: int
 
 
+def check_layout(src: State, src_control: Control, dst: State, dst_control: Control) -> None:
+    """Refuse a world copy between states (and controls) of different designs or precisions."""
+    if src.xv.dtype != dst.xv.dtype or src.xv.shape[2] != dst.xv.shape[2] or src.edge.shape[2] != dst.edge.shape[2] \
+            or src_control.ipam_pressure.shape[1] != dst_control.ipam_pressure.shape[1]:
+        raise DesignError("world copies go between states of one design in one precision; these differ "
+                          f"({src.xv.shape[2]} vs {dst.xv.shape[2]} vertices, {src.xv.dtype.__name__} vs "
+                          f"{dst.xv.dtype.__name__}): load worlds of a simulator of the same design and precision")
+
+
 def copy_worlds(src: State, src_control: Control, src_worlds, dst: State, dst_control: Control, dst_worlds,
                 device: str) -> None:
     """Copy worlds ``src_worlds`` (n,) of (src, src_control) into worlds ``dst_worlds`` (n,) of (dst,
@@ -356,15 +365,20 @@ def copy_worlds(src: State, src_control: Control, src_worlds, dst: State, dst_co
     IPAM pressures, and the host jam flags and times of the cells (the IPAM and cell masks stay the
     destination's). A source world may go to several destinations; destinations must differ, and
     must not be read as a source of the same copy."""
-    si = np.asarray(src_worlds, dtype=np.int32).reshape(-1)
-    di = np.asarray(dst_worlds, dtype=np.int32).reshape(-1)
+    si = np.asarray(src_worlds, dtype=np.int64).reshape(-1)
+    di = np.asarray(dst_worlds, dtype=np.int64).reshape(-1)
     if si.shape != di.shape or len(set(di.tolist())) != len(di):
-        raise ValueError(f"copy_worlds needs one distinct destination per source world, got {si} -> {di}")
+        raise DesignError(f"copy_worlds needs one distinct destination per source world, got {si} -> {di}")
     if src is dst and set(si.tolist()) & set(di.tolist()):
-        raise ValueError("copy_worlds within one state needs sources apart from destinations")
+        raise DesignError("copy_worlds within one state needs sources apart from destinations")
+    check_layout(src, src_control, dst, dst_control)
+    if np.any((si < 0) | (si >= src.worlds)) or np.any((di < 0) | (di >= dst.worlds)):
+        raise DesignError(f"copy_worlds: worlds {si} -> {di} out of range (source has {src.worlds}, destination "
+                          f"{dst.worlds})")
     if not len(si):
         return
-    s_idx, d_idx = wp.array(si, dtype=wp.int32, device=device), wp.array(di, dtype=wp.int32, device=device)
+    s_idx = wp.array(si.astype(np.int32), dtype=wp.int32, device=device)
+    d_idx = wp.array(di.astype(np.int32), dtype=wp.int32, device=device)
     pairs = [(src.xv, dst.xv), (src.edge, dst.edge), (src.jammed, dst.jammed), (src_control.air, dst_control.air),
              (src_control.ipam_pressure, dst_control.ipam_pressure)]
     for a, b in pairs:

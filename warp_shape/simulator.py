@@ -20,7 +20,7 @@ from .design import Design
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused
 from .integrators import BlowupWatch, blowup_error, make_solver
-from .model import State, WorldRef, build_model, check_device, copy_worlds, host_model
+from .model import State, WorldRef, build_model, check_device, check_layout, copy_worlds, host_model
 from .physics import FORCE_TERMS
 from .physics.bending import bending_energy_np
 from .physics.ipam import ipam_energy_np
@@ -302,10 +302,12 @@ class Simulator:
         device from their snapshots (``snapshot``); time is left as it is. The IPAM and cell masks stay
         this simulator's."""
         if len(worlds) != self.worlds:
-            raise ValueError(f"load_worlds needs one world per world ({self.worlds}), got {len(worlds)}")
+            raise DesignError(f"load_worlds needs one world per world ({self.worlds}), got {len(worlds)}")
         groups: dict[int, list] = {}
         for dst, ref in enumerate(worlds):
             groups.setdefault(id(ref.state), []).append((ref, dst))
+        for group in groups.values():  # all checked before any is copied
+            check_layout(group[0][0].state, group[0][0].control, self.state, self.control)
         for group in groups.values():
             ref = group[0][0]
             copy_worlds(ref.state, ref.control, [r.world for r, _ in group], self.state, self.control,
