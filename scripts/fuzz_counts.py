@@ -679,9 +679,11 @@ def bounded_flags() -> list:
     return rows
 
 
-def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | None = None, verbose: bool = False) -> dict:
+def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | None = None,
+             verbose: bool = False) -> dict:
     """``n`` folder cases, ``n`` size cases and ``faults`` (default ``n``) fault cases (every phase in
     turn, a random fault and call); {"counts": {class: Counter}, "others": [details]}."""
+    import contextlib
     import logging
 
     import warp as wp
@@ -689,10 +691,6 @@ def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | No
     wp.config.quiet = True
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     rng = np.random.default_rng(seed)
-    tmp = tempfile.TemporaryDirectory() if folder is None else None
-    base = Path(tmp.name) if tmp else Path(folder)
-    counts = {"folders": Counter(), "faults": Counter(), "sizes": Counter()}
-    others: list[str] = []
     flags = bounded_flags()
     faults = n if faults is None else faults
     replay = Replay() if faults else None
@@ -700,23 +698,26 @@ def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | No
     jobs += [("sizes", i, lambda root: run_size_case(rng, root, flags)) for i in range(n)]
     jobs += [("faults", i, lambda root, i=i: run_fault_case(rng, root, replay, phase=PHASES[i % len(PHASES)]))
              for i in range(faults)]
-    try:
+    outcomes = []
+    with contextlib.ExitStack() as stack:
+        base = Path(folder) if folder is not None else Path(stack.enter_context(tempfile.TemporaryDirectory()))
         for family, i, case in jobs:
-            root = base / f"{family}{i}"
-            root.mkdir(parents=True)
-            try:
-                kind, detail = case(root)
-            except Exception as exc:  # noqa: BLE001 - what escapes a case is what this counts
-                kind, detail = "other", f"{type(exc).__name__}: {str(exc)[:120]}"
-            counts[family][kind] += 1
-            if kind == "other":
-                others.append(f"{family} case {i}: {detail}")
-                if verbose:
-                    print(f"{family} case {i}: {detail}", file=sys.stderr)
-    finally:
-        if tmp:
-            tmp.cleanup()
+            (base / f"{family}{i}").mkdir(parents=True)
+            outcomes.append((family, i, *_guarded(case, base / f"{family}{i}")))
+    counts = {family: Counter(kind for f, _, kind, _ in outcomes if f == family)
+              for family in ("folders", "faults", "sizes")}
+    others = [f"{family} case {i}: {detail}" for family, i, kind, detail in outcomes if kind == "other"]
+    if verbose and others:
+        print("\n".join(others), file=sys.stderr)
     return {"counts": counts, "others": others}
+
+
+def _guarded(case, root: Path) -> tuple[str, str]:
+    """A case's (kind, detail); an exception escaping it is an "other" naming it."""
+    try:
+        return case(root)
+    except Exception as exc:  # noqa: BLE001 - what escapes a case is what this counts
+        return "other", f"{type(exc).__name__}: {str(exc)[:120]}"
 
 
 # ---------------------------------------------------------------------------------------------- driver

@@ -71,6 +71,27 @@ def test_a_ctrl_c_that_usd_swallows_at_start_up_still_stops_the_run(tmp_path, mo
     assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
 
 
+def test_ctrl_c_during_the_folder_swap_lets_it_finish_then_stops(tmp_path, monkeypatch, capsys):
+    """A real SIGINT as the finished set is sealed for the swap: the swap completes (the new set whole
+    in <out>, no staging folder left), then the command ends as interrupted."""
+    from warp_shape.io.atomic import StagedFolder
+
+    real = StagedFolder.seal
+
+    def seal_with_ctrl_c(self, complete, **info):
+        if complete:  # the commit's seal, not a round's
+            os.kill(os.getpid(), signal.SIGINT)
+        return real(self, complete, **info)
+
+    out = tmp_path / "out"
+    fake_previous_set(out)
+    monkeypatch.setattr(StagedFolder, "seal", seal_with_ctrl_c)
+    assert main(["design", "--out", str(out), *SMALL, "--targets", "oval"]) == 130
+    assert capsys.readouterr().err.strip().endswith("warp-shape: interrupted")
+    report = assert_whole_set(out)
+    assert report["complete"] is True and report["targets"] == ["oval"] and not (tmp_path / "out.partial").exists()
+
+
 INTERRUPT_AT_START = r"""
 import os, signal, sys
 import warp_shape.cli.options as options
@@ -86,6 +107,40 @@ def test_ctrl_c_as_warp_starts_is_one_line_and_exit_130(tmp_path):
                           env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 130 and proc.stderr.strip() == "warp-shape: interrupted", proc.stderr
     assert not (tmp_path / "o").exists()
+
+
+PRESSED_WHILE_STARTING = r"""
+import os, signal, sys
+import warp_shape  # the package holds Ctrl-C from its first line when this process is the warp-shape command
+os.kill(os.getpid(), signal.SIGINT)  # pressed while the package and Warp load
+from warp_shape.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_while_the_command_imports_is_one_line_and_nothing_else_is_held(tmp_path):
+    script = tmp_path / "warp-shape"  # the console script's name: what the start-up hold looks for
+    script.write_text(PRESSED_WHILE_STARTING)
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.run([sys.executable, str(script), "simulate", "--out", str(tmp_path / "o")], env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 130 and proc.stderr.strip() == "warp-shape: interrupted", proc.stderr
+    assert not (tmp_path / "o").exists()
+    other = subprocess.run([sys.executable, "-c", "import signal, warp_shape; "
+                            "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler"], env=env,
+                           capture_output=True, text=True, timeout=120)
+    assert other.returncode == 0, other.stderr  # any other program importing warp_shape: Ctrl-C as usual
+
+
+def test_held_interrupts_deliver_the_press_when_the_block_ends():
+    from warp_shape.interrupts import held_interrupts
+
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts():
+            os.kill(os.getpid(), signal.SIGINT)
+            done.append("the block ran to its end")
+    assert done and signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 # ------------------------------------------------------------------------------------------ full disk

@@ -12,6 +12,10 @@ Importing the package lowers Warp's log level to warnings (no start-up banner, n
 module loaded), unless it was changed before; ``warp.config.log_level = warp.LOG_INFO`` shows them.
 """
 
+from .interrupts import hold_for_the_command
+
+hold_for_the_command()  # the warp-shape command only: Ctrl-C while it starts is answered by its main()
+
 from .controller import ControlResult, ControlSettings, control, control_many, replay
 from .design import Cell, Design, Ipam
 from .designer import DesignResult, DesignSettings, design

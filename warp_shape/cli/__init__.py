@@ -71,8 +71,9 @@ def main(argv=None) -> int:
 
 
 def _run(argv) -> int:
-    from .options import check_bounds
+    from .options import check_bounds, stop_if_interrupted
 
+    stop_if_interrupted()  # Ctrl-C while the command started
     args = build_parser().parse_args(argv)
     check_bounds(args)
     if args.command != "view":  # every command's Warp: no banner, no note that this CPU has no CUDA driver

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import time
 
+from ..interrupts import held_interrupts
 from .options import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS, add_bounded, add_common_args,
                       add_units_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
                       open_recorder, print_outputs, recording_entry, run_progress, stop_if_interrupted)
@@ -183,7 +184,8 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
         print(f"\n{rounds_done} finished round(s) kept in {staged.partial} ({staged.out} still holds the previous "
               f"finished run)", file=sys.stderr)
     else:
-        staged.commit(complete, command="design")
+        with held_interrupts():
+            staged.commit(complete, command="design")
         print(f"\n{rounds_done} finished round(s) kept in {staged.out} (report.json says complete: "
               f"{str(complete).lower()})", file=sys.stderr)
 
@@ -215,7 +217,8 @@ def run(args) -> int:
         staged.discard()
         raise
     try:
-        out = staged.commit(True, command="design", **recording_entry(args))
+        with held_interrupts():  # a Ctrl-C now lets the swap finish, then stops
+            out = staged.commit(True, command="design", **recording_entry(args))
     except BaseException:
         staged.discard()
         raise

@@ -11,6 +11,7 @@ import sys
 import threading
 from pathlib import Path
 
+from ..interrupts import release_the_command
 from .progress import Bar, ControlProgress, DesignProgress
 
 __all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
@@ -145,6 +146,10 @@ def interrupts_noted():
 
     _INTERRUPTS.clear()
     previous = signal.signal(signal.SIGINT, on_sigint)
+    before_start, pressed = release_the_command()  # Ctrl-C while the command started
+    previous = before_start or previous
+    if pressed:
+        _INTERRUPTS.append(signal.SIGINT)
     try:
         yield
     finally:

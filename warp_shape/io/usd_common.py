@@ -12,6 +12,7 @@ import numpy as np
 
 from ..design import Design
 from ..errors import SceneError
+from ..interrupts import held_interrupts
 from .scene_schema import SCENE_EXTENSIONS
 
 __all__ = ["FRAME_RATE", "load_pxr", "check_extension", "extent", "face_colors", "ipam_endpoints", "author_mesh",
@@ -36,7 +37,8 @@ _VT_ARRAYS = {"int[]": ("IntArray", np.int32), "int2[]": ("Vec2iArray", np.int32
 def load_pxr():
     """The ``pxr`` package (usd-core), or a ``SceneError`` that says how to install it."""
     try:
-        from pxr import Ar, Kind, Sdf, Tf, Usd, UsdGeom, Vt  # noqa: F401
+        with held_interrupts():  # USD swallows a Ctrl-C inside its module loading and is left half loaded
+            from pxr import Ar, Kind, Sdf, Tf, Usd, UsdGeom, Vt  # noqa: F401
     except ImportError as exc:  # pragma: no cover - usd-core is an optional dependency
         raise SceneError("reading and writing USD needs usd-core (pip install 'warp-shape[usd]')") from exc
     import pxr
