@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from ..design import Design
-from ..model import HostModel
+from ..model import HostModel, host_model
 from ..sampling import RadialSampler
 from .explore import Explorer
 from .plans import parse_plans, start_plan
@@ -199,7 +199,7 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
                                       target_names=target_names)
     sampler = RadialSampler([r.target for r in warm], device=device)
     probe = _Run(design, settings, device, sampler, None, None, None)
-    dev = probe.new_simulator(1).model.host
+    dev = host_model(design)
     pi, pc = passive_masks(warm, dev.n_ipams, dev.n_cells)
     ctx = dataclasses.replace(probe, dev=dev, passive_ipams=pi, passive_cells=pc)
     if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
