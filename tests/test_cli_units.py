@@ -237,6 +237,19 @@ def test_an_absent_cuda_device_is_one_line_of_our_own():
     assert run.stderr.startswith("warp-shape: error: device 'cuda' is not available") and "Warp CUDA" not in run.stderr
 
 
+def test_compare_and_sweep_check_the_device_first(tmp_path, monkeypatch, capsys):
+    import warp as wp
+
+    if wp.is_cuda_available():
+        pytest.skip("this machine has CUDA: the device is there")
+    no_work(monkeypatch)
+    err = error_of(capsys, ["compare", str(ROOT / "scenes" / "targets" / "oval.ply"), "--to", "oval", "--device", "cuda"])
+    assert "device 'cuda' is not available" in err
+    err = error_of(capsys, ["sweep", "grid", "--param", "actuators=1", "--device", "cuda", "--backend", "serial",
+                            "--out", str(tmp_path / "sw")])
+    assert "device 'cuda' is not available" in err and not (tmp_path / "sw").exists()
+
+
 def test_the_readme_api_example_prints_only_its_own_result():
     block = re.search(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S).group(1)
     run = _cli(code=block)

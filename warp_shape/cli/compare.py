@@ -14,7 +14,7 @@ import warnings
 import numpy as np
 
 from ..errors import WarpShapeError
-from .options import add_bounded
+from .options import add_bounded, check_device
 
 __all__ = ["register", "run", "format_comparison"]
 
@@ -115,6 +115,7 @@ def run(args) -> int:
     from ..scan import IcpConvergenceWarning, compare_scan
 
     try:
+        check_device(args.device)
         reference, reference_units, named = _reference(args)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", IcpConvergenceWarning)

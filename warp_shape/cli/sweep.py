@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from .options import MAX_ACTUATORS, add_bounded
+from .options import MAX_ACTUATORS, add_bounded, check_device
 
 
 __all__ = ["register", "run"]
@@ -71,6 +71,8 @@ def run(args) -> int:
     """Run the sweep; print the summary table (or the rows as JSON) and where the results are."""
     from ..sweep import sweep
 
+    if args.address is None:  # runs on this machine: its device must be here (a cluster's workers have their own)
+        check_device(args.device)
     res = sweep(args.kind, args.scene, targets=args.targets, actuators=args.actuators, params=args.param,
                 fixed=_fixed(args.fixed), out=args.out, backend=args.backend, workers=args.workers,
                 address=args.address, device=args.device, retries=args.retries, restart=args.restart)
