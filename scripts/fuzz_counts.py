@@ -23,6 +23,7 @@ import os
 import signal
 import sys
 import tempfile
+import time
 import warnings
 from collections import Counter
 from pathlib import Path
@@ -53,13 +54,18 @@ def outcome(fn, timeout: float) -> tuple[str, str]:
 
     old = signal.signal(signal.SIGALRM, _alarm)
     signal.setitimer(signal.ITIMER_REAL, timeout)
+    start = time.monotonic()
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
             result = fn()
         bad = not_finite(result)
+        if time.monotonic() - start > timeout:  # blocked in C past the limit, released from outside
+            return "other", f"hang (over {timeout:g} s)"
         return ("other", f"non-finite result: {bad}") if bad else ("valid", "")
     except ws.WarpShapeError as exc:
+        if time.monotonic() - start > timeout:
+            return "other", f"hang (over {timeout:g} s)"
         return "clear", type(exc).__name__
     except Hang:
         return "other", f"hang (over {timeout:g} s)"
@@ -718,11 +724,263 @@ def _guarded(case, root: Path) -> tuple[str, str]:
         return case(root)
     except Exception as exc:  # noqa: BLE001 - what escapes a case is what this counts
         return "other", f"{type(exc).__name__}: {str(exc)[:120]}"
+# ---------------------------------------------------------------------------------------------- special cases
+# Fixed cases of four classes, each of which must be refused with a clear error (or, where marked, give a
+# valid result): special files (FIFO, a symlink to /dev/zero or /dev/null, a folder) given to every file
+# reader and composed by scenes; absurd sizes; strings for booleans; non-integers for counts. A case that
+# is accepted where it must be refused counts as "other" ("accepted").
+BOOL_STRINGS = ["no", "false", "False", "0", "", "yes", 0, 1, None]
+FRACTIONS = [1.5, 2.5, 3.7, float("nan"), "2"]
+
+
+def _special_paths(folder: Path) -> dict:
+    """{kind: {ext: path}}: a FIFO, symlinks to /dev/zero and /dev/null, and a folder, for each file kind."""
+    import os
+
+    out = {}
+    for kind in ("fifo", "zero", "null", "folder"):
+        out[kind] = {}
+        for ext in ("stl", "ply", "usda", "rrd", "json"):
+            p = folder / "special" / f"{kind}_{ext}.{ext}"
+            p.parent.mkdir(parents=True, exist_ok=True)
+            if not os.path.lexists(p):
+                if kind == "fifo":
+                    os.mkfifo(p)
+                elif kind == "folder":
+                    p.mkdir()
+                else:
+                    p.symlink_to(f"/dev/{kind}")
+            out[kind][ext] = p
+    return out
+
+
+#: the FIFO feeder: from argv[2] s on, open the FIFO argv[1] for writing and close it, every 0.2 s
+FEEDER = ("import os, sys, time\ntime.sleep(float(sys.argv[2]))\nwhile True:\n    try:\n"
+          "        os.close(os.open(sys.argv[1], os.O_WRONLY | os.O_NONBLOCK))\n    except OSError:\n        pass\n"
+          "    time.sleep(0.2)\n")
+
+
+class _FifoFeeder:
+    """A child process that, from ``after`` s on, opens ``path`` (a FIFO) for writing and closes it every
+    0.2 s until stopped: a reader blocked in C (holding the GIL, where neither the time-limit signal nor
+    a thread reaches it), however often it opens the FIFO again, then reads end-of-file and the case ends
+    as a hang instead of blocking the fuzz."""
+
+    def __init__(self, path: Path, after: float):
+        self.path, self.after, self.proc = path, after, None
+
+    def start(self):
+        import subprocess
+
+        self.proc = subprocess.Popen([sys.executable, "-c", FEEDER, str(self.path), str(self.after)])
+
+    def cancel(self):
+        self.proc.kill()
+        self.proc.wait()
+
+
+def _composing_scenes(folder: Path, bases: dict, paths: dict) -> list:
+    """(name, scene path, FIFO it composes or None) of text scenes whose subLayers / references name a
+    special file inside their folder, and a binary scene with such a sublayer."""
+    text = bases["usda"].decode()
+    head, rest = text.split("(\n", 1)
+    out = []
+    for kind in ("fifo", "zero", "folder"):
+        target = paths[kind]["usda"]
+        rel = f"./{target.name}"
+        for how, body in (("subLayers", f"{head}(\n    subLayers = [@{rel}@]\n{rest}"),
+                          ("references", f'{text}\ndef "Extra" (\n    references = @{rel}@\n)\n{{\n}}\n')):
+            p = target.parent / f"composes_{kind}_{how}.usda"
+            p.write_text(body)
+            out.append((f"scene {how} a {kind}", p, target if kind == "fifo" else None))
+    from pxr import Sdf
+
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.ImportFromString(text)
+    layer.subLayerPaths.append(f"./{paths['fifo']['usda'].name}")
+    crate = paths["fifo"]["usda"].parent / "composes_fifo.usdc"
+    layer.Export(str(crate))
+    out.append(("binary scene subLayers a fifo", crate, paths["fifo"]["usda"]))
+    return out
+
+
+def _many_ipams_scene(folder: Path, bases: dict, n: int) -> Path:
+    """The base scene with its one IPAM repeated ``n`` times (every IPAM attribute list repeated)."""
+    import re
+
+    text = bases["usda"].decode()
+    start = text.index('def BasisCurves "Ipams"')
+    end = text.index("\n    }", start)
+
+    def repeat(m):
+        return f"{m.group(1)}[{', '.join([m.group(2)] * n)}]"
+
+    block = re.sub(r"(warpShape:\w+ = )\[(.*)\]", repeat, text[start:end])
+    p = folder / "special" / f"ipams_{n}.usda"
+    p.write_text(text[:start] + block + text[end:])
+    return p
+
+
+def _cli(argv):
+    """Run ``warp-shape ARGV`` in this process: a clear refusal (exit 2, one error line) becomes that error."""
+    import contextlib
+    import io
+
+    import warp_shape as ws
+    from warp_shape.cli import main
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        rc = main([str(a) for a in argv])
+    lines = err.getvalue().strip().splitlines()
+    if rc == 2 and lines and lines[-1].startswith("warp-shape") and ": error: " in lines[-1]:
+        raise ws.WarpShapeError(lines[-1])
+    if rc != 0:
+        raise RuntimeError(f"exit {rc}: {lines[-1] if lines else ''}")
+
+
+def _file_readers():
+    """(name, file kind, reader) of every reader of a user's file."""
+    import warp_shape as ws
+    from warp_shape.cli.view import viewer_command
+    from warp_shape.sweep.results import ResultsTable
+    from warp_shape.targets import check_mesh_file, load_target
+
+    return [("TriMesh.load", "stl", ws.TriMesh.load), ("TriMesh.load ply", "ply", ws.TriMesh.load),
+            ("load_target", "stl", load_target), ("check_mesh_file", "stl", check_mesh_file),
+            ("load_scan", "ply", ws.load_scan), ("compare_scan", "stl", lambda p: ws.compare_scan(p, "oval")),
+            ("load_scene", "usda", ws.load_scene), ("read_recording", "rrd", ws.read_recording),
+            ("view", "rrd", viewer_command),
+            ("sweep results.json", "json", lambda p: ResultsTable(p.parent, [], {}).load() if p.name == "results.json"
+             else _results_at(p))]
+
+
+def _results_at(p: Path):
+    """A sweep folder whose results.json is ``p`` (a link to it), loaded."""
+    from warp_shape.sweep.results import ResultsTable
+
+    folder = p.parent / f"sweep_{p.stem}"
+    folder.mkdir(exist_ok=True)
+    link = folder / "results.json"
+    if not link.is_symlink():
+        link.symlink_to(p.resolve() if not p.is_symlink() else p.readlink())
+    return ResultsTable(folder, [], {}).load()
+
+
+def special_cases(folder: Path, bases: dict) -> list:
+    """(name, case, must_refuse, FIFO to feed or None) of the four classes."""
+    import warp_shape as ws
+    from warp_shape.io.atomic import read_manifest
+
+    paths = _special_paths(folder)
+    cases = []
+    for kind, by_ext in paths.items():
+        for name, ext, reader in _file_readers():
+            p = by_ext[ext]
+            cases.append((f"{name} of a {kind}", lambda r=reader, p=p: r(p), True, p if kind == "fifo" else None))
+        manifest_dir = folder / "special" / f"out_{kind}"
+        manifest_dir.mkdir(exist_ok=True)
+        if not (manifest_dir / "manifest.json").is_symlink():
+            (manifest_dir / "manifest.json").symlink_to(by_ext["json"].resolve() if kind != "zero" else "/dev/zero")
+        # a manifest that is no regular file is no manifest: None, quickly
+        cases.append((f"read_manifest of a {kind}", lambda d=manifest_dir: _none(read_manifest(d)), False,
+                      by_ext["json"] if kind == "fifo" else None))
+    for name, p, fifo in _composing_scenes(folder, bases, paths):
+        cases.append((name, lambda p=p: ws.load_scene(p), True, fifo))
+    cases += _size_cases(folder, bases)
+    cases += _type_cases()
+    return cases
+
+
+def _none(value):
+    if value is not None:
+        raise RuntimeError(f"expected None, got {value!r}")
+
+
+def _size_cases(folder: Path, bases: dict) -> list:
+    """Work asked for beyond any bound: each must be refused before it starts."""
+    import warp_shape as ws
+
+    out = folder / "special" / "out"
+    grid = [a for k, name in enumerate(("max_steps", "control_period", "max_settle_steps")) for a in
+            ("--param", f"{name}={','.join(str(10 + k * 1000 + v) for v in range(100))}")]
+
+    def many_ipams():  # 1200 IPAMs, each between a face and the face opposite it
+        d = ws.Design(ws.icosphere(3, 0.04))
+        c = d.rest.face_centroids()
+        opposite = np.argmin(c @ c.T, axis=1)
+        for k in range(1200):
+            d.add_ipam(k, int(opposite[k]))
+        return d
+
+    many = _many_ipams_scene(folder, bases, 2000)
+    return [(name, fn, True, None) for name, fn in [
+        ("fibonacci_directions(1e9)", lambda: ws.fibonacci_directions(10**9)),
+        ("target resolution 1e6", lambda: ws.target("oval", resolution=10**6)),
+        ("icosphere(1e6)", lambda: ws.icosphere(10**6)),
+        ("1200 IPAMs", many_ipams),
+        ("scene of 2000 IPAMs", lambda: ws.load_scene(many)),
+        ("sweep grid of 1e6 runs", lambda: _cli(["sweep", "grid", *grid, "--backend", "serial", "--out",
+                                                  folder / "special" / "sweep"])),
+        ("target 100x (cm as m)", lambda: ws.control(_design(ws), ws.target("oval").scaled(100.0))),
+        ("target 1e5x", lambda: ws.control(_design(ws), ws.target("oval").scaled(1e5))),
+        ("atmospheric_pressure 1e300", lambda: ws.Material(atmospheric_pressure=1e300)),
+        ("simulate --dt 1e-9", lambda: _cli(["simulate", "--dt", 1e-9, "--out", out])),
+        ("simulate --inflate-time 1e9", lambda: _cli(["simulate", "--inflate-time", 1e9, "--out", out])),
+        ("simulate --air-scale -1", lambda: _cli(["simulate", "--air-scale", -1, "--out", out])),
+    ]]
+
+
+def _type_cases() -> list:
+    """Strings (and other non-bools) for booleans, non-integers for counts: refused, never truncated."""
+    import warp_shape as ws
+
+    cases = []
+    for v in BOOL_STRINGS:
+        cases.append((f"ControlSettings(jamming={v!r})", lambda v=v: ws.ControlSettings(jamming=v), True, None))
+        cases.append((f"DesignSettings(initialize={v!r})", lambda v=v: ws.DesignSettings(initialize=v), True, None))
+    counts = [("icosphere", lambda v: ws.icosphere(v, 0.04)), ("target resolution", lambda v: ws.target("oval",
+              resolution=v)), ("fibonacci_directions", ws.fibonacci_directions),
+              ("Simulator.step", lambda v: ws.Simulator(_design(ws)).step(v)),
+              ("design actuators", lambda v: ws.design(ws.icosphere(2, 0.04), [ws.target("oval")], actuators=v))]
+    counts += [(f"ControlSettings.{k}", lambda v, k=k: ws.ControlSettings(**{k: v}))
+               for k in ("control_period", "max_steps", "max_settle_steps", "inverse_iterations",
+                         "inverse_settle_steps")]
+    counts += [(f"DesignSettings.{k}", lambda v, k=k: ws.DesignSettings(**{k: v})) for k in ("candidates",
+                                                                                              "refine_rounds")]
+    counts += [(f"SimulationSettings.{k}", lambda v, k=k: ws.SimulationSettings(**{k: v}))
+               for k in ("substeps", "reestimate_every", "max_substeps")]
+    for name, fn in counts:
+        for v in FRACTIONS:
+            cases.append((f"{name}({v!r})", lambda fn=fn, v=v: fn(v), True, None))
+    return cases
+
+
+def fuzz_special(folder: Path, bases: dict, timeout: float, verbose: bool = False) -> tuple[Counter, list[str]]:
+    """Run every special case; (Counter of outcomes, "other" details)."""
+    counts, others = Counter(), []
+    for name, case, refuse, fifo in special_cases(folder, bases):
+        feeder = _FifoFeeder(fifo, timeout) if fifo is not None else None
+        if feeder:
+            feeder.start()
+        kind, detail = outcome(case, timeout)
+        if feeder:
+            feeder.cancel()
+        if refuse and kind == "valid":
+            kind, detail = "other", "accepted (must be refused)"
+        counts[kind] += 1
+        if kind == "other":
+            others.append(f"special {name}: {detail}")
+            if verbose:
+                print(f"special {name}: {detail}", file=sys.stderr)
+    return counts, others
 
 
 # ---------------------------------------------------------------------------------------------- driver
-def fuzz(n: int, seed: int = 0, timeout: float = 20.0, folder: Path | None = None, verbose: bool = False) -> dict:
-    """Run ``n`` API cases and ``n`` file cases; return {family: Counter} and the "other" details."""
+def fuzz(n: int, seed: int = 0, timeout: float = 20.0, folder: Path | None = None, verbose: bool = False,
+         special: bool = True) -> dict:
+    """Run ``n`` API cases and ``n`` file cases (and, with ``special``, the fixed special cases); return
+    {family: Counter} and the "other" details."""
     import logging
 
     import warp as wp
@@ -736,6 +994,8 @@ def fuzz(n: int, seed: int = 0, timeout: float = 20.0, folder: Path | None = Non
     others: list[str] = []
     try:
         bases = base_files(folder)
+        if special:
+            counts["special"], others = fuzz_special(folder, bases, timeout, verbose)
         for i in range(n):
             for family, make in (("api", lambda: api_case(rng)), ("files", lambda: file_case(rng, folder, bases, i))):
                 try:

@@ -185,8 +185,8 @@ def test_high_pressure(gauge_atm, integrator):
     try:
         _assert_bounded(sim, 300, check_energy=(integrator == "rk4"), chunks=5)
     except ws.SimulationError as exc:  # the membrane may burst out of its region or, with no self-contact in the
-        # model, fold through itself at 100 atm (shorter steps were tried first): documented, not NaN
-        assert ("ran away" in str(exc) or "inside out" in str(exc)) and exc.safe_dt > 0
+        # model, fold through itself (shorter steps were tried first): named, not NaN
+        assert any(s in str(exc) for s in ("ran away", "inside out", "passes through itself")) and exc.safe_dt > 0
     assert np.all(np.isfinite(sim.positions))
     assert sim.stable_dt() > 0 and np.isfinite(sim.stable_dt())
     del V

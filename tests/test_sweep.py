@@ -137,6 +137,14 @@ def test_rerun_skips_finished_runs_and_a_different_sweep_is_refused(serial_sweep
         ws.sweep("subsets", targets=["oval", "pear"], actuators=1, fixed=dict(TINY), out=out, backend="serial")
 
 
+def test_a_rerun_runs_again_a_finished_run_whose_outputs_were_deleted(serial_sweep):
+    out, first = serial_sweep
+    lost = out / first.rows[0]["out_dir"] / "design.usda"
+    lost.unlink()  # its row says ok, its folder is there, but its manifest's file is gone
+    again = tiny_sweep(out, backend="serial")
+    assert (again.ran, again.skipped) == (1, 2) and lost.is_file()
+
+
 def test_a_second_sweep_into_a_busy_folder_is_refused(tmp_path):
     from warp_shape.sweep.results import ResultsTable
 

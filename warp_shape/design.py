@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import itertools
 import math
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import DesignError, check_number
+from .errors import DesignError, MeshError, check_number
 from .material import Material
-from .mesh import TriMesh
+from .mesh import TriMesh, self_crossing
 from .physics.ipam_law import natural_length_np, pressure_for_length_np
 
-__all__ = ["Design", "Ipam", "Cell"]
+__all__ = ["Design", "Ipam", "Cell", "MAX_IPAMS", "check_not_self_crossing"]
 
 # IPAM defaults: a soft latex tube (bore ~4.4 mm) in a fabric sheath. A / k = 3e-7 m/Pa gives
 # ~30 mm of extension at 100 kPa, the large strains the paper's actuators reach.
@@ -21,6 +22,8 @@ DEFAULT_IPAM_STIFFNESS = 50.0  # N/m
 DEFAULT_IPAM_AREA = 1.5e-5  # m^2
 DEFAULT_IPAM_DAMPING = 5.0e-3  # N s/m per sub-spring
 DEFAULT_IPAM_PRESSURE_LIMITS = (-50.0e3, 300.0e3)  # Pa gauge
+#: the most IPAMs a design holds (the paper's displays have 4-20; each adds controller worlds and steps)
+MAX_IPAMS = 1000
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,25 @@ class Cell:
     faces: np.ndarray  # (n,) int32, sorted
 
 
+#: rest meshes already found not to pass through themselves (each mesh is tested once)
+_UNCROSSED: "weakref.WeakSet[TriMesh]" = weakref.WeakSet()
+
+
+def check_not_self_crossing(rest: TriMesh) -> None:
+    """A clear ``MeshError`` for a rest mesh that passes through itself (``mesh.self_crossing``): a
+    membrane cannot be made or simulated so."""
+    if rest in _UNCROSSED or not np.all(np.isfinite(rest.vertices)):  # non-finite ones are refused elsewhere
+        return
+    found = self_crossing(rest.vertices, rest, device="cpu")
+    if found:
+        _, e, face, n = found[0]
+        a, b = rest.edges[e]
+        raise MeshError(f"the rest mesh passes through itself: edge ({a}, {b}) crosses face {face} ({n} crossing "
+                        f"edges in all); a membrane must be a surface that does not intersect itself (repair it, "
+                        f"e.g. remesh, before using it)")
+    _UNCROSSED.add(rest)
+
+
 class Design:
     """Rest membrane + material + IPAMs + jamming cells (host description, SI units)."""
 
@@ -74,6 +96,7 @@ class Design:
             material = Material()
         if not isinstance(material, Material):
             raise DesignError(f"Design.material must be a ws.Material, got {type(material).__name__}")
+        check_not_self_crossing(rest)
         self.rest = rest
         self.material = material
         self.ipams: list[Ipam] = []
@@ -97,6 +120,8 @@ class Design:
         ``free_length`` None means the rest centroid distance (no force at zero gauge pressure in
         the rest shape). ``pressure_limits`` = (P_min, P_max) gauge Pa with P_min >= -p_atm.
         """
+        if len(self.ipams) >= MAX_IPAMS:
+            raise DesignError(f"a design holds at most {MAX_IPAMS} IPAMs (the paper's displays have 4-20); use fewer")
         a = self._check_face(face_a, "IPAM face_a")
         b = self._check_face(face_b, "IPAM face_b")
         if a == b:

@@ -75,3 +75,66 @@ def check_number(value, name: str, error=None) -> float:
             or not math.isfinite(float(value)):
         raise error(f"{name} must be a finite number, got {value!r}")
     return float(value)
+
+
+def check_whole(value, name: str, error=None) -> int:
+    """``value`` as an int: a whole number (2.0 is 2); bools, strings, None and fractions (3.7 is not
+    truncated to 3) raise ``error`` (``DesignError``)."""
+    import math
+
+    import numpy as np
+
+    error = error or DesignError
+    ok = not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating)) \
+        and (isinstance(value, (int, np.integer)) or (math.isfinite(value) and float(value).is_integer()))
+    if not ok:
+        raise error(f"{name} must be a whole number, got {value!r}")
+    return int(value)
+
+
+#: the largest input file (mesh, scan, scene, manifest, recording) read, in bytes: a bigger one is refused
+#: before it is read (a 40962-vertex binary STL is 4 MB)
+MAX_INPUT_BYTES = 2**30
+
+
+def check_input_file(path, what: str, error=None, max_bytes: int = MAX_INPUT_BYTES) -> int:
+    """The size in bytes of ``path``, an input ``what`` ("mesh file", "scene", ...), once ``os.stat`` shows it
+    is a regular file of at most ``max_bytes``; a missing file, a folder, a FIFO, a device (/dev/zero) or a
+    socket (symlinks followed) raises ``error`` (``WarpShapeError`` by default) before anything opens it."""
+    import os
+    import stat
+
+    error = error or WarpShapeError
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise error(f"{what} not found: {path}") from None
+    except OSError as exc:
+        raise error(f"cannot read {what} {path}: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"{path} is a folder, not a {what}; give the file itself")
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode)
+                or stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
+        raise error(f"{path} is {kind}, not a regular file; give a {what} saved on disk")
+    if st.st_size > max_bytes:
+        raise error(f"{what} {path} is {st.st_size / 2**20:.0f} MiB, over the {max_bytes / 2**20:.0f} MiB that "
+                    f"are read; give a smaller (decimated) file")
+    return int(st.st_size)
+
+
+def read_input_file(path, what: str, error=None, max_bytes: int = MAX_INPUT_BYTES) -> bytes:
+    """The bytes of an input file checked by ``check_input_file`` (never more than ``max_bytes`` read; opened
+    without blocking and checked again on the open file, so a path swapped for a FIFO cannot block)."""
+    import os
+    import stat
+
+    check_input_file(path, what, error, max_bytes)
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise (error or WarpShapeError)(f"{path} is not a regular file; give a {what} saved on disk")
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:  # grew since the check
+        raise (error or WarpShapeError)(f"{what} {path} is over the {max_bytes / 2**20:.0f} MiB that are read")
+    return data

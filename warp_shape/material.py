@@ -9,6 +9,8 @@ from .errors import DesignError, check_number
 __all__ = ["Material", "GAS_CONSTANT"]
 
 GAS_CONSTANT = 8.314462618  # J / (mol K)
+#: the highest ``atmospheric_pressure`` accepted, Pa (100 atm; sea level is 101325 Pa)
+MAX_ATMOSPHERIC_PRESSURE = 1.0e7
 
 
 @dataclass(frozen=True)
@@ -56,6 +58,10 @@ class Material:
         for name in non_negative:
             if getattr(self, name) < 0:
                 raise DesignError(f"Material.{name} must be >= 0 (SI units), got {getattr(self, name)!r}")
+        if self.atmospheric_pressure > MAX_ATMOSPHERIC_PRESSURE:
+            raise DesignError(f"Material.atmospheric_pressure = {self.atmospheric_pressure:g} Pa is no atmosphere (sea "
+                              f"level is 101325 Pa; at most {MAX_ATMOSPHERIC_PRESSURE:g} Pa, 100 atm, is accepted); "
+                              f"give it in Pa (absolute)")
         for name in at_least_one:
             if getattr(self, name) < 1:
                 raise DesignError(f"Material.{name} must be >= 1 (jamming stiffens), got {getattr(self, name)!r}")

@@ -21,7 +21,7 @@ from typing import Sequence
 import numpy as np
 import warp as wp
 
-from .errors import ShapeError
+from .errors import ShapeError, check_whole, numeric_array
 from .kernels import raycast
 from .mesh import TriMesh
 
@@ -42,11 +42,19 @@ _MAX_CROSSINGS = 8
 _samplers: "weakref.WeakKeyDictionary[TriMesh, dict]" = weakref.WeakKeyDictionary()
 
 
+#: the most directions ``fibonacci_directions`` makes (10^7: 240 MB, about a second)
+MAX_DIRECTIONS = 10**7
+
+
 def fibonacci_directions(n: int) -> np.ndarray:
-    """(n, 3) unit vectors spread evenly over the sphere (golden-angle spiral), deterministic."""
-    n = int(n)
+    """(n, 3) unit vectors spread evenly over the sphere (golden-angle spiral), deterministic;
+    1 <= n <= ``MAX_DIRECTIONS``."""
+    n = check_whole(n, "the number of directions", ShapeError)
     if n < 1:
         raise ShapeError(f"need at least one direction, got {n}")
+    if n > MAX_DIRECTIONS:
+        raise ShapeError(f"{n} directions asked for, more than the {MAX_DIRECTIONS:.0e} that are made "
+                         f"({n * 24 / 2**30:.0f} GiB); ask for fewer (a few thousand sample a shape to 0.1 %)")
     i = np.arange(n) + 0.5
     z = 1.0 - 2.0 * i / n
     rho = np.sqrt(np.maximum(0.0, 1.0 - z * z))
@@ -274,8 +282,8 @@ def radial_sample(target: TriMesh, points, *, device=None) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------- metrics
 def _pair(r, R, what: str):
-    r = np.asarray(r, dtype=np.float64).reshape(-1)
-    R = np.asarray(R, dtype=np.float64).reshape(-1)
+    r = numeric_array(r, f"{what}: r (radii, m)", ShapeError).reshape(-1)
+    R = numeric_array(R, f"{what}: R (radii, m)", ShapeError).reshape(-1)
     if r.shape != R.shape:
         raise ShapeError(f"{what}: r and R must have the same length, got {r.size} and {R.size}")
     if r.size == 0:
@@ -343,6 +351,9 @@ def fit_objective(r, R, target_volume: float, weights=None) -> float:
 
 def radial_metrics(r, R) -> dict:
     """``{"pcc", "mare", "mpre"}`` of paired radii."""
+    if isinstance(r, TriMesh) or isinstance(R, TriMesh):
+        raise ShapeError("radial_metrics takes paired radii (arrays, m), not meshes; for a mesh against a target "
+                         "use shape_metrics(mesh, target)")
     return {"pcc": pcc(r, R), "mare": mare(r, R), "mpre": mpre(r, R)}
 
 

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from .errors import MeshError, ShapeError
+from .errors import MeshError, ShapeError, check_input_file
 from .kernels import raycast
 from .mesh import TriMesh
 from .sampling import RadialSampler, radial_metrics
@@ -128,8 +128,7 @@ def load_scan(scan) -> tuple[np.ndarray, np.ndarray | None]:
         return scan.vertices.copy(), scan.faces.copy()
     if isinstance(scan, (str, Path)):
         path = Path(scan)
-        if not path.exists():
-            raise ShapeError(f"scan file not found: {path}")
+        check_input_file(path, "scan file", ShapeError)
         import trimesh
 
         try:
@@ -459,6 +458,23 @@ def _coverage(ref: TriMesh, aligned: np.ndarray, faces: np.ndarray | None, keep:
 
 
 # ---------------------------------------------------------------------------------------- main entry
+#: a scan whose points spread less than this fraction of the reference's radius (or lie on a line) is refused
+MIN_SCAN_SPREAD = 1e-3
+
+
+def check_scan_spread(pts: np.ndarray, scale: float) -> None:
+    """A clear ``ShapeError`` for a degenerate scan: points (nearly) all in one place, or on one line, against
+    a reference of radius ``scale`` (m); such a scan fits anything (ICP converges on nothing)."""
+    spread = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False) / np.sqrt(len(pts))  # rms along the axes
+    if spread[0] < MIN_SCAN_SPREAD * scale:
+        raise ShapeError(f"the scan's {len(pts)} points lie within {spread[0]:.3g} m of one point (the reference's "
+                         f"radius is {scale:.3g} m): a degenerate scan (coincident points, or another unit); give the "
+                         f"scanned surface's points, in metres")
+    if spread[1] < MIN_SCAN_SPREAD * spread[0]:
+        raise ShapeError(f"the scan's {len(pts)} points lie on one line (spread {spread[0]:.3g} m along it, "
+                         f"{spread[1]:.3g} m across): a degenerate scan; give the scanned surface's points")
+
+
 def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tolerance: float = 1e-5,
                  method: str = "point_to_plane",
                  inlier_sigmas: float = INLIER_SIGMAS, icp_points: int = ICP_POINTS,
@@ -489,6 +505,7 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
     c_ref = ref.centroid()
     refc = ref.centered()
     scale = float(np.max(np.linalg.norm(refc.vertices, axis=1)))
+    check_scan_spread(pts, scale)
     sampler = RadialSampler(refc, device=device, names=["reference"])  # checks star shape
     closest = _Closest(refc, device)
     w = _point_weights(pts, faces)

@@ -9,7 +9,7 @@ import numpy as np
 
 from .errors import DesignError
 
-__all__ = ["SimulationSettings", "replace_settings", "INTEGRATOR_NAMES", "PRECISION_NAMES", "LAUNCH_MODES",
+__all__ = ["SimulationSettings", "replace_settings", "check_field_types", "settings_or_default", "INTEGRATOR_NAMES", "PRECISION_NAMES", "LAUNCH_MODES",
            "DEFAULT_MAX_SUBSTEPS"]
 
 INTEGRATOR_NAMES = ("rk4", "semi_implicit")
@@ -30,6 +30,63 @@ def replace_settings(settings, changes: dict, what: str):
     d = {f.name: getattr(settings, f.name) for f in fields(settings)}
     d.update(changes)
     return type(settings)(**d)
+
+
+def settings_or_default(value, cls, name: str):
+    """``value`` when it is a ``cls``, ``cls()`` for None; anything else (a dict, say) raises ``DesignError``
+    naming the keyword ``name`` and how to build one."""
+    if value is None:
+        return cls()
+    if not isinstance(value, cls):
+        raise DesignError(f"{name} must be a {cls.__name__} or None, got {type(value).__name__}; build one with "
+                          f"{cls.__name__}(**{{...}}) (or pass the settings as keywords)")
+    return value
+
+
+def check_field_types(settings, owner: str) -> None:
+    """Check (and normalise) every field of a settings dataclass by its annotation: a ``bool`` field takes
+    True / False only (``"no"`` would be truthy), an ``int`` field a whole number (2.0 becomes 2; 1.5, a
+    bool or a string are refused, not truncated), a ``float`` field a finite real number, a ``str`` field
+    text; ``X | None`` also takes None. Other annotations are left to the class. Raises ``DesignError``
+    naming ``owner.field``, the value and what it must be."""
+    for f in fields(settings):
+        kind = str(f.type).replace(" ", "")
+        value = getattr(settings, f.name)
+        if kind.endswith("|None"):
+            if value is None:
+                continue
+            kind = kind[:-5]
+        checked = _typed_value(kind, value)
+        if checked is _WRONG:
+            what = {"bool": "True or False", "int": "a whole number", "float": "a finite number",
+                    "str": "a string"}[kind]
+            raise DesignError(f"{owner}.{f.name} must be {what}, got {value!r} ({type(value).__name__})")
+        if checked is not _UNCHECKED:
+            object.__setattr__(settings, f.name, checked)
+
+
+_WRONG, _UNCHECKED = object(), object()
+
+
+def _typed_value(kind: str, value):
+    """``value`` as a ``kind`` ("bool", "int", "float", "str"); ``_WRONG`` where it is not one,
+    ``_UNCHECKED`` for other annotations."""
+    is_bool = isinstance(value, (bool, np.bool_))
+    if kind == "bool":
+        return bool(value) if is_bool else _WRONG
+    if kind == "str":
+        return value if isinstance(value, str) else _WRONG
+    if kind not in ("int", "float"):
+        return _UNCHECKED
+    if is_bool or not isinstance(value, (int, float, np.integer, np.floating)):
+        return _WRONG
+    if isinstance(value, (int, np.integer)):
+        return int(value) if kind == "int" else (float(value) if abs(value) < 2**1023 else _WRONG)
+    if not math.isfinite(value):
+        return _WRONG
+    if kind == "float":
+        return float(str(value)) if isinstance(value, np.floating) else float(value)
+    return int(value) if float(value).is_integer() else _WRONG
 
 
 def _is_int(value) -> bool:
@@ -89,10 +146,7 @@ class SimulationSettings:
         if self.substeps is not None and self.substeps > self.max_substeps:
             raise DesignError(f"substeps = {self.substeps} is more than max_substeps = {self.max_substeps}; use fewer "
                               f"substeps (a longer internal step) or raise max_substeps")
-        for name in ("substeps", "reestimate_every", "max_substeps"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, int(value))
+        check_field_types(self, "SimulationSettings")
 
     def replace(self, **changes) -> "SimulationSettings":
         """A copy with some settings changed; unknown names raise ``DesignError``."""

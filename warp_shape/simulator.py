@@ -20,6 +20,7 @@ from .design import Design
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused
 from .integrators import BlowupWatch, blowup_error, make_solver
+from .mesh import self_crossing
 from .model import State, WorldRef, build_model, check_device, check_layout, copy_worlds, host_model
 from .physics import FORCE_TERMS
 from .physics.bending import bending_energy_np
@@ -34,10 +35,14 @@ from .stability import (check_chamber, check_fixed_step, check_stable_dt, check_
                         stable_dt_estimate, substeps_error, substeps_for, worlds_identical)
 from .step_plan import Checkpoint, StepPlan
 
-__all__ = ["Simulator", "FROM_SETTINGS", "MAX_REFINE"]
+__all__ = ["Simulator", "FROM_SETTINGS", "MAX_REFINE", "TANGLE_EVERY"]
 
 #: most automatic-substep refinement after blow-ups within the estimate (see Simulator._retry)
 MAX_REFINE = 8
+#: output steps between two checks that the membrane does not pass through itself (see check_tangle)
+TANGLE_EVERY = 10
+#: faces facing the membrane's centre (fraction) beyond which a world is tested exactly for a self-crossing
+INWARD_FACES = 0.01
 
 class _FromSettings:
     def __repr__(self) -> str:
@@ -116,6 +121,7 @@ class Simulator:
         # further step repeats when even that state is not finite (corrupted behind the API's back)
         self._checkpoint = Checkpoint(self.state.xv)
         self._broken: SimulationError | None = None
+        self._tangled_at = np.full(self.worlds, -1, dtype=np.int64)  # output step each world was found tangled
         self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
         self._volume_cmds = [None, None]  # per state: the recorded volume launch of the chamber check
         self._update_plan()
@@ -486,6 +492,40 @@ class Simulator:
             f"{safe:.3g} s with substeps=1, or check the inputs (air, pressures, stiffness) for extreme values",
             step=self.step_count, quantity="volume", safe_dt=safe, world=w)
 
+    def check_tangle(self) -> None:
+        """Raise ``SimulationError`` when a world's membrane has passed through itself at two checks in a
+        row (tangled by a violent motion: folded faces and winding numbers above 1, which the volume check
+        can miss; the model has no self-contact, and a crumple that untangles within ``TANGLE_EVERY``
+        output steps, like a 100-atmosphere recoil, is let through). Cheap first: only a world with more
+        than ``INWARD_FACES`` of its faces facing its centre is tested exactly (``mesh.self_crossing``).
+        ``step`` calls it every ``TANGLE_EVERY`` output steps where it checks the volume."""
+        rest = self.design.rest
+        x = self.state.x.numpy().astype(np.float64).reshape(self.worlds, -1, 3)
+        f = rest.faces
+        normal = np.cross(x[:, f[:, 1]] - x[:, f[:, 0]], x[:, f[:, 2]] - x[:, f[:, 0]])
+        out = x[:, f].mean(axis=2) - x.mean(axis=1, keepdims=True)
+        suspect = np.flatnonzero(np.mean(np.einsum("wij,wij->wi", normal, out) < 0, axis=1) > INWARD_FACES)
+        hits = self_crossing(x[suspect], rest, device="cpu") if suspect.size else []
+        found = {int(suspect[w]): (e, face, n) for w, e, face, n in hits}
+        before = self._tangled_at.copy()
+        self._tangled_at[:] = -1
+        for w in found:
+            self._tangled_at[w] = before[w] if before[w] >= 0 else self.step_count
+        persistent = [w for w in found if before[w] >= 0]
+        if not persistent:
+            return
+        w = persistent[0]
+        (e, face, n), since = found[w], int(before[w])
+        a, b = rest.edges[e]
+        safe = 0.5 * min(self._dt_stable, self.plan.h)
+        raise SimulationError(
+            f"simulation tangled at output step {self.step_count} (t = {self.time:.6g} s, world {w}): the membrane "
+            f"passes through itself since output step {since} ({n} edges cross a face, e.g. edge ({a}, {b}) through "
+            f"face {face}) with internal "
+            f"step {self.plan.h:.4g} s. Try a smaller step, e.g. dt = {safe:.3g} s with substeps=1, or check the "
+            f"state set and the inputs (air, pressures, stiffness) for extreme values",
+            step=self.step_count, quantity="tangle", safe_dt=safe, world=w)
+
     # ------------------------------------------------------------------ last good state
     _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at")
 
@@ -511,6 +551,7 @@ class Simulator:
         """A state set through the API: shorter steps taken after a blow-up end, and a finite state
         lifts the refusal."""
         self._checkpoint.current = False
+        self._tangled_at[:] = -1
         if self._refine != 1:
             self._refine, self._dirty = 1, True
         if self._broken is not None and self._finite():
@@ -582,6 +623,8 @@ class Simulator:
             self._report(watch.after_step(self.step_count))
             if not watch.deferred:  # each whole output step with a chamber left is the new last good state
                 self.check_volume()
+                if self.step_count % TANGLE_EVERY == 0:
+                    self.check_tangle()
                 self._save()
         self._report(watch.poll())
 

@@ -29,16 +29,17 @@ n = 5 * 2**(resolution - 2) (12 n^2 faces; 4800 at the default resolution 4).
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from .errors import DesignError, MeshError, ShapeError
+from .errors import DesignError, MeshError, ShapeError, check_whole, read_input_file
 from .mesh import TriMesh, icosphere
 
 __all__ = ["TARGET_NAMES", "DEFAULT_VOLUME", "DEFAULT_RESOLUTION", "target", "write_targets", "centred_targets",
-           "load_target", "check_mesh_file", "suggest"]
+           "load_target", "check_mesh_file", "suggest", "is_identifier", "identifier_for"]
 
 TARGET_NAMES = ("oval", "pear", "heart", "cube")
 DEFAULT_VOLUME = 4.0 / 3.0 * np.pi * 0.04**3  # m^3, a 4 cm radius sphere (~2.68e-4)
@@ -163,7 +164,7 @@ def target(name: str, volume: float | None = None, resolution: int = DEFAULT_RES
     vol = DEFAULT_VOLUME if volume is None else float(volume)
     if not (np.isfinite(vol) and vol > 0):
         raise ShapeError(f"target volume must be a positive finite number of m^3, got {volume}")
-    res = int(resolution)
+    res = check_whole(resolution, "target resolution", ShapeError)
     if not 1 <= res <= 6:
         raise ShapeError(f"target resolution must be in 1..6, got {resolution}")
     return _build(key, vol, res)
@@ -174,6 +175,9 @@ def centred_targets(targets, job: str) -> list[TriMesh]:
     error (naming ``job``, e.g. "control") for an empty list or anything that is not a TriMesh."""
     if isinstance(targets, TriMesh):
         targets = [targets]
+    if targets is None or isinstance(targets, (str, bytes)) or not hasattr(targets, "__iter__"):
+        raise DesignError(f"{job} needs target shapes: a ws.TriMesh or a list of them (e.g. [ws.target('heart')]), "
+                          f"got {targets!r}"[:300])
     targets = list(targets)
     if not targets:
         raise DesignError(f"{job} needs at least one target shape")
@@ -233,15 +237,26 @@ def _text_problem(data: bytes, kind: str, keys: tuple) -> str | None:
     return None
 
 
+_IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def is_identifier(name) -> bool:
+    """True for a name that can be a USD prim name or part of an attribute name (a target's name is one)."""
+    return isinstance(name, str) and bool(_IDENT.match(name))
+
+
+def identifier_for(name: str) -> str:
+    """``name`` made an identifier: every other character becomes ``_`` and a leading digit gets ``t_``
+    (``my-oval`` -> ``my_oval``, ``3d scan`` -> ``t_3d_scan``); the name of a target read from a file."""
+    out = re.sub(r"[^A-Za-z0-9_]", "_", str(name)) or "target"
+    return out if is_identifier(out) else f"t_{out}"
+
+
 def check_mesh_file(path) -> None:
     """A clear ``MeshError`` for a mesh file that is missing, empty or cannot be a mesh of its format
     (STL: binary size or ASCII text; OBJ: text with vertex lines); other formats are left to trimesh."""
     path = Path(path)
-    if not path.exists():
-        raise MeshError(f"mesh file not found: {path}")
-    if path.is_dir():
-        raise MeshError(f"{path} is a folder, not a mesh file")
-    data = path.read_bytes()
+    data = read_input_file(path, "mesh file", MeshError)
     if not data:
         raise MeshError(f"could not parse mesh file {path}: the file is empty")
     ext = path.suffix.lower()
@@ -266,7 +281,7 @@ def load_target(spec: str) -> tuple[str, TriMesh]:
                          f"({', '.join(TARGET_NAMES)}) or a mesh file (STL, OBJ, PLY, ...)")
     check_mesh_file(path)
     try:
-        return path.stem, TriMesh.load(path, center=True)
+        return identifier_for(path.stem), TriMesh.load(path, center=True)
     except MeshError as exc:
         if "could not read" in str(exc):
             raise MeshError(f"could not parse mesh file {path}: {_reader_problem(exc.__cause__ or exc)}") from None

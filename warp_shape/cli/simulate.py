@@ -25,7 +25,8 @@ def register(subparsers) -> None:
     s.add_argument("--precision", default="float32", choices=["float32", "float64"], help="floating-point precision")
     s.add_argument("--dt", type=float, default=1e-3, help="output step, s (internal substeps are automatic)")
     add_bounded(s, "--subdivisions", 1, 6, type=int, default=3, help="icosphere subdivisions of the membrane")
-    s.add_argument("--air-scale", type=float, default=1.6, help="final air amount relative to the rest amount")
+    add_bounded(s, "--air-scale", 0.01, 100.0, type=float, default=1.6,
+                help="final air amount relative to the rest amount")
     s.add_argument("--inflate-time", type=float, default=0.4, help="s")
     s.add_argument("--actuate-time", type=float, default=0.4, help="s")
     add_common_args(s, out="out/simulate")

@@ -26,11 +26,10 @@ def viewer_command(path) -> list[str]:
     """The command that opens ``path`` in the rerun viewer of this Python's rerun-sdk; a clear error
     where the file or rerun-sdk is missing."""
     from ..errors import WarpShapeError
+    from ..io.recording_read import check_recording_file
 
     p = Path(path)
-    if not p.is_file():
-        raise WarpShapeError(f"no recording at {p}; write one with --rerun FILE.rrd (e.g. warp-shape design "
-                             f"--rerun out/design.rrd)")
+    check_recording_file(p)
     try:
         import rerun  # noqa: F401
     except ImportError:

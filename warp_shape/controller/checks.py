@@ -3,7 +3,7 @@
 A target (centred on its volume centroid, as the controller and the designer use it) is compared with
 the membrane's rest shape:
 - size: the linear scale ratio s = (V_target / V_rest)^(1/3). A ratio near 1000 is a target given in
-  millimetres (``UNITS_RATIO``); a ratio beyond ``max_stretch`` asks for more mean stretch than the
+  millimetres (``UNITS_RATIO``), one near 100 in centimetres (``UNIT_MIXUPS``); a ratio beyond ``max_stretch`` asks for more mean stretch than the
   controller's stretch guard allows; a target of less volume than the rest shape would leave the
   membrane slack (it cannot shrink below its rest shape, only wrinkle): each is rejected.
 - the sampled target: the target sampled radially through the rest shape's vertices, with the rest
@@ -19,10 +19,16 @@ from ..errors import ShapeError
 from ..mesh import TriMesh
 from ..sampling import RadialSampler
 
-__all__ = ["UNITS_RATIO", "check_target_units", "check_targets_against_rest", "target_labels"]
+__all__ = ["UNITS_RATIO", "UNIT_MIXUPS", "check_target_units", "check_targets_against_rest", "target_labels"]
 
 # Linear scale ratios (target / rest) read as a unit mix-up: millimetres given as metres.
 UNITS_RATIO = (300.0, 3000.0)
+#: every ratio range read as a unit mix-up: (low, high, the unit, its scale to metres, the command-line fix);
+#: beyond the last the target is refused as far too large whatever its unit
+UNIT_MIXUPS = ((30.0, UNITS_RATIO[0], "centimetres", "1e-2", "on the command line save the mesh file in metres "
+                "or millimetres and give --units m or --units mm"),
+               (*UNITS_RATIO, "millimetres", "1e-3", "on the command line a mesh file is read in millimetres with "
+                "--units mm"))
 
 
 def target_labels(targets, names) -> list[str]:
@@ -32,15 +38,20 @@ def target_labels(targets, names) -> list[str]:
 
 
 def check_target_units(rest: TriMesh, targets, names=None, *, what: str = "rest shape") -> None:
-    """Raise ``ShapeError`` for a target about 1000x the size of ``rest`` (given in millimetres)."""
+    """Raise ``ShapeError`` for a target about 100x or 1000x the size of ``rest`` (given in centimetres or
+    millimetres, ``UNIT_MIXUPS``) or larger still, naming the scale and the ``--units`` flag that fix it."""
     v_rest = rest.volume()
     for t, name in zip(targets, target_labels(targets, names)):
         s = (t.volume() / v_rest) ** (1.0 / 3.0)
-        if UNITS_RATIO[0] <= s <= UNITS_RATIO[1]:
-            raise ShapeError(
-                f"{name} is {s:.0f}x the size of the {what} (volume {t.volume():.3g} m^3 against "
-                f"{v_rest:.3g} m^3): it looks like millimetres: scale it by 1e-3 (target.scaled(1e-3); on the "
-                f"command line a mesh file is read in millimetres with --units mm); warp_shape works in metres")
+        sizes = f"{name} is {s:.0f}x the size of the {what} (volume {t.volume():.3g} m^3 against {v_rest:.3g} m^3)"
+        for low, high, unit_name, factor, cli in UNIT_MIXUPS:
+            if low <= s <= high:
+                raise ShapeError(f"{sizes}: it looks like {unit_name}: scale it by {factor} (target.scaled({factor}); "
+                                 f"{cli}); warp_shape works in metres")
+        if s > UNIT_MIXUPS[-1][1]:
+            raise ShapeError(f"{sizes}: far too large for a display of that size in any unit (mm, cm, m); check the "
+                             f"file's units and scale it to metres (target.scaled(...); on the command line a mesh "
+                             f"file is read in millimetres with --units mm)")
 
 
 def _check_size(rest: TriMesh, t: TriMesh, name: str, max_stretch: float) -> None:

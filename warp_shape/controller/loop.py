@@ -14,7 +14,7 @@ from ..mesh import TriMesh
 from ..model import HostModel
 from ..sampling import RadialSampler
 from ..targets import centred_targets
-from ..settings import SimulationSettings
+from ..settings import SimulationSettings, settings_or_default
 from .checks import check_targets_against_rest
 from .history import History
 from .laws import LAWS, Controls, PaperLaw
@@ -243,7 +243,7 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     is called every control step; ``recorder`` logs the run. Keyword overrides go to ``settings``.
     """
     targets = _checked_targets(design, targets)
-    settings = settings or ControlSettings()
+    settings = settings_or_default(settings, ControlSettings, "settings")
     if method is not None:
         overrides["method"] = method
     if overrides:

@@ -20,6 +20,7 @@ import numpy as np
 from ..design import Design
 from ..errors import DesignError
 from ..simulator import Simulator
+from .result import ControlResult
 from .worlds import mask_passive, passive_masks
 
 __all__ = ["replay", "replay_simulator"]
@@ -44,7 +45,12 @@ def replay_simulator(design: Design, results, *, device: str = "cpu"):
     """A simulator with one world per result (all of ``design``, same simulation settings) after
     replaying every result's control sequence from rest; worlds whose sequence ends earlier hold
     their last controls while the others run on."""
-    results = list(results)
+    if not isinstance(design, Design):
+        raise DesignError(f"replay needs a ws.Design, got {type(design).__name__}")
+    results = list(results) if isinstance(results, (list, tuple)) else [results]
+    bad = [type(r).__name__ for r in results if not isinstance(r, ControlResult)]
+    if bad:
+        raise DesignError(f"replay needs control results (ws.control(...) returns one), got {bad[0]}")
     if not results:
         raise DesignError("replay needs at least one control result")
     sim_settings = results[0].settings.simulation

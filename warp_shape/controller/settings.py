@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field, fields
 
 from ..errors import DesignError
-from ..settings import SimulationSettings, replace_settings
+from ..settings import SimulationSettings, check_field_types, replace_settings
 
 __all__ = ["ControlSettings", "METHODS"]
 
@@ -42,6 +42,7 @@ class ControlSettings:
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
 
     def __post_init__(self):
+        check_field_types(self, "ControlSettings")
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):

@@ -10,7 +10,7 @@ from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..sampling import RadialSampler
-from ..targets import centred_targets
+from ..targets import centred_targets, identifier_for, is_identifier
 
 __all__ = ["check_request", "check_targets", "initial_rest_shape", "check_cell_room", "copy_design"]
 
@@ -32,6 +32,10 @@ def check_targets(targets, target_names) -> tuple[list[TriMesh], list[str]]:
         raise DesignError(f"{len(names)} target names for {len(targets)} targets")
     if len(set(names)) != len(names):
         raise DesignError(f"duplicate target names {names}; give each target once")
+    for n in names:
+        if not is_identifier(n):
+            raise DesignError(f"target name {n!r} is not an identifier (letters, digits, _; not starting with a "
+                              f"digit): it becomes a USD prim name of the saved design; use e.g. {identifier_for(n)!r}")
     centred = targets
     for a in range(len(centred)):
         for b in range(a):

@@ -12,6 +12,7 @@ from ..design import Design
 from ..material import Material
 from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
+from ..settings import settings_or_default
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
 from .placement import PLACEMENTS, PlacementContext
 from .refine import ipam_cells, refine_holds
@@ -128,10 +129,10 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     Keyword overrides go to ``DesignSettings`` (e.g. ``cell_radius=0.016``, ``initialize=False``).
     """
     check_request(base, actuators)
-    settings = settings or DesignSettings()
+    settings = settings_or_default(settings, DesignSettings, "settings")
     if overrides:
         settings = settings.replace(**overrides)
-    control_settings = control_settings or ControlSettings()
+    control_settings = settings_or_default(control_settings, ControlSettings, "control_settings")
     targets, names = check_targets(targets, target_names)
     sampler = RadialSampler(targets, device=device, names=target_labels(targets, names))  # rejects non-star shapes
     check_target_units(base, targets, names, what="base mesh")

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS
 from ..errors import DesignError
-from ..settings import replace_settings
+from ..settings import check_field_types, replace_settings
 
 __all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENT_METHODS"]
 
@@ -58,6 +58,7 @@ class DesignSettings:
     round_control: str = "paper"  # control of the rounds before the last: "paper", "quick" or "full" (ROUND_CONTROLS)
 
     def __post_init__(self):
+        check_field_types(self, "DesignSettings")
         if not (self.cell_radius > 0 and math.isfinite(self.cell_radius)):
             raise DesignError(f"cell_radius must be a positive length in m, got {self.cell_radius}")
         if not 0 < self.volume_scale <= 1:

@@ -18,7 +18,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from ..errors import WarpShapeError
+from ..errors import WarpShapeError, read_input_file
 
 __all__ = ["atomic_write", "write_json", "atomic_target", "hold_lock", "release_lock", "finalize_permissions", "MANIFEST", "file_digest",
            "read_manifest", "manifest_problems", "creation_refused", "StagedFolder", "OutputError"]
@@ -67,6 +67,8 @@ def write_json(path, data) -> Path:
 
 # ------------------------------------------------------------------------------------ whole output folders
 MANIFEST = "manifest.json"
+#: the largest manifest read (one a run writes is a few kB)
+MAX_MANIFEST_BYTES = 16 * 2**20
 MAX_FOREIGN_ENTRIES = 2000  # other files an output folder may hold (carried into each new set as hard links)
 RENAME_EXCHANGE = 2  # linux/fs.h
 AT_FDCWD = -100
@@ -118,8 +120,8 @@ def file_digest(path) -> str:
 def read_manifest(folder) -> dict | None:
     """The ``manifest.json`` of an output folder, or None where there is none (or it is unreadable)."""
     try:
-        data = json.loads((Path(folder) / MANIFEST).read_text())
-    except (OSError, ValueError):
+        data = json.loads(read_input_file(Path(folder) / MANIFEST, MANIFEST, max_bytes=MAX_MANIFEST_BYTES))
+    except (OSError, ValueError, WarpShapeError):  # missing, unreadable, not a regular file, not JSON
         return None
     return data if isinstance(data, dict) and isinstance(data.get("files"), dict) else None
 

@@ -4,7 +4,28 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["read_recording"]
+from ..errors import WarpShapeError, check_input_file
+
+__all__ = ["read_recording", "check_recording_file"]
+
+#: the first bytes of every rerun recording file (``RRF`` and a format version digit)
+RRD_MAGIC = b"RRF"
+
+
+def check_recording_file(path) -> None:
+    """A clear ``WarpShapeError`` unless ``path`` is a regular file that starts as a rerun recording does."""
+    try:
+        check_input_file(path, "recording", WarpShapeError)
+    except WarpShapeError as exc:
+        if "not found" not in str(exc):
+            raise
+        raise WarpShapeError(f"no recording at {path}; write one with --rerun FILE.rrd (e.g. warp-shape design "
+                             f"--rerun out/design.rrd)") from None
+    with open(path, "rb") as f:
+        head = f.read(len(RRD_MAGIC))
+    if head != RRD_MAGIC:
+        raise WarpShapeError(f"{path} is not a rerun recording (a .rrd starts with {RRD_MAGIC.decode()!r}, this "
+                             f"file with {head!r}); give the .rrd a run wrote with --rerun FILE.rrd")
 
 
 def read_recording(path) -> dict:
@@ -20,6 +41,7 @@ def read_recording(path) -> dict:
     import pyarrow as pa
     import rerun as rr
 
+    check_recording_file(path)
     reader = rr.chunk.RrdReader(str(path))
     entities: dict = {}
     for ch in reader.stream():

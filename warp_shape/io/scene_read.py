@@ -8,12 +8,13 @@ the file, the prim path and the attribute. The attribute names and types come fr
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
-from ..design import Design
-from ..errors import DesignError, MeshError, SceneError
+from ..design import MAX_IPAMS, Design
+from ..errors import DesignError, MeshError, SceneError, read_input_file
 from ..material import Material
 from ..mesh import TriMesh
 from ..settings import SimulationSettings
@@ -168,7 +169,7 @@ def check_crate(path: Path, data: bytes | None = None) -> None:
     7 kB file took 40 s and 12 GB before USD reported it)."""
     import struct
 
-    data = Path(path).read_bytes() if data is None else data
+    data = read_input_file(path, "scene", SceneError) if data is None else data
     if not data.startswith(b"PXR-USDC"):
         return
     size = len(data)
@@ -198,10 +199,19 @@ def check_crate(path: Path, data: bytes | None = None) -> None:
                 raise bad(f"{count} tokens in {raw} bytes, packed into {packed} of {length}")
 
 
-#: the child process that reads a binary scene first: USD reads every attribute value of the stage
-PROBE_SCRIPT = ("import resource, sys\nlimit = int(sys.argv[2])\n"
+#: the child process that reads a binary scene first: every layer it composes must be a regular file (a FIFO
+#: would block USD; exit code 3 names it), then USD reads every attribute value of the stage
+PROBE_SCRIPT = ("import os, resource, stat, sys\nlimit = int(sys.argv[2])\n"
                 "resource.setrlimit(resource.RLIMIT_AS, (limit, limit))\n"
-                "from pxr import Usd\nstage = Usd.Stage.Open(sys.argv[1])\n"
+                "from pxr import Sdf, Usd\nseen = set()\n"
+                "def walk(p):\n    seen.add(p)\n    layer = Sdf.Layer.FindOrOpen(p)\n"
+                "    for dep in (layer.GetCompositionAssetDependencies() if layer else []):\n"
+                "        full = layer.ComputeAbsolutePath(dep)\n"
+                "        if full in seen or not os.path.exists(full):\n            continue\n"
+                "        if not stat.S_ISREG(os.stat(full).st_mode):\n"
+                "            sys.exit(f'composes {full}, which is not a regular file (a FIFO, device or folder)')\n"
+                "        walk(full)\n"
+                "walk(sys.argv[1])\nstage = Usd.Stage.Open(sys.argv[1])\n"
                 "for prim in stage.Traverse():\n    for a in prim.GetAttributes():\n        a.Get()\n")
 #: seconds the child may read a binary scene
 PROBE_TIMEOUT = 120.0
@@ -218,7 +228,7 @@ def probe_binary(path: Path, data: bytes | None = None) -> None:
     import subprocess
     import sys
 
-    data = Path(path).read_bytes() if data is None else data
+    data = read_input_file(path, "scene", SceneError) if data is None else data
     if not data.startswith(b"PXR-USDC") and not re.search(rb"@[^@\n]*\.usd[c]?@", data):
         return
     # corrupt counts make USD allocate tens of GB: the child's memory is bounded (a 4 MB scene needs ~100 MB)
@@ -232,9 +242,37 @@ def probe_binary(path: Path, data: bytes | None = None) -> None:
     if run.returncode < 0:
         raise SceneError(f"{path}: not a readable USD file: USD crashed reading it (signal {-run.returncode}; "
                          f"corrupt binary crate data)")
+    lines = run.stderr.decode("utf-8", "replace").strip().splitlines() or ["(no message)"]
+    if run.returncode == 1 and lines[-1].startswith("composes "):
+        raise SceneError(f"{path}: {lines[-1]}; give the files it composes as files saved on disk")
     if run.returncode != 0:
-        lines = run.stderr.decode("utf-8", "replace").strip().splitlines() or ["(no message)"]
         raise SceneError(f"{path}: not a readable USD file (corrupt?): {' '.join(lines[-1].split())[:400]}")
+
+
+#: how deep text layers composing text layers are followed before USD opens them
+COMPOSED_DEPTH = 32
+
+
+def check_composed_files(path: Path, data: bytes, seen: set | None = None) -> None:
+    """Refuse a text scene that composes (sublayers, references, payloads: its ``@asset@`` paths, followed
+    through the text layers they name) a file that is not a regular file: USD opens such a FIFO or device
+    before any other check and blocks on it. Binary layers are walked by the probe (``probe_binary``)."""
+    import re
+
+    seen = set() if seen is None else seen
+    seen.add(Path(path).resolve())
+    if data.startswith(b"PXR-USDC") or len(seen) > COMPOSED_DEPTH:
+        return
+    for asset in dict.fromkeys(re.findall(rb"@([^@\n]+)@", data)):
+        name = asset.decode("utf-8", "replace")
+        full = Path(path).parent / name
+        if "://" in name or not os.path.lexists(full) or full.resolve() in seen:
+            continue
+        try:
+            layer = read_input_file(full, "layer", SceneError)
+        except SceneError as exc:
+            raise SceneError(f"{path}: composes @{name}@: {exc}") from None
+        check_composed_files(full, layer, seen)
 
 
 def _open_stage(path: Path, allow_outside: bool = False):
@@ -242,8 +280,9 @@ def _open_stage(path: Path, allow_outside: bool = False):
     ``allow_outside``) layers composed from outside the scene's folder raise ``SceneError``."""
     pxr = load_pxr()
     Sdf, Usd = pxr.Sdf, pxr.Usd
-    data = Path(path).read_bytes()  # the file's bytes, checked before USD reads them
+    data = read_input_file(path, "scene", SceneError)  # the file's bytes, checked before USD reads them
     check_crate(path, data)
+    check_composed_files(path, data)
     probe_binary(path, data)
     try:
         # a layer still open elsewhere under this identifier would be served stale: reload it
@@ -306,8 +345,9 @@ def _scene_root(stage, r: _Reader):
                          f"\"{ROOT_NAME}\"", attribute="defaultPrim")
     version = r.scalar(root, FORMAT_VERSION_ATTRIBUTE)
     if version != SCENE_FORMAT_VERSION:
-        raise r.error(root, FORMAT_VERSION_ATTRIBUTE, f"format version {version:g} is not supported "
-                      f"(this build reads version {SCENE_FORMAT_VERSION})")
+        raise r.error(root, FORMAT_VERSION_ATTRIBUTE, f"format version {version!r} is not supported "
+                      f"(this build reads version {SCENE_FORMAT_VERSION}: set {FORMAT_VERSION_ATTRIBUTE} = "
+                      f"{SCENE_FORMAT_VERSION})")
     up = UsdGeom.GetStageUpAxis(stage)
     if up != UsdGeom.Tokens.z:
         raise SceneError(f"{source}: upAxis is {up!r}; warp_shape scenes are Z-up", attribute="upAxis")
@@ -373,6 +413,9 @@ def _read_ipams(r: _Reader, root, design: Design) -> None:
             raise r.error(prim, attr.name, f"has {a.shape[0]} entries for {n} IPAMs ({faces_name})")
         values[attr.field] = a
     faces, nf = values["faces"], design.rest.n_faces
+    if faces.shape[0] > MAX_IPAMS:
+        raise r.error(prim, faces_name, f"{faces.shape[0]} IPAMs, more than the {MAX_IPAMS} a design holds (the "
+                      f"paper's displays have 4-20); use fewer")
     bad = np.flatnonzero(((faces < 0) | (faces >= nf)).any(axis=1))
     if bad.size:
         i = int(bad[0])
@@ -422,14 +465,15 @@ def _read_cells(r: _Reader, membrane, design: Design) -> None:
 
 
 def _read_targets(r: _Reader, root) -> tuple[list, list]:
-    """Every Mesh under Targets, in order, with its prim name."""
+    """Every Mesh under Targets, in order, with its prim name (another prim type there is an error)."""
     UsdGeom = load_pxr().UsdGeom
     targets, names = [], []
     scope = root.GetChild(TARGETS)
     if scope:
         for child in scope.GetChildren():
             if not child.IsA(UsdGeom.Mesh):
-                continue
+                raise r.error(child, None, f"is a {child.GetTypeName() or 'typeless prim'}, not a Mesh: every child "
+                              f"of {TARGETS} is a target triangle mesh; make it a Mesh or move it out of {TARGETS}")
             mesh, _ = r.triangles(child, TARGET_POINTS, fallback="points")
             targets.append(mesh)
             names.append(child.GetName())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import SceneError
+from ..errors import SceneError, check_input_file
 from ..mesh import TriMesh
 from ..targets import suggest, target
 from .scene_schema import SCENE_EXTENSIONS
@@ -44,10 +44,7 @@ def resolve_scene(path_or_name) -> Path:
     if isinstance(path_or_name, Path) or any(s in str(path_or_name) for s in ("/", "\\")) or \
             str(path_or_name).lower().endswith(SCENE_EXTENSIONS):
         p = Path(path_or_name)
-        if not p.exists():
-            raise SceneError(f"scene file not found: {p}")
-        if not p.is_file():
-            raise SceneError(f"scene path {p} is not a file (a folder?); give the .usda/.usdc file")
+        check_input_file(p, "scene file", SceneError)
         return _scene_file(p)
     name = str(path_or_name)
     for d in scene_dirs():

@@ -8,7 +8,6 @@ and the reader cannot disagree on a name, a type or a field.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -18,6 +17,7 @@ from ..errors import SceneError
 from ..material import Material
 from ..mesh import TriMesh, icosphere, icosphere_like
 from ..settings import SimulationSettings
+from ..targets import is_identifier
 
 __all__ = ["Scene", "SceneAttribute", "MATERIAL_ATTRIBUTES", "IPAM_ATTRIBUTES", "SCENE_FORMAT_VERSION",
            "SCENE_EXTENSIONS", "NS", "ROOT_NAME", "MEMBRANE", "IPAMS", "TARGETS", "SETTINGS", "CELL_FAMILY",
@@ -33,14 +33,6 @@ CELL_FAMILY = "jammingCell"  # GeomSubset family of the jamming cells
 FORMAT_VERSION_ATTRIBUTE = f"{NS}:formatVersion"
 REST_POINTS = f"{NS}:restPoints"  # exact (float64) rest positions of the membrane
 TARGET_POINTS = f"{NS}:points"  # exact (float64) vertices of a target
-
-_IDENT = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-
-
-def is_identifier(name) -> bool:
-    """True for a name that can be a USD prim name or part of an attribute name."""
-    return isinstance(name, str) and bool(_IDENT.match(name))
-
 
 def _camel(name: str) -> str:
     head, *rest = name.split("_")

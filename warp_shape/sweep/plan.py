@@ -8,13 +8,14 @@ product of the values of the swept parameters (Fig. 12: ``actuators=5,10,20``). 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 
 from ..mesh import TriMesh, icosphere_like
 from ..targets import load_target
 from .params import Param, SweepError, check_values, split_params
 
-__all__ = ["Problem", "RunTask", "load_problem", "subsets_plan", "grid_plan", "run_id"]
+__all__ = ["Problem", "RunTask", "load_problem", "subsets_plan", "grid_plan", "run_id", "check_run_count", "MAX_RUNS"]
 
 DEFAULT_SCENE = "oval_heart"  # as `warp-shape design`
 
@@ -106,6 +107,8 @@ def subsets_plan(problem: Problem, device: str = "cpu", params: list[Param] | No
     """Every non-empty subset of the problem's targets (in the order given, smallest first), times the
     grid of ``params`` if any."""
     names = [n for n, _ in problem.targets]
+    check_run_count((2 ** len(names) - 1) * math.prod(len(p.values) for p in params or []),
+                    f"{2 ** len(names) - 1} target subsets")
     subsets = [list(c) for k in range(1, len(names) + 1) for c in itertools.combinations(names, k)]
     combos = _combos(params or [])
     return [_task(problem, i, subset, values, swept, device)
@@ -120,8 +123,21 @@ def grid_plan(problem: Problem, params: list[Param], device: str = "cpu") -> lis
     return [_task(problem, i, names, values, swept, device) for i, (values, swept) in enumerate(_combos(params))]
 
 
+#: the most runs one sweep plans (each is a whole design, minutes on a CPU)
+MAX_RUNS = 10_000
+
+
+def check_run_count(runs: int, what: str = "the grid") -> None:
+    """A clear ``SweepError`` for a sweep of more than ``MAX_RUNS`` runs, before any is planned."""
+    if runs > MAX_RUNS:
+        raise SweepError(f"this sweep is {runs} runs ({what} x the --param values), more than the {MAX_RUNS} one sweep "
+                         f"runs (each is a whole design, minutes); sweep fewer values, or split it into several "
+                         f"sweeps with their own --out")
+
+
 def _combos(params: list[Param]) -> list[tuple[dict, dict]]:
     """(values by qualified name, values by column name) for each point of the grid."""
+    check_run_count(math.prod(len(p.values) for p in params))
     seen = set()
     for p in params:
         if (p.group, p.name) in seen:

@@ -17,7 +17,8 @@ import json
 import shutil
 from pathlib import Path
 
-from ..io.atomic import atomic_write, hold_lock, release_lock
+from ..errors import read_input_file
+from ..io.atomic import atomic_write, hold_lock, manifest_problems, release_lock
 from .params import SweepError
 
 __all__ = ["ResultsTable", "columns_for", "place_outputs"]
@@ -66,8 +67,9 @@ class ResultsTable:
                 raise SweepError(f"{self.csv_path} exists without results.json: not a sweep folder of this "
                                  f"version; use another --out")
             return self
+        raw = read_input_file(self.json_path, "sweep results file", SweepError)  # a regular file, bounded
         try:
-            data = json.loads(self.json_path.read_text())
+            data = json.loads(raw)
             rows = [r for r in data.get("rows", []) if isinstance(r.get("run_id"), str)]
         except (OSError, ValueError, AttributeError, TypeError) as exc:
             reason = exc.strerror if isinstance(exc, OSError) else f"not a sweep's results table: {exc}"
@@ -95,9 +97,13 @@ class ResultsTable:
             self._lock_fd = None
 
     def finished(self, run_id: str) -> bool:
-        """True when the run has an ``ok`` row and its output folder is in place."""
+        """True when the run has an ``ok`` row and its output folder holds every file its manifest lists,
+        unchanged (a deleted or edited ``design.usda`` makes the run run again)."""
         row = self.rows.get(run_id)
-        return bool(row and row.get("status") == "ok" and (self.folder / row.get("out_dir", "")).is_dir())
+        if not (row and row.get("status") == "ok" and row.get("out_dir")):
+            return False
+        out = self.folder / row["out_dir"]
+        return out.is_dir() and not manifest_problems(out)
 
     def put(self, row: dict, order: list[str] | None = None) -> None:
         """Store a row (replacing the run's previous one) and rewrite ``results.json`` then ``results.csv``."""

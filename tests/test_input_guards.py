@@ -1,0 +1,312 @@
+"""Inputs refused before any work, each with one clear line: files that are not regular files (a FIFO, a
+link to /dev/zero, a folder) wherever a file is read or composed, work beyond a bound, a target in the
+wrong unit, strings for booleans and fractions for counts, non-manifold, self-crossing or tangled
+membranes, degenerate scans, and the API misuse that used to end in a traceback."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from warp_shape.cli import main
+from warp_shape.errors import MAX_INPUT_BYTES
+
+
+@pytest.fixture(autouse=True)
+def no_hang():
+    """A regression that blocks on a special file fails the test instead of hanging the suite."""
+    def fail(signum, frame):
+        raise AssertionError("blocked for 60 s (reading a special file?)")
+
+    old = signal.signal(signal.SIGALRM, fail)
+    signal.alarm(60)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, old)
+
+
+def error_of(capsys, argv) -> str:
+    """The one error line of a refused command (exit 2, no traceback)."""
+    assert main([str(a) for a in argv]) == 2, argv
+    err = capsys.readouterr().err
+    assert re.match(r"warp-shape( \w+)?: error: ", err) and "Traceback" not in err and err.count("\n") == 1, err
+    return err
+
+
+def no_work(monkeypatch):
+    """Make any design or control run fail loudly: the checks must come before any work."""
+    import warp_shape.controller.loop as control_loop
+    import warp_shape.designer.loop as designer_loop
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("work started before the inputs were checked")
+
+    monkeypatch.setattr(designer_loop, "control_many", forbidden)
+    monkeypatch.setattr(control_loop, "_simulator", forbidden)
+
+
+@pytest.fixture
+def special(tmp_path):
+    """{kind: path maker}: a FIFO, a link to /dev/zero and a folder, each with the name asked for."""
+    def make(kind, name):
+        p = tmp_path / name
+        if kind == "fifo":
+            os.mkfifo(p)
+        elif kind == "zero":
+            p.symlink_to("/dev/zero")
+        else:
+            p.mkdir()
+        return p
+
+    return make
+
+
+WHAT = {"fifo": "is a FIFO (named pipe), not a regular file", "zero": "is a device, not a regular file",
+        "folder": "is a folder"}
+
+
+# ------------------------------------------------------------------------------------ special files
+@pytest.mark.parametrize("kind", ["fifo", "zero", "folder"])
+def test_special_files_are_refused_by_every_command_before_they_are_read(kind, special, tmp_path, capsys):
+    mesh, scan, scene, rrd = (special(kind, f"{kind}.{ext}") for ext in ("stl", "ply", "usda", "rrd"))
+    assert WHAT[kind] in error_of(capsys, ["design", "--targets", mesh, "--out", tmp_path / "o"])
+    assert WHAT[kind] in error_of(capsys, ["compare", scan, "--to", "oval"])
+    assert WHAT[kind] in error_of(capsys, ["control", scene, "--out", tmp_path / "o"])
+    assert WHAT[kind] in error_of(capsys, ["view", rrd])
+    for fn, p, error in ((ws.TriMesh.load, mesh, ws.MeshError), (ws.load_scan, scan, ws.ShapeError),
+                         (ws.load_scene, scene, ws.SceneError), (ws.read_recording, rrd, ws.WarpShapeError)):
+        with pytest.raises(error, match=re.escape(WHAT[kind])):
+            fn(p)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "zero"])
+@pytest.mark.parametrize("how", ["subLayers", "references", "binary subLayers"])
+def test_a_scene_composing_a_special_file_is_refused_before_usd_opens_it(kind, how, special, tmp_path):
+    from pxr import Sdf
+
+    layer = special(kind, f"layer_{kind}.usda")
+    base = ws.save_scene(ws.Scene(design=ws.Design(ws.icosphere(1, 0.04)), targets=[ws.icosphere(1, 0.05)]),
+                         tmp_path / "base.usda").read_text()
+    head, rest = base.split("(\n", 1)
+    if how == "subLayers":
+        scene = tmp_path / "s.usda"
+        scene.write_text(f"{head}(\n    subLayers = [@./{layer.name}@]\n{rest}")
+    elif how == "references":
+        scene = tmp_path / "s.usda"
+        scene.write_text(f'{base}\ndef "Extra" (\n    references = @./{layer.name}@\n)\n{{\n}}\n')
+    else:
+        crate = Sdf.Layer.CreateAnonymous(".usda")
+        crate.ImportFromString(base)
+        crate.subLayerPaths.append(f"./{layer.name}")
+        scene = tmp_path / "s.usdc"
+        crate.Export(str(scene))
+    with pytest.raises(ws.SceneError, match="composes .*not a regular file"):
+        ws.load_scene(scene)
+
+
+def test_special_manifest_and_sweep_results_are_no_files_of_ours(special, tmp_path):
+    from warp_shape.io.atomic import read_manifest
+    from warp_shape.sweep.params import SweepError
+    from warp_shape.sweep.results import ResultsTable
+
+    out = tmp_path / "out"
+    out.mkdir()
+    os.mkfifo(out / "manifest.json")
+    assert read_manifest(out) is None  # not read, not blocking: a folder without a manifest
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "results.json").symlink_to("/dev/zero")
+    with pytest.raises(SweepError, match="is a device, not a regular file"):
+        ResultsTable(sweep, [], {}).load()
+
+
+def test_an_input_file_over_the_size_cap_is_refused_unread(tmp_path):
+    big = tmp_path / "big.stl"
+    with open(big, "wb") as f:  # sparse: 2 GiB on paper, nothing on disk
+        f.truncate(2 * MAX_INPUT_BYTES)
+    with pytest.raises(ws.MeshError, match=r"big.stl is 2048 MiB, over the 1024 MiB that are read"):
+        ws.TriMesh.load(big)
+    with pytest.raises(ws.SceneError, match="over the 1024 MiB"):
+        ws.load_scene(big.rename(tmp_path / "big.usda"))
+
+
+def test_view_of_a_mesh_file_says_it_is_not_a_recording(tmp_path, capsys):
+    tetra = tmp_path / "tetra.obj"
+    tetra.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    err = error_of(capsys, ["view", tetra])
+    assert "tetra.obj is not a rerun recording" in err and "--rerun FILE.rrd" in err
+
+
+# ------------------------------------------------------------------------------------ bounds on work
+def test_work_beyond_a_bound_is_refused_in_one_line_naming_the_bound_and_the_fix(tmp_path, capsys, monkeypatch):
+    no_work(monkeypatch)
+    with pytest.raises(ws.ShapeError, match=r"1000000000 directions asked for, more than the 1e\+07"):
+        ws.fibonacci_directions(10**9)
+    err = error_of(capsys, ["simulate", "--dt", "1e-9", "--out", tmp_path / "s"])
+    assert "8e+08 output steps, more than the 100000" in err and "larger --dt" in err
+    err = error_of(capsys, ["simulate", "--inflate-time", "1e9", "--out", tmp_path / "s"])
+    assert "1e+12 output steps" in err and "at most 100 s in all at this --dt" in err
+    grid = [a for k in ("max_steps", "control_period", "max_settle_steps")
+            for a in ("--param", f"{k}={','.join(str(v) for v in range(2, 102))}")]
+    err = error_of(capsys, ["sweep", "grid", *grid, "--backend", "serial", "--out", tmp_path / "sw"])
+    assert "this sweep is 1000000 runs" in err and "more than the 10000" in err and "sweep fewer values" in err
+    assert not (tmp_path / "sw" / "results.json").exists()
+
+
+def test_a_scene_with_too_many_ipams_is_refused_at_reading(tmp_path):
+    d = ws.Design(ws.icosphere(2, 0.04))
+    c = d.rest.face_centroids()
+    d.add_ipam(int(np.argmax(c[:, 2])), int(np.argmin(c[:, 2])))
+    text = ws.save_scene(ws.Scene(design=d), tmp_path / "one.usda").read_text()
+    start = text.index('def BasisCurves "Ipams"')
+    block = re.sub(r"(warpShape:\w+ = )\[(.*)\]", lambda m: f"{m.group(1)}[{', '.join([m.group(2)] * 2000)}]",
+                   text[start:])
+    (tmp_path / "many.usda").write_text(text[:start] + block)
+    with pytest.raises(ws.SceneError, match="2000 IPAMs, more than the 1000 a design holds"):
+        ws.load_scene(tmp_path / "many.usda")
+    opposite = np.argmin(c @ c.T, axis=1)
+    for k in range(999):
+        d.add_ipam(k % 320, int(opposite[k % 320]))
+    with pytest.raises(ws.DesignError, match="at most 1000 IPAMs"):
+        d.add_ipam(5, int(opposite[5]))
+
+
+# ------------------------------------------------------------------------------------ units and names
+def test_a_target_100x_too_big_names_centimetres_and_the_units_flag(tmp_path, capsys, monkeypatch):
+    no_work(monkeypatch)
+    design = ws.Design(ws.icosphere(2, 0.035))
+    with pytest.raises(ws.ShapeError, match=r"105x the size .* looks like centimetres: scale it by 1e-2 .*--units m "
+                                            r"or --units mm"):
+        ws.control(design, ws.target("oval").scaled(100.0))
+    with pytest.raises(ws.ShapeError, match=r"looks like millimetres: scale it by 1e-3"):
+        ws.control(design, ws.target("oval").scaled(1000.0))
+    with pytest.raises(ws.ShapeError, match="far too large for a display of that size in any unit"):
+        ws.control(design, ws.target("oval").scaled(1e5))
+    with pytest.raises(ws.ShapeError, match="looks like centimetres"):  # the designer checks against its base mesh
+        ws.design(ws.icosphere(2, 0.04), [ws.target("oval").scaled(100.0)], actuators=1)
+
+
+def test_a_target_file_name_that_is_no_identifier_is_made_one_before_any_work(tmp_path, monkeypatch):
+    from warp_shape.cli.options import load_targets
+
+    no_work(monkeypatch)
+    path = tmp_path / "my-oval.stl"
+    ws.target("oval", resolution=2).to_trimesh().export(str(path))
+    assert load_targets([str(path)])[0][0] == "my_oval"
+    with pytest.raises(ws.DesignError, match="target name 'my-oval' is not an identifier .* use e.g. 'my_oval'"):
+        ws.design(ws.icosphere(2, 0.04), [ws.target("oval")], actuators=1, target_names=["my-oval"])
+
+
+# ------------------------------------------------------------------------------------ types of settings
+@pytest.mark.parametrize("value", ["no", "false", "", 0, 1, None])
+def test_strings_and_numbers_for_booleans_are_refused(value):
+    with pytest.raises(ws.DesignError, match=r"ControlSettings.jamming must be True or False"):
+        ws.ControlSettings(jamming=value)
+    with pytest.raises(ws.DesignError, match=r"DesignSettings.initialize must be True or False"):
+        ws.DesignSettings(initialize=value)
+
+
+def test_fractions_for_counts_are_refused_not_truncated():
+    with pytest.raises(ws.MeshError, match="subdivisions must be a whole number, got 3.7"):
+        ws.icosphere(3.7)
+    with pytest.raises(ws.ShapeError, match="resolution must be a whole number, got 2.5"):
+        ws.target("oval", resolution=2.5)
+    with pytest.raises(ws.DesignError, match="ControlSettings.inverse_iterations must be a whole number, got 1.5"):
+        ws.ControlSettings(inverse_iterations=1.5)
+    with pytest.raises(ws.DesignError, match="DesignSettings.refine_rounds must be a whole number"):
+        ws.DesignSettings(refine_rounds=2.5)
+    with pytest.raises(ws.DesignError, match="max_substeps must be"):
+        ws.SimulationSettings(max_substeps=2.5)
+    # a whole float is the whole number; a float setting takes an int
+    assert ws.icosphere(2.0).n_vertices == 162 and ws.ControlSettings(max_steps=20.0).max_steps == 20
+    assert isinstance(ws.ControlSettings(air_gain=1).air_gain, float)
+
+
+# ------------------------------------------------------------------------------------ meshes
+def _pinched() -> tuple[np.ndarray, np.ndarray]:
+    """Two icospheres sharing one vertex (every edge has two faces; the vertex has two fans)."""
+    a, b = ws.icosphere(1, 0.04), ws.icosphere(1, 0.04)
+    ia, ib = int(np.argmax(a.vertices[:, 0])), int(np.argmin(b.vertices[:, 0]))
+    vb = b.vertices - b.vertices[ib] + a.vertices[ia]
+    keep = np.array([i for i in range(len(vb)) if i != ib])
+    remap = np.full(len(vb), -1)
+    remap[keep] = np.arange(len(keep)) + len(a.vertices)
+    remap[ib] = ia
+    return np.concatenate([a.vertices, vb[keep]]), np.concatenate([a.faces, remap[b.faces]])
+
+
+def test_a_pinched_vertex_and_a_self_crossing_rest_mesh_are_refused():
+    v, f = _pinched()
+    with pytest.raises(ws.MeshError, match=r"not 2-manifold at vertex 40 .* 2 separate fans"):
+        ws.TriMesh(v, f)
+    m = ws.icosphere(3, 0.04)
+    v = m.vertices.copy()
+    v[int(np.argmax(v[:, 2]))] = [0.003, 0.002, -0.05]  # the top vertex pulled out through the bottom
+    poked = ws.TriMesh(v, m.faces)  # closed, manifold, outward: a valid mesh, but it passes through itself
+    with pytest.raises(ws.MeshError, match=r"the rest mesh passes through itself: edge \(\d+, \d+\) crosses face"):
+        ws.Design(poked)
+    ws.Design(m)  # the sphere itself is fine
+
+
+def test_a_membrane_tangled_for_two_checks_is_an_error_naming_the_step():
+    from warp_shape.simulator import TANGLE_EVERY
+
+    d = ws.Design(ws.icosphere(3, 0.04))
+    sim = ws.Simulator(d)
+    sim.positions = d.rest.vertices * 0.1  # 1000x the pressure: it bursts and folds through itself
+    with pytest.raises(ws.SimulationError, match=f"tangled at output step {2 * TANGLE_EVERY} .* passes through "
+                                                 f"itself since output step {TANGLE_EVERY}") as info:
+        sim.step(3 * TANGLE_EVERY)
+    assert info.value.quantity == "tangle" and info.value.step == 2 * TANGLE_EVERY
+
+
+# ------------------------------------------------------------------------------------ scans and scenes
+def test_a_degenerate_scan_is_refused():
+    with pytest.raises(ws.ShapeError, match="100 points lie within .* of one point"):
+        ws.compare_scan(np.full((100, 3), 0.01), "oval")
+    line = np.c_[np.linspace(0, 0.05, 100), np.zeros(100), np.zeros(100)]
+    with pytest.raises(ws.ShapeError, match="lie on one line"):
+        ws.compare_scan(line, "oval")
+
+
+def test_a_target_prim_that_is_no_mesh_and_an_odd_format_version_are_named(tmp_path):
+    sc = ws.Scene(design=ws.Design(ws.icosphere(1, 0.04)), targets=[ws.icosphere(1, 0.05)], target_names=["ball"])
+    text = ws.save_scene(sc, tmp_path / "s.usda").read_text()
+    (tmp_path / "x.usda").write_text(text.replace('def Mesh "ball"', 'def Xform "ball"'))
+    with pytest.raises(ws.SceneError, match=r"<.*/Targets/ball>: is a Xform, not a Mesh"):
+        ws.load_scene(tmp_path / "x.usda")
+    (tmp_path / "v.usda").write_text(text.replace("formatVersion = 1", "formatVersion = 1.0000001")
+                                     .replace("int warpShape:formatVersion", "double warpShape:formatVersion"))
+    with pytest.raises(ws.SceneError, match=r"format version 1.0000001 is not supported \(this build reads version "
+                                            r"1: set"):
+        ws.load_scene(tmp_path / "v.usda")
+
+
+# ------------------------------------------------------------------------------------ API misuse
+@pytest.mark.parametrize("call,error,match", [
+    (lambda: ws.icosphere(None), ws.MeshError, "subdivisions must be a whole number, got None"),
+    (lambda: ws.icosphere(2, "a"), ws.MeshError, "radius must be a positive finite length"),
+    (lambda: ws.icosphere(2, 0.04, center=(0, 0)), ws.MeshError, r"center must be a finite point \(x, y, z\)"),
+    (lambda: ws.radial_metrics(ws.icosphere(1), ws.icosphere(1)), ws.ShapeError, "not meshes; .* shape_metrics"),
+    (lambda: ws.design(ws.icosphere(2, 0.04), None), ws.DesignError, "design needs target shapes"),
+    (lambda: ws.design(ws.icosphere(2, 0.04), [ws.target("oval")], settings={"candidates": 2}), ws.DesignError,
+     "settings must be a DesignSettings or None, got dict"),
+    (lambda: ws.replay(ws.Design(ws.icosphere(1, 0.04)), None), ws.DesignError, "replay needs control results"),
+    (lambda: ws.pcc("abc", "abd"), ws.ShapeError, "must be an array of numbers"),
+    (lambda: ws.Material(atmospheric_pressure=1e300), ws.DesignError, "atmospheric_pressure = 1e\\+300 Pa is no "
+                                                                        "atmosphere"),
+])
+def test_api_misuse_is_one_clear_error(call, error, match):
+    with pytest.raises(error, match=match):
+        call()
+
+
+def test_air_scale_that_is_no_amount_of_air_names_the_flag(tmp_path, capsys):
+    err = error_of(capsys, ["simulate", "--air-scale", "-1", "--out", tmp_path / "s"])
+    assert "--air-scale must be a positive factor" in err and "got -1.0" in err
+    assert not (tmp_path / "s" / "simulate.json").exists()
