@@ -148,9 +148,9 @@ def test_work_beyond_a_bound_is_refused_in_one_line_naming_the_bound_and_the_fix
     with pytest.raises(ws.ShapeError, match=r"1000000000 directions asked for, more than the 1e\+07"):
         ws.fibonacci_directions(10**9)
     err = error_of(capsys, ["simulate", "--dt", "1e-9", "--out", tmp_path / "s"])
-    assert "8e+08 output steps, more than the 100000" in err and "larger --dt" in err
+    assert "8e+08 output steps, more than 200000" in err and "larger --dt" in err
     err = error_of(capsys, ["simulate", "--inflate-time", "1e9", "--out", tmp_path / "s"])
-    assert "1e+12 output steps" in err and "at most 100 s in all at this --dt" in err
+    assert "1e+12 output steps" in err and "shorter times" in err
     grid = [a for k in ("max_steps", "control_period", "max_settle_steps")
             for a in ("--param", f"{k}={','.join(str(v) for v in range(2, 102))}")]
     err = error_of(capsys, ["sweep", "grid", *grid, "--backend", "serial", "--out", tmp_path / "sw"])
@@ -177,10 +177,10 @@ def test_a_scene_with_too_many_ipams_is_refused_at_reading(tmp_path):
 
 
 # ------------------------------------------------------------------------------------ units and names
-def test_a_target_100x_too_big_names_centimetres_and_the_units_flag(tmp_path, capsys, monkeypatch):
+def test_a_target_100x_too_big_names_centimetres_and_the_units_flag(monkeypatch):
     no_work(monkeypatch)
     design = ws.Design(ws.icosphere(2, 0.035))
-    with pytest.raises(ws.ShapeError, match=r"105x the size .* looks like centimetres: scale it by 1e-2 .*--units m "
+    with pytest.raises(ws.ShapeError, match=r"\d+x the size .* looks like centimetres: scale it by 1e-2 .*--units m "
                                             r"or --units mm"):
         ws.control(design, ws.target("oval").scaled(100.0))
     with pytest.raises(ws.ShapeError, match=r"looks like millimetres: scale it by 1e-3"):
@@ -248,9 +248,10 @@ def test_a_pinched_vertex_and_a_self_crossing_rest_mesh_are_refused():
     v = m.vertices.copy()
     v[int(np.argmax(v[:, 2]))] = [0.003, 0.002, -0.05]  # the top vertex pulled out through the bottom
     poked = ws.TriMesh(v, m.faces)  # closed, manifold, outward: a valid mesh, but it passes through itself
+    design = ws.Design(poked)  # a description; simulating it is refused
     with pytest.raises(ws.MeshError, match=r"the rest mesh passes through itself: edge \(\d+, \d+\) crosses face"):
-        ws.Design(poked)
-    ws.Design(m)  # the sphere itself is fine
+        ws.Simulator(design)
+    ws.Simulator(ws.Design(m))  # the sphere itself is fine
 
 
 def test_a_membrane_tangled_for_two_checks_is_an_error_naming_the_step():
@@ -267,7 +268,7 @@ def test_a_membrane_tangled_for_two_checks_is_an_error_naming_the_step():
 
 # ------------------------------------------------------------------------------------ scans and scenes
 def test_a_degenerate_scan_is_refused():
-    with pytest.raises(ws.ShapeError, match="100 points lie within .* of one point"):
+    with pytest.raises(ws.ShapeError, match="the scan is 0 m across"):
         ws.compare_scan(np.full((100, 3), 0.01), "oval")
     line = np.c_[np.linspace(0, 0.05, 100), np.zeros(100), np.zeros(100)]
     with pytest.raises(ws.ShapeError, match="lie on one line"):
@@ -308,5 +309,5 @@ def test_api_misuse_is_one_clear_error(call, error, match):
 
 def test_air_scale_that_is_no_amount_of_air_names_the_flag(tmp_path, capsys):
     err = error_of(capsys, ["simulate", "--air-scale", "-1", "--out", tmp_path / "s"])
-    assert "--air-scale must be a positive factor" in err and "got -1.0" in err
+    assert "--air-scale takes 0.01..100, got -1" in err
     assert not (tmp_path / "s" / "simulate.json").exists()

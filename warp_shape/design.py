@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import itertools
 import math
-import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import DesignError, MeshError, check_number
+from .errors import DesignError, check_number
 from .material import Material
-from .mesh import TriMesh, self_crossing
+from .mesh import TriMesh
 from .physics.ipam_law import natural_length_np, pressure_for_length_np
 
-__all__ = ["Design", "Ipam", "Cell", "MAX_IPAMS", "check_not_self_crossing"]
+__all__ = ["Design", "Ipam", "Cell", "MAX_IPAMS"]
 
 # IPAM defaults: a soft latex tube (bore ~4.4 mm) in a fabric sheath. A / k = 3e-7 m/Pa gives
 # ~30 mm of extension at 100 kPa, the large strains the paper's actuators reach.
@@ -67,25 +66,6 @@ class Cell:
     faces: np.ndarray  # (n,) int32, sorted
 
 
-#: rest meshes already found not to pass through themselves (each mesh is tested once)
-_UNCROSSED: "weakref.WeakSet[TriMesh]" = weakref.WeakSet()
-
-
-def check_not_self_crossing(rest: TriMesh) -> None:
-    """A clear ``MeshError`` for a rest mesh that passes through itself (``mesh.self_crossing``): a
-    membrane cannot be made or simulated so."""
-    if rest in _UNCROSSED or not np.all(np.isfinite(rest.vertices)):  # non-finite ones are refused elsewhere
-        return
-    found = self_crossing(rest.vertices, rest, device="cpu")
-    if found:
-        _, e, face, n = found[0]
-        a, b = rest.edges[e]
-        raise MeshError(f"the rest mesh passes through itself: edge ({a}, {b}) crosses face {face} ({n} crossing "
-                        f"edges in all); a membrane must be a surface that does not intersect itself (repair it, "
-                        f"e.g. remesh, before using it)")
-    _UNCROSSED.add(rest)
-
-
 class Design:
     """Rest membrane + material + IPAMs + jamming cells (host description, SI units)."""
 
@@ -96,7 +76,6 @@ class Design:
             material = Material()
         if not isinstance(material, Material):
             raise DesignError(f"Design.material must be a ws.Material, got {type(material).__name__}")
-        check_not_self_crossing(rest)
         self.rest = rest
         self.material = material
         self.ipams: list[Ipam] = []

@@ -422,33 +422,3 @@ def icosphere_like(mesh: TriMesh, subdivisions: int) -> TriMesh:
     vertices) whose sphere holds ``mesh``'s volume (radius (3 V / 4 pi)^(1/3), m)."""
     radius = float(mesh.volume() * 3 / (4 * np.pi)) ** (1 / 3)
     return icosphere(subdivisions, radius)
-
-
-def self_crossing(positions, mesh: "TriMesh", device=None) -> list[tuple[int, int, int, int]]:
-    """(world, edge, face, crossing edges of that world) of every world whose surface passes through
-    itself (edge: the first that crosses a face), empty where none does. ``positions``: (V, 3) or (W, V, 3) points of ``mesh``'s topology, m. One BVH over every
-    world's faces and one launch of ``kernels.crossing.edge_crossings`` (an edge through a face it does not
-    touch); about a millisecond for 2562 vertices on a CPU."""
-    import warp as wp
-
-    from warp_shape.kernels.crossing import edge_crossings
-
-    x = np.asarray(positions, dtype=np.float64).reshape(-1, mesh.n_vertices, 3)
-    worlds, nv = x.shape[0], mesh.n_vertices
-    offset = (np.arange(worlds, dtype=np.int64) * nv)
-    faces = (mesh.faces[None].astype(np.int64) + offset[:, None, None]).reshape(-1)
-    edges = (mesh.edges[None].astype(np.int64) + offset[:, None, None]).reshape(-1, 2)
-    device = wp.get_device(device)
-    points = wp.array(x.reshape(-1, 3).astype(np.float32), dtype=wp.vec3, device=device)
-    indices = wp.array(faces.astype(np.int32), dtype=wp.int32, device=device)
-    bvh = wp.Mesh(points=points, indices=indices)
-    crossed = wp.full(len(edges), -1, dtype=wp.int32, device=device)
-    wp.launch(edge_crossings, dim=len(edges), device=device,
-              inputs=[bvh.id, points, indices, wp.array(edges.astype(np.int32), dtype=wp.vec2i, device=device),
-                      mesh.n_faces, len(mesh.edges)], outputs=[crossed])
-    hit = crossed.numpy().reshape(worlds, -1)
-    out = []
-    for w in np.flatnonzero((hit >= 0).any(axis=1)):
-        e = int(np.flatnonzero(hit[w] >= 0)[0])
-        out.append((int(w), e, int(hit[w, e]), int(np.sum(hit[w] >= 0))))
-    return out

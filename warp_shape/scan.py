@@ -458,18 +458,14 @@ def _coverage(ref: TriMesh, aligned: np.ndarray, faces: np.ndarray | None, keep:
 
 
 # ---------------------------------------------------------------------------------------- main entry
-#: a scan whose points spread less than this fraction of the reference's radius (or lie on a line) is refused
+#: a scan whose points spread across their main axis less than this fraction of along it lies on a line
 MIN_SCAN_SPREAD = 1e-3
 
 
-def check_scan_spread(pts: np.ndarray, scale: float) -> None:
-    """A clear ``ShapeError`` for a degenerate scan: points (nearly) all in one place, or on one line, against
-    a reference of radius ``scale`` (m); such a scan fits anything (ICP converges on nothing)."""
+def check_scan_spread(pts: np.ndarray) -> None:
+    """A clear ``ShapeError`` for a degenerate scan whose points lie on one line (coincident points are
+    refused by the size check of ``length_unit_of``): such a scan fits anything, ICP converges on nothing."""
     spread = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False) / np.sqrt(len(pts))  # rms along the axes
-    if spread[0] < MIN_SCAN_SPREAD * scale:
-        raise ShapeError(f"the scan's {len(pts)} points lie within {spread[0]:.3g} m of one point (the reference's "
-                         f"radius is {scale:.3g} m): a degenerate scan (coincident points, or another unit); give the "
-                         f"scanned surface's points, in metres")
     if spread[1] < MIN_SCAN_SPREAD * spread[0]:
         raise ShapeError(f"the scan's {len(pts)} points lie on one line (spread {spread[0]:.3g} m along it, "
                          f"{spread[1]:.3g} m across): a degenerate scan; give the scanned surface's points")
@@ -505,7 +501,7 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
     c_ref = ref.centroid()
     refc = ref.centered()
     scale = float(np.max(np.linalg.norm(refc.vertices, axis=1)))
-    check_scan_spread(pts, scale)
+    check_scan_spread(pts)
     sampler = RadialSampler(refc, device=device, names=["reference"])  # checks star shape
     closest = _Closest(refc, device)
     w = _point_weights(pts, faces)

@@ -20,7 +20,7 @@ from .design import Design
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused
 from .integrators import BlowupWatch, blowup_error, make_solver
-from .mesh import self_crossing
+from .crossing import check_rest_mesh, self_crossing
 from .model import State, WorldRef, build_model, check_device, check_layout, copy_worlds, host_model
 from .physics import FORCE_TERMS
 from .physics.bending import bending_energy_np
@@ -72,6 +72,7 @@ class Simulator:
             raise DesignError(f"Simulator needs a ws.Design, got {type(design).__name__}")
         if settings is not None and not isinstance(settings, SimulationSettings):
             raise DesignError(f"settings must be a SimulationSettings or None, got {type(settings).__name__}")
+        check_rest_mesh(design.rest)
         given = dict(integrator=integrator, dt=dt, precision=precision, bending=bending, substeps=substeps,
                      launch_mode=launch_mode, reestimate_every=reestimate_every, max_substeps=max_substeps)
         self.settings = (settings or SimulationSettings()).replace(
@@ -497,7 +498,7 @@ class Simulator:
         row (tangled by a violent motion: folded faces and winding numbers above 1, which the volume check
         can miss; the model has no self-contact, and a crumple that untangles within ``TANGLE_EVERY``
         output steps, like a 100-atmosphere recoil, is let through). Cheap first: only a world with more
-        than ``INWARD_FACES`` of its faces facing its centre is tested exactly (``mesh.self_crossing``).
+        than ``INWARD_FACES`` of its faces facing its centre is tested exactly (``crossing.self_crossing``).
         ``step`` calls it every ``TANGLE_EVERY`` output steps where it checks the volume."""
         rest = self.design.rest
         x = self.state.x.numpy().astype(np.float64).reshape(self.worlds, -1, 3)

@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from ..io.recording_read import check_recording_file
+
 __all__ = ["register", "run", "viewer_command", "display_problem"]
 
 #: The viewer's own server (for SDKs streaming to it) listens on this machine only, never on a network.
@@ -26,7 +28,6 @@ def viewer_command(path) -> list[str]:
     """The command that opens ``path`` in the rerun viewer of this Python's rerun-sdk; a clear error
     where the file or rerun-sdk is missing."""
     from ..errors import WarpShapeError
-    from ..io.recording_read import check_recording_file
 
     p = Path(path)
     check_recording_file(p)
