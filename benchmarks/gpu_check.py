@@ -23,8 +23,14 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from warp_shape.io.atomic import atomic_write
-from warp_shape.io.atomic import write_json
+import warp as wp
+
+import warp_shape as ws
+from warp_shape.benchmarks.design import bench_design
+from warp_shape.benchmarks.sim import bench_sim
+from warp_shape.cli.options import quiet_warp
+from warp_shape.designer import design
+from warp_shape.io.atomic import atomic_write, write_json
 
 __all__ = ["PLANS", "TARGET_VERTEX_STEPS", "run_tests", "bench_steps", "bench_designs", "markdown", "main"]
 
@@ -75,8 +81,6 @@ def bench_steps(device: str, subdivisions, worlds, repeats: int, seconds: float,
     """One row per (vertices, worlds): RK4 float32 graph-replay throughput of the jammed Fig. 6
     device (``bench_sim`` without NumPy and without periodic re-estimates). Cases past ``deadline``
     (perf_counter seconds) are skipped; a case that fails records its error."""
-    from warp_shape.benchmarks.sim import bench_sim
-
     rows = []
     for sub in subdivisions:
         vertices = 10 * 4 ** sub + 2
@@ -102,9 +106,6 @@ def bench_steps(device: str, subdivisions, worlds, repeats: int, seconds: float,
 
 def _tiny_design(device: str) -> list[dict]:
     """A one-actuator design of a 162-vertex sphere for oval and heart (the CPU dry run)."""
-    import warp_shape as ws
-    from warp_shape.designer import design
-
     names = ["oval", "heart"]
     t0 = time.perf_counter()
     res = design(ws.icosphere(2, 0.035), [ws.target(n) for n in names], actuators=1, cell_radius=0.016,
@@ -119,8 +120,6 @@ def bench_designs(device: str, which: str, four_targets: bool) -> list[dict]:
     try:
         if which == "tiny":
             return _tiny_design(device)
-        from warp_shape.benchmarks.design import bench_design
-
         return bench_design(device=device, four_targets=four_targets)
     except Exception as exc:
         return [dict(problem=which, error=f"{type(exc).__name__}: {exc}")]
@@ -174,12 +173,9 @@ def markdown(result: dict) -> str:
 
 
 def _environment(device: str) -> dict:
-    import warp as wp
-    import warp_shape
-
     d = wp.get_device(device)
     env = dict(device=str(d), device_name=d.name, warp=wp.config.version, python=sys.version.split()[0],
-               package=str(Path(warp_shape.__file__).parent), machine=os.uname().nodename,
+               package=str(Path(ws.__file__).parent), machine=os.uname().nodename,
                cpu_count=os.cpu_count())
     if d.is_cuda:
         env.update(arch=d.arch, memory_gib=round(d.total_memory / 2**30, 1),
@@ -215,10 +211,6 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Run the check; returns 0 when every phase ran and the tests passed."""
-    import warp as wp
-
-    from warp_shape.cli.options import quiet_warp
-
     args = _parser().parse_args(argv)
     plan_name = args.plan or "full"
     plan = PLANS[plan_name]

@@ -23,6 +23,7 @@ import numpy as np
 import warp_shape as ws
 from warp_shape.benchmarks.sim import format_rows
 from warp_shape.controller import control_many
+from warp_shape.io.atomic import write_json
 from warp_shape.scenarios import cube_fig6_design
 
 __all__ = ["main"]
@@ -109,8 +110,6 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="out")
     ap.add_argument("--skip-ten", action="store_true", help="leave out the ten-target table (the longest part)")
     args = ap.parse_args(argv)
-    from warp_shape.io.atomic import write_json
-
     rows, plans = fig6_rows()
     print("Fig. 6 (642 vertices) to the cube: the paper's law vs model-based control, by IPAM pressure limit")
     print(format_rows(rows, FIT_COLUMNS))

@@ -52,6 +52,7 @@ def test_ctrl_c_while_the_final_outputs_are_written_keeps_the_finished_rounds(tm
 def test_a_ctrl_c_that_usd_swallows_at_start_up_still_stops_the_run(tmp_path, monkeypatch, capsys):
     """USD's module loading catches a KeyboardInterrupt raised inside it ("Error occurred postprocessing
     module") and goes on; the run stops all the same before any work, the previous outputs untouched."""
+    import warp_shape.cli.design as design_cli
     import warp_shape.io.scene_read as scene_read
 
     real = scene_read.load_scene
@@ -64,7 +65,7 @@ def test_a_ctrl_c_that_usd_swallows_at_start_up_still_stops_the_run(tmp_path, mo
         return real(*args, **kwargs)
 
     no_control(monkeypatch)
-    monkeypatch.setattr(scene_read, "load_scene", swallowing)
+    monkeypatch.setattr(design_cli, "load_scene", swallowing)
     out = tmp_path / "out"
     before = fake_previous_set(out)
     assert one_line(capsys, 130, ["design", "--out", str(out), *SMALL]) == "warp-shape: interrupted"
@@ -94,8 +95,8 @@ def test_ctrl_c_during_the_folder_swap_lets_it_finish_then_stops(tmp_path, monke
 
 INTERRUPT_AT_START = r"""
 import os, signal, sys
-import warp_shape.cli.options as options
-options.quiet_warp = lambda *a, **k: os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while Warp starts
+import warp_shape.cli as cli
+cli.quiet_warp = lambda *a, **k: os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while Warp starts
 from warp_shape.cli import main
 sys.exit(main(sys.argv[1:]))
 """

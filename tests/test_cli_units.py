@@ -128,10 +128,11 @@ def no_work(monkeypatch):
 
     monkeypatch.setattr(designer_loop, "control_many", forbidden)
     monkeypatch.setattr(outputs, "write_molds", forbidden)
-    monkeypatch.setattr(export, "control_many", forbidden, raising=False)
-    import warp_shape.controller as controller
+    monkeypatch.setattr(export, "write_molds", forbidden)
+    monkeypatch.setattr(export, "control_many", forbidden)
+    import warp_shape.cli.control as control_cli
 
-    monkeypatch.setattr(controller, "control_many", forbidden)
+    monkeypatch.setattr(control_cli, "control_many", forbidden)
 
 
 @pytest.mark.parametrize("flag, value, expect", [

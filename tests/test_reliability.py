@@ -436,7 +436,7 @@ class _Stop(Exception):
 
 
 def _control_settings(monkeypatch, tmp_path, simulation, extra=()):
-    import warp_shape.controller as controller
+    import warp_shape.cli.control as control_cli
     from warp_shape.cli import main
     from warp_shape.io.scene_schema import Scene
     from warp_shape.io.scene_write import save_scene
@@ -448,7 +448,7 @@ def _control_settings(monkeypatch, tmp_path, simulation, extra=()):
         seen["settings"] = settings
         raise _Stop
 
-    monkeypatch.setattr(controller, "control_many", fake)
+    monkeypatch.setattr(control_cli, "control_many", fake)
     path = save_scene(Scene(design=cube_fig6_design(), targets=[ws.target("cube")], target_names=["cube"],
                             settings={"simulation": simulation}), tmp_path / "problem.usda")
     try:

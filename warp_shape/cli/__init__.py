@@ -10,7 +10,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .. import __version__
+from ..errors import WarpShapeError
 from . import bench, compare, control, design, export, simulate, sweep, view
+from .options import check_bounds, interrupts_noted, quiet_warp, stop_if_interrupted, write_failure
 
 __all__ = ["main", "build_parser"]
 
@@ -36,8 +39,6 @@ def _with_defaults(parser: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``warp-shape`` argument parser with every subcommand."""
-    from .. import __version__
-
     p = argparse.ArgumentParser(prog="warp-shape", description="Simulate and design soft 3-D haptic shape displays.")
     p.add_argument("--version", action="version", version=f"warp-shape {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
@@ -50,9 +51,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Entry point of ``warp-shape``: returns 0 on success, 2 on a clear input error, 1 where a full or
     failing disk refused a write, 130 on Ctrl-C (at any moment once this function runs)."""
-    from ..errors import WarpShapeError
-    from .options import interrupts_noted, write_failure
-
     with interrupts_noted():
         try:
             return _run(argv)
@@ -71,13 +69,9 @@ def main(argv=None) -> int:
 
 
 def _run(argv) -> int:
-    from .options import check_bounds, stop_if_interrupted
-
     stop_if_interrupted()  # Ctrl-C while the command started
     args = build_parser().parse_args(argv)
     check_bounds(args)
     if args.command != "view":  # every command's Warp: no banner, no note that this CPU has no CUDA driver
-        from .options import quiet_warp
-
         quiet_warp(getattr(args, "verbose", False))
     return int(args.func(args) or 0)

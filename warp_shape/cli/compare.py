@@ -13,7 +13,9 @@ import warnings
 
 import numpy as np
 
-from ..errors import WarpShapeError
+from ..errors import ShapeError, WarpShapeError
+from ..io.scene_read import load_actuated_shape
+from ..scan import IcpConvergenceWarning, compare_scan
 from .options import add_bounded, check_device
 
 __all__ = ["register", "run", "format_comparison"]
@@ -95,16 +97,12 @@ _DESIGN_EXTENSIONS = (".usda", ".usdc", ".usd")
 def _reference(args):
     """(reference for ``compare_scan``, its units, how to name it): a design's actuated shape where
     ``--to`` is a scene, else the mesh file or target name as given."""
-    from ..errors import ShapeError
-
     is_design = str(args.reference).lower().endswith(_DESIGN_EXTENSIONS)
     if not is_design:
         if args.target is not None or args.time is not None:
             raise ShapeError(f"--target and --time pick a design's actuated shape; --to {args.reference} is not a "
                              f"design (give its design.usda or an actuation_<target>.usdc)")
         return args.reference, args.reference_units or args.units, str(args.reference)
-    from ..io.scene_read import load_actuated_shape
-
     mesh, info = load_actuated_shape(args.reference, target=args.target, time_s=args.time)
     what = f"{info['file']} (target {info['target']}, simulated shape at {info['time_s']:.3f} of {info['duration_s']:.3f} s)"
     return mesh, "m", what
@@ -112,8 +110,6 @@ def _reference(args):
 
 def run(args) -> int:
     """Compare the scan with the reference; print the table (or JSON)."""
-    from ..scan import IcpConvergenceWarning, compare_scan
-
     try:
         check_device(args.device)
         reference, reference_units, named = _reference(args)

@@ -7,6 +7,10 @@ from pathlib import Path
 
 import argparse
 
+from ..controller import ControlSettings, control_many
+from ..io.atomic import StagedFolder
+from ..io.outputs import write_control_outputs, write_figures_or_skip
+from ..settings import SimulationSettings
 from .options import (MAX_CONTROL_STEPS, ControlProgress, actuator_selection, add_bounded, add_common_args,
                       add_units_arg, check_device, check_out, check_rerun, open_recorder, print_outputs,
                       resolve_design_and_targets, stop_if_interrupted)
@@ -65,11 +69,6 @@ def _print_table(design, settings, names, results, args, out: Path) -> None:
 
 def run(args) -> int:
     """Control the design to every chosen target; write figures and ``control_<target>.csv|json``."""
-    from ..controller import ControlSettings, control_many
-    from ..io.atomic import StagedFolder
-    from ..io.outputs import write_control_outputs, write_figures_or_skip
-    from ..settings import SimulationSettings
-
     check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)

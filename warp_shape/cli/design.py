@@ -10,9 +10,18 @@ runs, and a failed or killed run leaves the previous set there untouched.
 from __future__ import annotations
 
 import json
+import math
+import sys
 import time
 
+from ..designer import DesignSettings, design
+from ..errors import DesignError
 from ..interrupts import held_interrupts
+from ..io.atomic import StagedFolder
+from ..io.outputs import is_run_output, record_round, write_design_outputs, write_round_outputs
+from ..io.report import design_markdown
+from ..io.scene_read import load_scene
+from ..molds import equivalent_radius
 from .options import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS, add_bounded, add_common_args,
                       add_units_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
                       open_recorder, print_outputs, recording_entry, run_progress, stop_if_interrupted)
@@ -58,9 +67,6 @@ def register(subparsers) -> None:
 def _designer_options(scene, args) -> tuple[int, dict]:
     """(actuators, DesignSettings keywords) from the scene's ``designer`` settings and the flags;
     unknown setting names are an error."""
-    from ..designer import DesignSettings
-    from ..errors import DesignError
-
     opts = dict((scene.settings or {}).get("designer", {}))
     actuators = opts.pop("actuators", 4)
     if args.actuators is not None:
@@ -83,10 +89,6 @@ def _designer_options(scene, args) -> tuple[int, dict]:
 def _problem(args):
     """(base mesh, [(name, target)], actuators, DesignSettings) from the scene and the flags; every
     input is checked here, before anything runs or is written."""
-    from ..designer import DesignSettings
-    from ..errors import DesignError
-    from ..io.scene_read import load_scene
-
     scene = load_scene(args.scene or "oval_heart")
     if args.subdivisions is not None and not 1 <= args.subdivisions <= 6:
         raise DesignError(f"--subdivisions takes 1..6 (42..40962 vertices), got {args.subdivisions}")
@@ -105,8 +107,6 @@ def _problem(args):
 def _device_radius(base, named, settings) -> float:
     """The designed device's radius (m) before it is designed: the rest shape the designer will
     initialise (``volume_scale`` of the smallest target's volume), or the base kept as it is."""
-    from ..molds import equivalent_radius
-
     if not settings.initialize:
         return equivalent_radius(base)
     return settings.volume_scale ** (1.0 / 3.0) * min(equivalent_radius(t) for _, t in named)
@@ -116,10 +116,6 @@ def _run_designer(args, base, named, actuators, settings, staged):
     """Run the designer; each finished round is written to the staging folder as it completes.
     Ctrl-C keeps the finished rounds (in ``<out>`` where it holds no finished run, else in
     ``<out>.partial``); any other failure removes the staging folder."""
-    from ..designer import design
-    from ..errors import DesignError
-    from ..io.outputs import record_round, write_round_outputs
-
     names = [n for n, _ in named]
     records, rounds = [], []
 
@@ -154,8 +150,6 @@ def _cell_room_hint(exc, args) -> str:
     """For the designer's "no room for the cells" error: the cell radius that fits, and what
     ``--subdivisions`` can do (cells cover a fixed share of the surface whatever the mesh; a finer
     mesh helps only where a cell is smaller than a face)."""
-    import math
-
     if getattr(exc, "cell_room", None) is None:
         return ""
     need, radius_mm, have = exc.cell_room
@@ -168,8 +162,6 @@ def _cell_room_hint(exc, args) -> str:
 def _keep_interrupted(staged, rounds_done: int) -> None:
     """After Ctrl-C: the finished rounds (and any final outputs written) kept, sealed as they are, in
     ``<out>`` where it holds no finished run, else in ``<out>.partial``; nothing where no round finished."""
-    import sys
-
     if not rounds_done:
         staged.discard()
         print(f"\nno design round had finished; {staged.out} is unchanged", file=sys.stderr)
@@ -192,10 +184,6 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
 
 def run(args) -> int:
     """Design, then write the scene, control sequences, USD animations, molds, figures and reports."""
-    from ..io.outputs import is_run_output, write_design_outputs
-    from ..io.report import design_markdown
-    from ..io.atomic import StagedFolder
-
     staged = StagedFolder(args.out, owned=is_run_output)
     check_out(staged)
     check_device(args.device)

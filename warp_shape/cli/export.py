@@ -5,8 +5,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..controller import ControlSettings, control_many
+from ..errors import DesignError
+from ..io.atomic import StagedFolder
+from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
+from ..io.scene_read import load_scene
+from ..io.scene_write import save_scene
 from ..io.valve import (DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ, MAX_VALVE_RATE_HZ, MIN_VALVE_FLOW_ML_S,
-                        MIN_VALVE_SLEW_KPA_S)
+                        MIN_VALVE_SLEW_KPA_S, write_valve_outputs)
+from ..molds import equivalent_radius
 from .options import (actuator_selection, add_bounded, add_common_args, check_device, check_mold_flags, check_out,
                       check_rerun, control_progress, load_targets, open_recorder, stop_if_interrupted)
 
@@ -49,11 +56,6 @@ def register(subparsers) -> None:
 def _checked_inputs(args):
     """(scene, [(name, target)]) once every input is checked, before any work: ``--out``, the device,
     the recording path, the scene (a design), the mold lengths and the targets."""
-    from ..errors import DesignError
-    from ..io.atomic import StagedFolder
-    from ..io.scene_read import load_scene
-    from ..molds import equivalent_radius
-
     check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)
@@ -69,11 +71,6 @@ def _checked_inputs(args):
 
 def run(args) -> int:
     """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
-    from ..controller import ControlSettings, control_many
-    from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
-    from ..io.valve import write_valve_outputs
-    from ..io.scene_write import save_scene
-
     scene, named = _checked_inputs(args)
     out = Path(args.out)
     written = []

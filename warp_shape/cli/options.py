@@ -5,13 +5,29 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
 import signal
 import sys
+import tempfile
 import threading
 from pathlib import Path
 
+import numpy as np
+import warp as wp
+
+from ..designer import selection_from_settings
+from ..errors import DesignError
 from ..interrupts import release_the_command
+from ..io.atomic import creation_refused
+from ..io.recorder import Recorder
+from ..io.scene_read import load_scene
+from ..model import check_device as check_warp_device
+from ..molds import check_mold_lengths
+from ..sampling import check_star_shaped
+from ..scan import LENGTH_UNITS, length_unit_of
+from ..scenarios import cube_fig6_design
+from ..targets import TARGET_NAMES, load_target, target
 from .progress import Bar, ControlProgress, DesignProgress
 
 __all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
@@ -56,10 +72,6 @@ def add_bounded(sp, flag: str, lo: float, hi: float, *, zero: bool = False, **kw
 def check_bounds(args) -> None:
     """Every number a flag of ``add_bounded`` was given, within its bounds: a one-line error naming them
     otherwise (rates, counts, resolutions and steps all request memory, disk or time in proportion)."""
-    import math
-
-    from ..errors import DesignError
-
     for dest, (flag, lo, hi, zero) in (getattr(args, "flag_bounds", None) or {}).items():
         value = getattr(args, dest, None)
         for v in value if isinstance(value, (list, tuple)) else [value]:
@@ -89,8 +101,6 @@ def open_recorder(args):
     """A context manager giving the rerun ``Recorder`` the flags ask for, or None."""
     if not (getattr(args, "rerun", None) or getattr(args, "rerun_spawn", False)):
         return contextlib.nullcontext(None)
-    from ..io.recorder import Recorder
-
     return Recorder(args.rerun, spawn=args.rerun_spawn, every=args.rerun_every)
 
 
@@ -98,8 +108,6 @@ def open_recorder(args):
 def _held_stderr(drop):
     """Run Warp with the C-level stderr held (Warp 1.19 prints its CUDA notes and errors from native
     code, with no setting to turn them off); afterwards the lines ``drop(line)`` rejects are passed on."""
-    import tempfile
-
     sys.stderr.flush()
     saved = os.dup(2)
     with tempfile.TemporaryFile() as held:
@@ -119,8 +127,6 @@ def _held_stderr(drop):
 def quiet_warp(verbose: bool = False) -> None:
     """Silence Warp's banner and compile messages unless ``verbose`` (``wp.config.log_level``) and
     start Warp without its note that no CUDA driver was found (the device check says what matters)."""
-    import warp as wp
-
     if verbose:
         return
     wp.config.log_level = wp.LOG_WARNING
@@ -183,12 +189,10 @@ def write_failure(exc: OSError) -> str | None:
 def check_device(device: str) -> str:
     """The Warp name of ``device``; a clear error (listing the devices here) where it is absent, without
     the CUDA errors Warp prints while it looks for one."""
-    from ..model import check_device as check
-
     failed = []
     with _held_stderr(lambda line: bool(failed) and line.startswith(b"Warp CUDA error")):
         try:
-            return check(device)
+            return check_warp_device(device)
         except Exception:
             failed.append(True)
             raise
@@ -205,10 +209,8 @@ def check_rerun(args) -> None:
     path = getattr(args, "rerun", None)
     if not (path or getattr(args, "rerun_spawn", False)):
         return
-    from ..errors import DesignError
-
     try:
-        import rerun  # noqa: F401
+        import rerun  # noqa: F401  (optional, ~1 s to import: only when a recording is asked for)
     except ImportError:
         raise DesignError("--rerun needs rerun-sdk: pip install 'warp-shape[rerun]'") from None
     if path:
@@ -218,8 +220,6 @@ def check_rerun(args) -> None:
         folder = p.parent
         while not folder.exists():
             folder = folder.parent
-        from ..io.atomic import creation_refused
-
         reason = "not a folder" if not folder.is_dir() else creation_refused(folder)
         if reason is not None:
             raise DesignError(f"--rerun {path}: {folder} is not writable ({reason}); give a path in a folder you "
@@ -229,8 +229,6 @@ def check_rerun(args) -> None:
 def check_mold_flags(args, radius: float) -> None:
     """``--layer-thickness`` and ``--marker-height`` (m) checked against a device of ``radius`` m
     before any work (``molds.check_mold_lengths``)."""
-    from ..molds import check_mold_lengths
-
     check_mold_lengths(radius, spell=lambda name: "--" + name.replace("_", "-"),
                        layer_thickness=args.layer_thickness, marker_height=args.marker_height)
 
@@ -251,12 +249,6 @@ def load_targets(specs, units: str = "auto") -> list:
     name gets the list of names and the closest one, an unreadable file a parse error. A file's
     numbers are read in ``units`` (auto: detected, with a note on stderr where they are millimetres)
     and the file is checked to be star-shaped, each problem named by the file, before any work."""
-    import numpy as np
-
-    from ..sampling import check_star_shaped
-    from ..scan import LENGTH_UNITS, length_unit_of
-    from ..targets import TARGET_NAMES, load_target
-
     out = []
     for spec in specs:
         name, mesh = load_target(spec)
@@ -275,10 +267,6 @@ def load_targets(specs, units: str = "auto") -> list:
 def resolve_design_and_targets(scene: str | None, target_names, units: str = "auto"):
     """The built-in Fig. 6 problem (no USD needed), or a scene file / shipped scene name; then the
     chosen targets: the scene's own by name, else shipped target names or mesh files."""
-    from ..io.scene_read import load_scene
-    from ..scenarios import cube_fig6_design
-    from ..targets import target
-
     if scene in (None, "cube_fig6", "fig6"):
         design, targets, settings = cube_fig6_design(), [("cube", target("cube"))], {}
     else:
@@ -294,8 +282,6 @@ def resolve_design_and_targets(scene: str | None, target_names, units: str = "au
 def actuator_selection(args, scene_settings, names) -> dict:
     """The per-target actuator selection a design stored in its scene (unless --all-actuators), as
     ``control_many`` keyword arguments."""
-    from ..designer import selection_from_settings
-
     if getattr(args, "all_actuators", False):
         return {}
     ipams, cells = selection_from_settings(scene_settings, names)

@@ -8,6 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import StabilityError
+from ..io.atomic import StagedFolder, write_json
+from ..scenarios import cube_fig6_design
+from ..simulator import Simulator
 from .options import (MAX_SIM_STEPS, Bar, add_bounded, add_common_args, check_device, check_out, check_rerun,
                       open_recorder, print_outputs)
 
@@ -35,8 +39,6 @@ def register(subparsers) -> None:
 
 def _step_counts(args) -> tuple[int, int]:
     """Output steps of the inflation and the actuation; a clear error for a step that takes none."""
-    from ..errors import StabilityError
-
     for name, value in (("--dt", args.dt), ("--inflate-time", args.inflate_time), ("--actuate-time", args.actuate_time)):
         if not (value > 0 and np.isfinite(value)):
             raise StabilityError(f"{name} must be a positive number of seconds, got {value}")
@@ -98,11 +100,6 @@ def _drive(sim, design, args, rec, bar) -> list[dict]:
 
 def run(args) -> int:
     """Run the Fig. 6 sequence; write ``simulate.json``; print a table (or the JSON)."""
-    from ..io.atomic import StagedFolder
-    from ..io.atomic import write_json
-    from ..scenarios import cube_fig6_design
-    from ..simulator import Simulator
-
     check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from ..errors import WarpShapeError
 from ..io.recording_read import check_recording_file
 
 __all__ = ["register", "run", "viewer_command", "display_problem"]
@@ -27,8 +28,6 @@ def register(subparsers) -> None:
 def viewer_command(path) -> list[str]:
     """The command that opens ``path`` in the rerun viewer of this Python's rerun-sdk; a clear error
     where the file or rerun-sdk is missing."""
-    from ..errors import WarpShapeError
-
     p = Path(path)
     check_recording_file(p)
     try:
@@ -44,7 +43,7 @@ def display_problem(path) -> str | None:
     display), with how to open ``path`` elsewhere; None where there is a display."""
     if not sys.platform.startswith("linux") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
         return None
-    import rerun
+    import rerun  # optional (rerun-sdk) and ~1 s to import: only here, never at start-up
 
     return (f"no display here (DISPLAY and WAYLAND_DISPLAY are unset), so the viewer cannot open a window; copy "
             f"{path} to a machine with one and open it there: pip install rerun-sdk=={rerun.__version__}; "
@@ -53,8 +52,6 @@ def display_problem(path) -> str | None:
 
 def run(args) -> int:
     """Start the viewer on the recording and wait for it to close."""
-    from ..errors import WarpShapeError
-
     cmd = viewer_command(args.path)
     problem = display_problem(args.path)
     if problem:
