@@ -177,8 +177,13 @@ def test_a_scene_with_too_many_ipams_is_refused_at_reading(tmp_path):
 
 
 # ------------------------------------------------------------------------------------ units and names
-def test_a_target_100x_too_big_names_centimetres_and_the_units_flag(monkeypatch):
+def test_a_target_100x_too_big_names_centimetres_and_the_units_flag(tmp_path, capsys, monkeypatch):
     no_work(monkeypatch)
+    big = tmp_path / "big.stl"  # a 4 cm display saved in centimetres, read as metres: 100x too big
+    ws.target("oval", resolution=2).scaled(100.0).to_trimesh().export(str(big))
+    for units in ("auto", "m"):
+        err = error_of(capsys, ["design", "--targets", big, "--units", units, "--out", tmp_path / "o"])
+        assert "it looks like centimetres (10.25 cm across)" in err and "give --units m or --units mm" in err
     design = ws.Design(ws.icosphere(2, 0.035))
     with pytest.raises(ws.ShapeError, match=r"\d+x the size .* looks like centimetres: scale it by 1e-2 .*--units m "
                                             r"or --units mm"):

@@ -167,7 +167,8 @@ def detect_length_unit(points, what: str = "scan") -> str:
         if lo <= ext * factor <= hi:
             return unit
     raise ShapeError(f"{what} is {ext:.4g} units across: neither metres nor millimetres give a display "
-                     f"{lo * 1e3:g} mm to {hi:g} m across; scale the file to metres or millimetres")
+                     f"{lo * 1e3:g} mm to {hi:g} m across"
+                     f"{_centimetres(ext) or '; scale the file to metres or millimetres'}")
 
 
 def length_unit_of(points, units: str, what: str) -> str:
@@ -180,9 +181,18 @@ def length_unit_of(points, units: str, what: str) -> str:
     ext = float(np.max(np.ptp(points, axis=0))) * LENGTH_UNITS[units]
     if not PLAUSIBLE_EXTENT_M[0] <= ext <= PLAUSIBLE_EXTENT_M[1]:
         other = next(u for u in LENGTH_UNITS if u != units)
-        raise ShapeError(f"{what} is {ext:.4g} m across read in {units}: no shape display is; is it in {other}? "
-                         f"(--units {other} or auto)")
+        guess = _centimetres(ext / LENGTH_UNITS[units]) or f"; is it in {other}? (--units {other} or auto)"
+        raise ShapeError(f"{what} is {ext:.4g} m across read in {units}: no shape display is{guess}")
     return units
+
+
+def _centimetres(ext: float) -> str:
+    """The hint for a file ``ext`` units across that is a plausible display in centimetres (cm read as m is
+    100x too big), or ''."""
+    if not PLAUSIBLE_EXTENT_M[0] <= ext * 1e-2 <= PLAUSIBLE_EXTENT_M[1]:
+        return ""
+    return (f"; it looks like centimetres ({ext:.4g} cm across), which --units does not read: save the file in "
+            f"metres or millimetres and give --units m or --units mm")
 
 
 def _load_reference(reference) -> TriMesh:
