@@ -118,21 +118,18 @@ def test_compare_names_the_missing_run_of_a_design(design_folder, tmp_path, caps
 
 # ------------------------------------------------------------------------------- length flags, before work
 def no_work(monkeypatch):
-    """Any design, control run or mold making fails loudly: the checks must come first."""
+    """Any design, control run or mold making fails loudly: the checks must come first (patched where
+    the commands look them up)."""
+    import warp_shape.cli.design as design_cli
     import warp_shape.cli.export as export
     import warp_shape.designer.loop as designer_loop
-    import warp_shape.io.outputs as outputs
 
     def forbidden(*args, **kwargs):
         raise AssertionError("work started before the inputs were checked")
 
     monkeypatch.setattr(designer_loop, "control_many", forbidden)
-    monkeypatch.setattr(outputs, "write_molds", forbidden)
-    monkeypatch.setattr(export, "write_molds", forbidden)
-    monkeypatch.setattr(export, "control_many", forbidden)
-    import warp_shape.cli.control as control_cli
-
-    monkeypatch.setattr(control_cli, "control_many", forbidden)
+    for module, name in ((export, "control_many"), (export, "write_molds"), (design_cli, "write_design_outputs")):
+        monkeypatch.setattr(module, name, forbidden)
 
 
 @pytest.mark.parametrize("flag, value, expect", [
@@ -161,6 +158,8 @@ def test_export_length_flags_are_checked_against_the_device_first(tmp_path, monk
     err = error_of(capsys, ["export", "cube_fig6", flag, value, "--out", str(tmp_path / "out")])
     assert f"{flag} {value}" in err and "for a device 35 mm in radius" in err
     assert not (tmp_path / "out").exists()
+    with pytest.raises(AssertionError, match="work started"):  # the guard holds: valid flags reach the work
+        main(["export", "cube_fig6", "--what", "molds", "--out", str(tmp_path / "out")])
 
 
 def test_mold_lengths_of_the_api_are_checked_too():
