@@ -21,8 +21,8 @@ MAX_FUNCTION_LINES = 80
 #: (module prefix, layer); the longest matching prefix wins
 LAYERS = [
     ("warp_shape.kernels", 0),
-    ("warp_shape.errors", 1), ("warp_shape.interrupts", 1), ("warp_shape.settings", 1), ("warp_shape.material", 1),
-    ("warp_shape.mesh", 1),
+    ("warp_shape.errors", 1), ("warp_shape.interrupts", 1), ("warp_shape.registry", 1), ("warp_shape.settings", 1),
+    ("warp_shape.material", 1), ("warp_shape.mesh", 1),
     ("warp_shape.design", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
     ("warp_shape.integrators", 2), ("warp_shape.crossing", 2), ("warp_shape.stability", 2), ("warp_shape.step_plan", 2),
     ("warp_shape.simulator", 2),

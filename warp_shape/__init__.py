@@ -16,9 +16,10 @@ from .interrupts import hold_for_the_command
 
 hold_for_the_command()  # the warp-shape command only: Ctrl-C while it starts is answered by its main()
 
-from .controller import ControlResult, ControlSettings, control, control_many, replay
+from .controller import (CONTROL_METHODS, LAWS, ControlResult, ControlSettings, control, control_many,
+                         register_control_method, register_law, replay)
 from .design import Cell, Design, Ipam
-from .designer import DesignResult, DesignSettings, design
+from .designer import PLACEMENTS, DesignResult, DesignSettings, Placement, design, register_placement
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .io.figures import control_figure, pcc_by_round_figure, write_figures
 from .io.recorder import Recorder

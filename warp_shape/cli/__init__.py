@@ -12,6 +12,7 @@ import sys
 
 from .. import __version__
 from ..errors import WarpShapeError
+from ..registry import load_plugins
 from . import bench, compare, control, design, export, simulate, sweep, view
 from .options import check_bounds, interrupts_noted, quiet_warp, stop_if_interrupted, write_failure
 
@@ -50,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Entry point of ``warp-shape``: returns 0 on success, 2 on a clear input error, 1 where a full or
-    failing disk refused a write, 130 on Ctrl-C (at any moment once this function runs)."""
+    failing disk refused a write, 130 on Ctrl-C (at any moment once this function runs). The modules
+    named in ``WARP_SHAPE_PLUGINS`` are imported first (their strategies become choices)."""
     with interrupts_noted():
         try:
             return _run(argv)
@@ -70,6 +72,7 @@ def main(argv=None) -> int:
 
 def _run(argv) -> int:
     stop_if_interrupted()  # Ctrl-C while the command started
+    load_plugins()
     args = build_parser().parse_args(argv)
     check_bounds(args)
     if args.command != "view":  # every command's Warp: no banner, no note that this CPU has no CUDA driver

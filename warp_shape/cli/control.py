@@ -7,10 +7,10 @@ from pathlib import Path
 
 import argparse
 
-from ..controller import ControlSettings, control_many
+from ..controller import CONTROL_METHODS, control_many
+from ..designer.run_settings import RunSettings
 from ..io.atomic import StagedFolder
 from ..io.outputs import write_control_outputs, write_figures_or_skip
-from ..settings import SimulationSettings
 from .options import (MAX_CONTROL_STEPS, ControlProgress, actuator_selection, add_bounded, add_common_args,
                       add_units_arg, check_device, check_out, check_rerun, open_recorder, print_outputs,
                       resolve_design_and_targets, stop_if_interrupted)
@@ -32,10 +32,11 @@ def register(subparsers) -> None:
                    help="overrides the scene's simulation:integrator (default rk4)")
     c.add_argument("--precision", default=None, choices=["float32", "float64"],
                    help="overrides the scene's simulation:precision (default float32)")
-    add_bounded(c, "--max-steps", 1, MAX_CONTROL_STEPS, type=int, default=300, help="control-step limit")
-    c.add_argument("--method", default="inverse", choices=["inverse", "paper"],
-                   help="inverse: the paper's law as warm start, then model-based control (default); paper: the "
-                        "paper's law (eqs. 11-15)")
+    add_bounded(c, "--max-steps", 1, MAX_CONTROL_STEPS, type=int, default=None,
+                help="control-step limit (default: the scene's controller:max_steps, else 300)")
+    c.add_argument("--method", default=None, choices=list(CONTROL_METHODS),
+                   help=f"control method (default: the scene's controller:method, else inverse): "
+                        f"{CONTROL_METHODS.help()}")
     c.add_argument("--no-jamming", action="store_true", help="never jam (path-dependence studies)")
     c.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
@@ -75,12 +76,13 @@ def run(args) -> int:
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets, args.units)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     names = [n for n, _ in targets]
-    # the scene's simulation settings (checked: unknown keys and bad values are errors), then the flags
-    flags = {k: v for k, v in (("integrator", args.integrator), ("precision", args.precision)) if v is not None}
-    simulation = SimulationSettings.from_dict(scene_settings.get("simulation", {})).replace(**flags)
-    settings = ControlSettings(max_steps=args.max_steps, jamming=not args.no_jamming, method=args.method,
-                               simulation=simulation)
-    with open_recorder(args) as rec, ControlProgress(refine=args.method == "inverse") as bar:
+    # the scene's simulation and controller settings (checked: unknown keys and bad values are errors),
+    # then the flags
+    settings = RunSettings.from_groups(
+        scene_settings, simulation=dict(integrator=args.integrator, precision=args.precision),
+        controller=dict(max_steps=args.max_steps, method=args.method,
+                        jamming=False if args.no_jamming else None)).control
+    with open_recorder(args) as rec, ControlProgress(refine=CONTROL_METHODS[settings.method].refines) as bar:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
                                progress=bar.update, recorder=rec, target_names=names,
                                **actuator_selection(args, scene_settings, names))

@@ -14,7 +14,8 @@ import math
 import sys
 import time
 
-from ..designer import DesignSettings, design
+from ..designer import PLACEMENTS, design
+from ..designer.run_settings import RunSettings
 from ..errors import DesignError
 from ..interrupts import held_interrupts
 from ..io.atomic import StagedFolder
@@ -45,11 +46,8 @@ def register(subparsers) -> None:
                         "4: 2562) instead of the scene's base mesh (default: the scene's, 642 vertices)")
     d.add_argument("--cell-radius", type=float, default=None, metavar="M", help="jamming-cell radius, m (default: "
                    "the scene's, else 0.012)")
-    d.add_argument("--placement", choices=["simulated", "paper", "greedy"], default=None,
-                   help="actuator placement: simulated (default: Algorithm 1's sets, each target holding neutral "
-                        "what does not help it, refined in batches of worlds; never worse than paper on any "
-                        "target), paper (Algorithm 1 as published) or greedy (the best of K candidate sets per "
-                        "round by summed objective; trades targets off)")
+    d.add_argument("--placement", choices=list(PLACEMENTS), default=None,
+                   help=f"actuator placement (default: simulated): {PLACEMENTS.help()}")
     add_bounded(d, "--candidates", 1, MAX_CANDIDATES, type=int, default=None,
                    help="K: simulated: holds tried per target per refinement round; greedy: candidate sets per round")
     add_bounded(d, "--refine-rounds", 0, MAX_REFINE_ROUNDS, type=int, default=None,
@@ -64,31 +62,19 @@ def register(subparsers) -> None:
     d.set_defaults(func=run)
 
 
-def _designer_options(scene, args) -> tuple[int, dict]:
-    """(actuators, DesignSettings keywords) from the scene's ``designer`` settings and the flags;
-    unknown setting names are an error."""
-    opts = dict((scene.settings or {}).get("designer", {}))
-    actuators = opts.pop("actuators", 4)
-    if args.actuators is not None:
-        actuators = args.actuators
-    unknown = sorted(set(opts) - set(DesignSettings.__dataclass_fields__) - {"initialize"})
-    if unknown:
-        raise DesignError(f"unknown designer setting(s) {unknown} in the scene; known: "
-                          f"{sorted(set(DesignSettings.__dataclass_fields__) - {'initialize'})}")
-    opts.pop("initialize", None)
-    if args.cell_radius is not None:
-        opts["cell_radius"] = args.cell_radius
-    for key in ("placement", "candidates", "refine_rounds"):
-        if getattr(args, key, None) is not None:
-            opts[key] = getattr(args, key)
-    if isinstance(actuators, bool) or not isinstance(actuators, int) or actuators < 1:
-        raise DesignError(f"the number of actuators must be a whole number >= 1, got {actuators!r}")
-    return actuators, opts
+def run_settings(scene, args) -> RunSettings:
+    """The run's settings: the scene's groups (simulation, controller, designer) and its design's
+    material, then the flags; unknown setting names and bad values are errors."""
+    designer = dict(actuators=args.actuators, cell_radius=args.cell_radius, placement=args.placement,
+                    candidates=args.candidates, refine_rounds=args.refine_rounds,
+                    initialize=False if args.keep_rest else None)
+    material = scene.design.material if scene.design is not None else None
+    return RunSettings.from_groups(scene.settings, designer=designer, material=material)
 
 
 def _problem(args):
-    """(base mesh, [(name, target)], actuators, DesignSettings) from the scene and the flags; every
-    input is checked here, before anything runs or is written."""
+    """(base mesh, [(name, target)], RunSettings) from the scene and the flags; every input is checked
+    here, before anything runs or is written."""
     scene = load_scene(args.scene or "oval_heart")
     if args.subdivisions is not None and not 1 <= args.subdivisions <= 6:
         raise DesignError(f"--subdivisions takes 1..6 (42..40962 vertices), got {args.subdivisions}")
@@ -98,10 +84,9 @@ def _problem(args):
         named = load_targets(args.targets, args.units)
     if not named:
         raise DesignError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
-    actuators, opts = _designer_options(scene, args)
-    settings = DesignSettings(**opts, initialize=not args.keep_rest)
-    check_mold_flags(args, _device_radius(base, named, settings))
-    return base, named, actuators, settings
+    run = run_settings(scene, args)
+    check_mold_flags(args, _device_radius(base, named, run.designer))
+    return base, named, run
 
 
 def _device_radius(base, named, settings) -> float:
@@ -112,7 +97,7 @@ def _device_radius(base, named, settings) -> float:
     return settings.volume_scale ** (1.0 / 3.0) * min(equivalent_radius(t) for _, t in named)
 
 
-def _run_designer(args, base, named, actuators, settings, staged):
+def _run_designer(args, base, named, run: RunSettings, staged):
     """Run the designer; each finished round is written to the staging folder as it completes.
     Ctrl-C keeps the finished rounds (in ``<out>`` where it holds no finished run, else in
     ``<out>.partial``); any other failure removes the staging folder."""
@@ -126,12 +111,14 @@ def _run_designer(args, base, named, actuators, settings, staged):
         write_round_outputs(staged.path, names, records, rounds)
         staged.seal(False, command="design")
 
-    bar = run_progress(actuators + 1, names)
+    bar = run_progress(run.actuators + 1, names)
     staged.lock()
     try:
         with open_recorder(args) as rec, bar:
-            return design(base, [t for _, t in named], actuators=actuators, device=args.device, target_names=names,
-                          settings=settings, progress=bar.update, on_round=bar.wrap_round(on_round), recorder=rec)
+            return design(base, [t for _, t in named], actuators=run.actuators, device=args.device,
+                          target_names=names, settings=run.designer, control_settings=run.control,
+                          material=run.material, progress=bar.update, on_round=bar.wrap_round(on_round),
+                          recorder=rec)
     except KeyboardInterrupt:
         _keep_interrupted(staged, len(records))
         raise
@@ -188,10 +175,10 @@ def run(args) -> int:
     check_out(staged)
     check_device(args.device)
     check_rerun(args)
-    base, named, actuators, settings = _problem(args)
+    base, named, run_opts = _problem(args)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     t0 = time.perf_counter()
-    res = _run_designer(args, base, named, actuators, settings, staged)
+    res = _run_designer(args, base, named, run_opts, staged)
     wall = time.perf_counter() - t0
     try:
         write_design_outputs(res, staged.path, marker_height=args.marker_height, layer_thickness=args.layer_thickness,

@@ -5,7 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..controller import ControlSettings, control_many
+from ..controller import control_many
+from ..designer.run_settings import RunSettings
 from ..errors import DesignError
 from ..io.atomic import StagedFolder
 from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
@@ -54,8 +55,9 @@ def register(subparsers) -> None:
 
 
 def _checked_inputs(args):
-    """(scene, [(name, target)]) once every input is checked, before any work: ``--out``, the device,
-    the recording path, the scene (a design), the mold lengths and the targets."""
+    """(scene, [(name, target)], ControlSettings) once every input is checked, before any work:
+    ``--out``, the device, the recording path, the scene (a design, its settings), the mold lengths
+    and the targets."""
     check_out(StagedFolder(args.out), replaced=False)  # files written one by one
     check_device(args.device)
     check_rerun(args)
@@ -65,13 +67,14 @@ def _checked_inputs(args):
         raise DesignError(f"{args.scene} holds no design (only targets); export needs a design scene, "
                           f"e.g. out/design.usda from warp-shape design or the shipped cube_fig6")
     check_mold_flags(args, equivalent_radius(scene.design.rest))
+    settings = RunSettings.from_groups(scene.settings).control  # the design's own, as it was designed
     named = load_targets(args.targets) if args.targets else list(zip(scene.target_names, scene.targets))
-    return scene, named
+    return scene, named, settings
 
 
 def run(args) -> int:
     """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
-    scene, named = _checked_inputs(args)
+    scene, named, settings = _checked_inputs(args)
     out = Path(args.out)
     written = []
     if "molds" in args.what:
@@ -82,7 +85,7 @@ def run(args) -> int:
     if "control" in args.what and named:
         names = [n for n, _ in named]
         with open_recorder(args) as rec:
-            results = control_many(scene.design, [t for _, t in named], device=args.device, settings=ControlSettings(),
+            results = control_many(scene.design, [t for _, t in named], device=args.device, settings=settings,
                                    progress=control_progress, recorder=rec, target_names=names,
                                    **actuator_selection(args, scene.settings, names))
         written += write_control_outputs(results, names, out, usd="usd" in args.what)

@@ -32,7 +32,8 @@ finite-difference Jacobian from batched worlds (``inverse``; docs/inverse_contro
 
 Modules: ``settings`` (ControlSettings), ``checks`` (targets against the device), ``observe`` (one
 observation of every world), ``laws`` (control laws as strategies: the paper's), ``history`` (the
-per-step record, its columns documented there), ``loop`` (control / control_many), ``result``
+per-step record, its columns documented there), ``loop`` (the law loop), ``methods`` (control methods
+as strategies, ``control`` / ``control_many``), ``result``
 (ControlResult, plain data); model-based control: ``inverse`` (the driver), ``plans`` (jam plans),
 ``trajectory`` (the recorded main sequence of a plan), ``explore`` (scratch batches of worlds),
 ``refine`` (Gauss-Newton iterations), ``gauss_newton`` (the bounded damped step), ``worlds`` (passive
@@ -42,11 +43,12 @@ masks and speeds per world), ``replay`` (a recorded sequence re-simulated open l
 from ..model import cell_anchor_faces
 from .history import HISTORY_COLUMNS
 from .laws import LAWS, Controls, LawStep, PaperLaw
-from .loop import control, control_many
+from .methods import CONTROL_METHODS, control, control_many, register_control_method, register_law
 from .observe import Observation, Observer
 from .replay import replay
 from .result import ControlResult
 from .settings import ControlSettings
 
 __all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces", "Controls",
-           "LawStep", "PaperLaw", "LAWS", "Observation", "Observer", "HISTORY_COLUMNS", "replay"]
+           "LawStep", "PaperLaw", "LAWS", "CONTROL_METHODS", "register_control_method", "register_law", "Observation",
+           "Observer", "HISTORY_COLUMNS", "replay"]

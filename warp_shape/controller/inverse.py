@@ -184,19 +184,15 @@ def _log(recorder, prefix: str, design: Design, results: list, names, settings, 
     recorder.end_run(results)
 
 
-def control_inverse(design: Design, targets, *, device: str, settings: ControlSettings, progress=None,
-                    recorder=None, recorder_prefix: str = "control", passive_ipams=(), passive_cells=(),
-                    target_names=None, warm_start=None) -> list[ControlResult]:
-    """Drive ``design`` to every target with the model-based controller (module docstring); the
-    arguments are those of ``control_many`` (the recorder logs the final sequences once they are
-    chosen). ``warm_start``: the paper law's results, if already run."""
-    from .loop import control_many
-
+def control_inverse(design: Design, targets, *, device: str, settings: ControlSettings, warm_start: list,
+                    progress=None, recorder=None, recorder_prefix: str = "control", passive_ipams=(), passive_cells=(),
+                    target_names=None) -> list[ControlResult]:
+    """Drive ``design`` to every target with the model-based controller (module docstring), starting
+    from ``warm_start``, a control law's results for the same targets and passive actuators; the other
+    arguments are those of ``control_many`` (the recorder logs the final sequences once they are chosen)."""
     t0 = time.perf_counter()
     plans = parse_plans(settings.inverse_plans)
-    warm = warm_start or control_many(design, targets, device=device, settings=settings.replace(method="paper"),
-                                      progress=progress, passive_ipams=passive_ipams, passive_cells=passive_cells,
-                                      target_names=target_names)
+    warm = warm_start
     sampler = RadialSampler([r.target for r in warm], device=device)
     probe = _Run(design, settings, device, sampler, None, None, None)
     dev = host_model(design)

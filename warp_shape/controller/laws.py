@@ -5,7 +5,8 @@ called once per control step before the step is recorded, and ``step(obs, contro
 returning a ``LawStep`` for the worlds still running (the others keep their controls).
 ``PaperLaw`` is the paper's law, eqs. (11)-(15), with the gain back-off (see docs/controller.md for
 the readings of the paper's ambiguities, e.g. where the jam rule's last curvature starts). ``LAWS``: the laws by name,
-each built as ``law(settings, device_constants, passive_ipams, passive_cells)``.
+each a class with ``name`` and ``summary`` built as ``law(settings, device_constants, passive_ipams, passive_cells)``;
+``controller.methods.register_law`` makes a law a control method too.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 
 from ..model import HostModel
 from .observe import Observation, ipam_neutral_pressures
-from .settings import ControlSettings
+from .settings import LAWS, ControlSettings
 
 __all__ = ["Controls", "LawStep", "PaperLaw", "LAWS"]
 
@@ -44,6 +45,7 @@ class PaperLaw:
     Passive IPAMs track their length (no force); passive cells never jam."""
 
     name = "paper"
+    summary = "the paper's law (eqs. 11-15)"
 
     def __init__(self, settings: ControlSettings, dev: HostModel, passive_ipams: np.ndarray,
                  passive_cells: np.ndarray):
@@ -133,4 +135,4 @@ class PaperLaw:
         return [(int(w), int(j)) for w, j in zip(*np.nonzero(hit))]
 
 
-LAWS = {"paper": PaperLaw}
+LAWS.register(PaperLaw)

@@ -1,7 +1,7 @@
-"""The control loop: set up the worlds, then observe -> law -> apply -> record -> stop, then the results.
+"""The law loop: set up the worlds, then observe -> law -> apply -> record -> stop, then the results.
 
-``control_many`` drives one design to several targets at once (one simulated world per target);
-``control`` to one target.
+``run_law`` drives one design to several targets at once (one simulated world per target) with one
+control law; ``controller.methods`` builds the control methods on it.
 """
 
 from __future__ import annotations
@@ -13,24 +13,16 @@ from ..errors import DesignError
 from ..mesh import TriMesh
 from ..model import HostModel
 from ..sampling import RadialSampler
-from ..targets import centred_targets
-from ..settings import SimulationSettings, settings_or_default
+from ..settings import SimulationSettings
 from .checks import check_targets_against_rest
 from .history import History
-from .laws import LAWS, Controls, PaperLaw
+from .laws import Controls, PaperLaw
 from .observe import Observation, Observer
 from .result import ControlResult
 from .settings import ControlSettings
 from .worlds import mask_passive
 
-__all__ = ["control", "control_many", "HOLD_PHASE"]
-
-
-def _checked_targets(design, targets) -> list[TriMesh]:
-    """The targets as a list of centred meshes; clear errors for a wrong design or target."""
-    if not isinstance(design, Design):
-        raise DesignError(f"control needs a ws.Design, got {type(design).__name__}")
-    return centred_targets(targets, "control")
+__all__ = ["run_law", "HOLD_PHASE"]
 
 
 def _passive_mask(spec, W: int, n: int, what: str) -> np.ndarray:
@@ -229,31 +221,11 @@ def _result(w: int, ending: _Ending, history: History, jam_steps: np.ndarray, de
         target=target, passive_ipams=np.flatnonzero(passive_ipams[w]), passive_cells=np.flatnonzero(passive_cells[w]))
 
 
-def control_many(design: Design, targets, *, device: str = "cpu", settings: ControlSettings | None = None,
-                 recorder=None, progress=None, passive_ipams=(), passive_cells=(), target_names=None,
-                 recorder_prefix: str = "control", method: str | None = None, **overrides) -> list[ControlResult]:
-    """Drive ``design`` to every target at once (one simulated world per target, each centred on its
-    volume centroid first) with ``method`` (default ``settings.method``): ``"inverse"``, the paper's
-    law as warm start then model-based control (``controller.inverse``), or ``"paper"``, the paper's law.
-
-    ``passive_ipams`` / ``passive_cells``: actuators left out of this control sequence (indices for
-    every target, or one list per target). A passive IPAM is masked out of its world (it exerts no
-    force; its recorded pressure tracks its length, natural length = length); a passive cell never jams. The paper (section
-    V-C) notes an actuator can be neutralised this way. ``progress(step, max_steps, done, worlds)``
-    is called every control step; ``recorder`` logs the run. Keyword overrides go to ``settings``.
-    """
-    targets = _checked_targets(design, targets)
-    settings = settings_or_default(settings, ControlSettings, "settings")
-    if method is not None:
-        overrides["method"] = method
-    if overrides:
-        settings = settings.replace(**overrides)
-    if settings.method == "inverse":
-        from .inverse import control_inverse
-
-        return control_inverse(design, targets, device=device, settings=settings, progress=progress, recorder=recorder,
-                               recorder_prefix=recorder_prefix, passive_ipams=passive_ipams,
-                               passive_cells=passive_cells, target_names=target_names)
+def run_law(design: Design, targets: list[TriMesh], law, *, device: str, settings: ControlSettings, recorder=None,
+            progress=None, passive_ipams=(), passive_cells=(), target_names=None,
+            recorder_prefix: str = "control") -> list[ControlResult]:
+    """Drive ``design`` to every (centred) target at once with the control law ``law`` (a class of
+    ``LAWS``), one simulated world per target; the arguments are those of ``control_many``."""
     W = len(targets)
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
     sampler = RadialSampler(targets, device=device, names=names)  # checks star-shape, naming the directions
@@ -267,20 +239,10 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
         recorder.begin_run(design=design, targets=targets, target_names=names, prefix=recorder_prefix,
                            settings=settings)
     ending, history = _Ending(settings, dev, passive_i), History(W, dev)
-    law = LAWS["paper"](settings, dev, passive_i, passive_c)
     observer = Observer(dev, sampler, W, [t.volume() for t in targets])
-    jam_steps = _run(sim, observer, law, ending, history, progress=progress, recorder=recorder)
+    jam_steps = _run(sim, observer, law(settings, dev, passive_i, passive_c), ending, history, progress=progress,
+                     recorder=recorder)
     results = [_result(w, ending, history, jam_steps, design, targets[w], passive_i, passive_c) for w in range(W)]
     if recorder is not None:
         recorder.end_run(results)
     return results
-
-
-def control(design: Design, target: TriMesh, *, device: str = "cpu", settings: ControlSettings | None = None,
-            recorder=None, progress=None, passive_ipams=(), passive_cells=(), target_name: str = "target",
-            method: str | None = None, **overrides) -> ControlResult:
-    """Drive ``design`` to one ``target`` (centred on its volume centroid first) with ``method``
-    (``"inverse"`` or ``"paper"``, default ``settings.method``)."""
-    return control_many(design, [target], device=device, settings=settings, recorder=recorder, progress=progress,
-                        passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=[target_name],
-                        method=method, **overrides)[0]

@@ -6,11 +6,15 @@ import math
 from dataclasses import dataclass, field, fields
 
 from ..errors import DesignError
+from ..registry import Registry
 from ..settings import SimulationSettings, check_field_types, replace_settings
 
-__all__ = ["ControlSettings", "METHODS"]
+__all__ = ["ControlSettings", "CONTROL_METHODS", "LAWS"]
 
-METHODS = ("inverse", "paper")  # control methods: model-based (default), the paper's law
+#: control methods by name (``ControlSettings.method``; built in: "inverse", "paper"; ``controller.methods``)
+CONTROL_METHODS = Registry("control method")
+#: control laws by name (``ControlSettings.warm_start``, and each a control method of its own; ``controller.laws``)
+LAWS = Registry("control law")
 
 
 @dataclass(frozen=True)
@@ -34,7 +38,8 @@ class ControlSettings:
     max_stretch: float = 4.0  # mean edge stretch beyond which the target is deemed unreachable
     settle_speed: float = 1e-3  # m/s; at rest when the largest vertex speed is below this (float32 floor ~1e-4)
     max_settle_steps: int = 100  # control steps the controls are held at most for the membrane to come to rest
-    method: str = "inverse"  # "inverse": paper's law as warm start, then model-based (controller.inverse); "paper"
+    method: str = "inverse"  # a name in CONTROL_METHODS: "inverse" (model-based, default) or a law ("paper")
+    warm_start: str = "paper"  # the law (a name in LAWS) whose run starts the "inverse" method
     inverse_iterations: int = 6  # Gauss-Newton iteration limit of the model-based refinement
     inverse_tolerance: float = 0.005  # refinement stops when an iteration lowers the objective by less (relative)
     inverse_settle_steps: int = 60  # simulation steps each explored world settles before it is measured
@@ -47,8 +52,8 @@ class ControlSettings:
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):
                 raise DesignError(f"ControlSettings.{f.name} must be finite, got {v}")
-        if self.method not in METHODS:
-            raise DesignError(f"unknown control method {self.method!r}; choose one of {list(METHODS)}")
+        CONTROL_METHODS.check(self.method, "ControlSettings.method")
+        LAWS.check(self.warm_start, "ControlSettings.warm_start")
         if self.inverse_iterations < 0 or self.inverse_settle_steps < 1 or not self.inverse_tolerance >= 0:
             raise DesignError("ControlSettings needs inverse_iterations >= 0, inverse_settle_steps >= 1 and "
                               "inverse_tolerance >= 0")

@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..controller import control_many
+from ..controller import CONTROL_METHODS, control_many
 from ..design import Design
 from .initialize import copy_design
-from .placement import (PlacementContext, add_actuator_set, candidate_ends, end_angle_deg, free_faces,
-                        scaled_errors)
+from .placement import (Placement, PlacementContext, add_actuator_set, candidate_ends, end_angle_deg, free_faces,
+                        register_placement, scaled_errors)
 from .selection import Selection
 
-__all__ = ["candidate_worlds", "greedy_placement"]
+__all__ = ["candidate_worlds", "greedy_placement", "GreedyPlacement", "ESCALATED"]
 
 
 def candidate_worlds(base: Design, ends: list, ctx: PlacementContext) -> tuple[Design, list[int], list[list[int]]]:
@@ -91,3 +91,44 @@ def greedy_placement(current: Design, results, ctx: PlacementContext, round_inde
                   error_b=float(errors[j, b]), rest_angle_deg=end_angle_deg(ctx, a, b), new_cells=new_cells,
                   left_out_for=[names[t] for t in left_out])
     return record
+
+
+ESCALATED = ("no candidate helped under the paper's law, which can hide what an actuator does (a cube corner "
+             "IPAM alone); this round and those after it are controlled by model-based control (round_control 'quick')")
+
+
+class GreedyPlacement(Placement):
+    """The best of ``candidates`` sets per round by summed objective (module docstring); a round whose
+    candidates all fail under the paper's law is run again by model-based control, once; a round that
+    still finds none is the last."""
+
+    name = "greedy"
+    summary = "the best of K candidate sets per round by summed objective (trades targets off)"
+    uses_candidates = True
+
+    def place(self, run, results, i, round_settings):
+        record = greedy_placement(run.current, results, run.ctx, i, run.selection, targets=run.targets,
+                                  names=run.names, control_settings=round_settings, device=run.device,
+                                  progress=run.round_progress(i), recorder=run.recorder)
+        run.info["rounds"].append(record)
+        if run.recorder is not None:
+            run.recorder.log_design_candidates(i, record)
+        if record["chosen"] is not None:
+            return record
+        run.designs.pop(), run.rounds.pop()  # nothing helps: this round again, by model-based control or as the last
+        if run.round_control == "paper" and CONTROL_METHODS[run.control_settings.method].refines:
+            run.round_control = "quick"
+            record["escalated"] = ESCALATED
+            run.info["escalated_at"] = i
+        else:
+            run.info["stopped"] = record["stopped"]
+            run.final = True
+        return None
+
+    @classmethod
+    def describe(cls, info):
+        return (f", K = {info.get('candidates')} candidate sets per round (each controlled to every target in one "
+                "batch of worlds)")
+
+
+register_placement(GreedyPlacement)

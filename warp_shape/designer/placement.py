@@ -1,11 +1,22 @@
-"""Actuator placement: where a design round puts its new IPAM and the jamming cells around its ends.
+"""Actuator placement: placements as strategies, and the paper's rule.
 
-A placement is a function ``place(design, results, ctx, round_index) -> (record, new_cells)``: it
-adds one IPAM and its cells to ``design`` (in place) given the round's control results (one per
-target), and returns what it placed (a JSON-ready dict) and the indices of the new cells.
+A placement (a class in ``PLACEMENTS``, built once per design run) decides where each round's
+actuator set goes. The design loop (``designer.loop``) calls, for every round ``i``:
+- ``hold(run, i, round_settings)`` before a round that is not the last: None, or a function of the
+  round's results returning what the round records instead (e.g. the better of two runs per target);
+- ``place(run, results, i, round_settings)`` after a round that is not the last: the record of the set
+  it added to ``run.current`` (a JSON-ready dict), or None to run the round again (it may set
+  ``run.final`` or ``run.round_control`` first);
+- ``finish(run, i)`` once after the last round;
+and the report calls ``describe(info)`` for its sentence on the method. ``summary`` is the one-line
+help of ``--placement``; ``uses_candidates`` says whether ``DesignSettings.candidates`` means
+anything to it. ``run`` is a ``designer.rounds.DesignRun``. Built in: ``PaperPlacement`` (here),
+``HoldingPlacement`` (``designer.holding``), ``GreedyPlacement`` (``designer.greedy``);
+``register_placement`` adds one.
+
 ``paper_placement`` is the paper's rule (Algorithm 1: the largest scaled error, the other end by the
-120-degree rule measured on the rest shape, cells around both ends); ``PLACEMENTS``: the placements by
-name. ``candidate_ends`` proposes the candidate sets the greedy placement (``designer.greedy``) tries.
+120-degree rule measured on the rest shape, cells around both ends); ``candidate_ends`` proposes the
+candidate sets the greedy placement tries.
 """
 
 from __future__ import annotations
@@ -18,10 +29,11 @@ import numpy as np
 from ..design import Design
 from ..errors import DesignError
 from ..sampling import RadialSampler
-from .settings import DesignSettings
+from .settings import PLACEMENTS, DesignSettings
 
 __all__ = ["PlacementContext", "scaled_errors", "free_faces", "rest_directions", "other_end", "paper_ends",
-           "cell_faces", "add_actuator_set", "paper_placement", "end_angle_deg", "candidate_ends", "PLACEMENTS"]
+           "cell_faces", "add_actuator_set", "paper_placement", "end_angle_deg", "candidate_ends", "PLACEMENTS",
+           "Placement", "PaperPlacement", "register_placement"]
 
 
 @dataclass(frozen=True)
@@ -164,4 +176,48 @@ def candidate_ends(errors: np.ndarray, free: np.ndarray, ctx: PlacementContext, 
     return out
 
 
-PLACEMENTS = {"paper": paper_placement}
+class Placement:
+    """The base of the placement strategies (module docstring): no holds, nothing after the last round."""
+
+    name = ""
+    summary = ""
+    uses_candidates = False
+
+    def hold(self, run: DesignRun, i: int, round_settings: ControlSettings):
+        return None
+
+    def place(self, run: DesignRun, results: list, i: int, round_settings: ControlSettings) -> dict | None:
+        raise NotImplementedError
+
+    def finish(self, run: DesignRun, i: int) -> None:
+        return None
+
+    @classmethod
+    def describe(cls, info: dict) -> str:
+        return ""
+
+
+class PaperPlacement(Placement):
+    """Algorithm 1 as published: ``paper_placement`` every round; every target uses every actuator."""
+
+    name = "paper"
+    summary = "Algorithm 1 as published (every target uses every actuator)"
+
+    def place(self, run, results, i, round_settings):
+        record, _ = paper_placement(run.current, results, run.ctx, i)
+        return record
+
+    @classmethod
+    def describe(cls, info):
+        return " (Algorithm 1 as published: every target uses every actuator)"
+
+
+def register_placement(placement, *, replace: bool = False):
+    """Make ``placement`` (a ``Placement`` subclass, see the module docstring) selectable as
+    ``DesignSettings.placement``, in ``ws.design`` and ``warp-shape design --placement``; returns it."""
+    if not (isinstance(placement, type) and issubclass(placement, Placement)):
+        raise DesignError(f"a placement is a subclass of warp_shape.designer.Placement, got {placement!r}")
+    return PLACEMENTS.register(placement, replace=replace)
+
+
+register_placement(PaperPlacement)

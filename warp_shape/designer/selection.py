@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Selection", "selection_to_settings", "selection_from_settings"]
+__all__ = ["Selection", "selection_to_settings", "selection_from_settings", "SELECTION_PREFIXES"]
+
+#: the scene ``controller`` keys that store a selection: ``passive_ipams_<target>``, ``passive_cells_<target>``
+SELECTION_PREFIXES = ("passive_ipams_", "passive_cells_")
 
 
 class Selection:

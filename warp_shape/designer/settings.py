@@ -8,18 +8,14 @@ from dataclasses import dataclass
 
 from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS
 from ..errors import DesignError
+from ..registry import Registry
 from ..settings import check_field_types, replace_settings
 
-__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENT_METHODS"]
+__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENTS"]
 
-#: Where each design round puts its actuator set: "paper": Algorithm 1 as published (the free face
-#: with the largest scaled error, the other end by the 120-degree rule on the rest shape, every target
-#: uses every actuator); "simulated": Algorithm 1's sets, each held neutral for the targets it does
-#: not help, then refinement rounds of ``candidates`` holds per target tried in one batch of worlds
-#: (designer.refine): at least as good as "paper" on every target by construction; "greedy":
-#: ``candidates`` sets controlled to every target in one batch of worlds each round, the one that
-#: lowers the summed fit objective most kept (designer.simulated; trades targets off).
-PLACEMENT_METHODS = ("paper", "simulated", "greedy")
+#: placements by name (``DesignSettings.placement``; built in: "simulated", "paper", "greedy";
+#: ``designer.placement``; docs/placement.md compares them)
+PLACEMENTS = Registry("placement")
 
 #: How the designer controls the rounds before the last (the last round always uses the control
 #: settings as given, so that re-controlling the saved design reproduces its sequences):
@@ -31,8 +27,8 @@ ROUND_CONTROLS = ("paper", "quick", "full")
 
 def round_control_settings(control_settings, round_control: str):
     """The controller settings of a round before the last (see ``ROUND_CONTROLS``)."""
-    if round_control == "paper":
-        return control_settings.replace(method="paper")
+    if round_control == "paper":  # the law that starts the design's controller (the paper's, by default)
+        return control_settings.replace(method=control_settings.warm_start)
     if round_control == "quick" and control_settings.method == "inverse":
         return control_settings.replace(inverse_plans="paper",
                                         inverse_iterations=min(2, control_settings.inverse_iterations))
@@ -47,7 +43,7 @@ class DesignSettings:
     volume_scale: float = 0.8  # rest volume / smallest target volume (multi-target initialisation)
     min_angle_deg: float = 120.0  # the two IPAM ends are at least this far apart seen from the origin
     initialize: bool = True  # False: keep the given rest shape (single-target mode)
-    placement: str = "simulated"  # "paper" (Algorithm 1 as published), "simulated" or "greedy" (PLACEMENT_METHODS)
+    placement: str = "simulated"  # a name in PLACEMENTS
     candidates: int = 4  # K: "simulated": holds tried per target per refinement round; "greedy": sets per round
     min_gain: float = 0.005  # a candidate must lower an objective by this fraction ("simulated", "greedy": else stop)
     refine_rounds: int = 5  # "simulated": refinement rounds at most after the last round (0: none)
@@ -65,8 +61,7 @@ class DesignSettings:
             raise DesignError(f"volume_scale must be in (0, 1], got {self.volume_scale}")
         if self.round_control not in ROUND_CONTROLS:
             raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
-        if self.placement not in PLACEMENT_METHODS:
-            raise DesignError(f"placement must be one of {list(PLACEMENT_METHODS)}, got {self.placement!r}")
+        PLACEMENTS.check(self.placement, "DesignSettings.placement")
         whole = isinstance(self.candidates, numbers.Integral) and not isinstance(self.candidates, bool)
         if not whole or self.candidates < 1:
             raise DesignError(f"candidates must be a whole number >= 1 (candidate actuator sets per round), got "

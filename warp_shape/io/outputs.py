@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..designer.run_settings import RunSettings
 from ..molds import mold_set
 from .atomic import atomic_write, write_json
 from .figures import write_figures
@@ -151,16 +152,17 @@ def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
 
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
                          extra_report: dict | None = None, kept=()) -> list[Path]:
-    """Every output of a finished design: ``design.usda`` (the design, its targets, its settings and
-    each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
+    """Every output of a finished design: ``design.usda`` (the design, its targets, its run settings
+    (``RunSettings.groups``) and each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
     sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures,
     ``report.md`` and ``report.json`` (the result's report, ``extra_report`` entries and the list of
     outputs, with the names in ``kept``: files of the run already in ``out_dir`` such as
     ``rounds.json``), written last."""
     out = Path(out_dir)
     names = result.target_names
-    settings = {"designer": {"actuators": result.design.n_ipams, "cell_radius": result.settings.cell_radius},
-                "controller": result.selection_settings()}
+    settings = RunSettings(control=result.control_settings, designer=result.settings,
+                           actuators=max(result.design.n_ipams, 1)).groups()
+    settings["controller"].update(result.selection_settings())
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
     written += write_control_outputs(result.results, names, out, usd=True)

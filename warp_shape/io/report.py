@@ -5,6 +5,8 @@ the rest shape, and a glossary of the fit measures (``lab_sections``)."""
 
 from __future__ import annotations
 
+from ..designer import PLACEMENTS
+
 __all__ = ["design_markdown", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
 
 
@@ -64,14 +66,8 @@ def _placement_section(result) -> list[str]:
         return []
     names = result.target_names
     method = info.get("method", "paper")
-    K = info.get("candidates")
-    refine = (f", then refinement rounds of K = {K} holds per target, each round one batch of worlds"
-              if "refinement" in info else ", no refinement rounds")
-    what = {"simulated": f" (Algorithm 1's actuator sets, each held neutral for the targets it does not help{refine}: "
-                         "no target ends worse than under Algorithm 1)",
-            "greedy": f", K = {K} candidate sets per round (each controlled to every target in one batch of worlds)",
-            "paper": " (Algorithm 1 as published: every target uses every actuator)"}
-    lines = ["## Placement", "", f"Method: {method}{what.get(method, '')}."]
+    what = PLACEMENTS[method].describe(info) if method in PLACEMENTS else ""
+    lines = ["## Placement", "", f"Method: {method}{what}."]
     start = info.get("start_pcc") or []
     if start:
         lines += ["", "PCC of each target against the rest shape before control: "

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..designer import DesignSettings
+from ..designer.run_settings import designer_fields
 from ..design import MAX_IPAMS, Design
 from ..errors import DesignError, MeshError, SceneError, read_input_file
 from ..material import Material
@@ -507,8 +509,6 @@ def _read_settings(r: _Reader, root) -> dict:
 def _check_setting_groups(r: _Reader, prim, settings: dict) -> None:
     """The groups this build reads, checked as they will be used: ``simulation`` as SimulationSettings
     (unknown keys and bad values), ``designer`` keys of DesignSettings and ``actuators`` by type."""
-    from ..designer import DesignSettings
-
     try:
         SimulationSettings.from_dict(settings.get("simulation", {}))
     except DesignError as exc:
@@ -526,7 +526,7 @@ def _check_setting_groups(r: _Reader, prim, settings: dict) -> None:
         if isinstance(default, (bool, str)) and type(value) is not type(default):
             raise r.error(prim, f"{NS}:designer:{key}", f"must be a {type(default).__name__}, got {value!r}")
     try:
-        DesignSettings(**known)
+        DesignSettings(**designer_fields(known))
     except (DesignError, TypeError) as exc:
         raise r.error(prim, f"{NS}:designer:*", str(exc)) from None
 

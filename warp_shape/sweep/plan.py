@@ -7,10 +7,12 @@ product of the values of the swept parameters (Fig. 12: ``actuators=5,10,20``). 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from dataclasses import dataclass, field
 
+from ..designer.run_settings import DEFAULT_ACTUATORS
 from ..mesh import TriMesh, icosphere_like
 from ..targets import load_target
 from .params import Param, SweepError, check_values, split_params
@@ -22,15 +24,17 @@ DEFAULT_SCENE = "oval_heart"  # as `warp-shape design`
 
 @dataclass
 class Problem:
-    """The fixed part of a sweep: the scene's base mesh, the named targets, the scene's designer
-    options (``actuators``, ``cell_radius``) and the settings fixed for every run (``fixed``)."""
+    """The fixed part of a sweep: the scene's base mesh, the named targets, the scene's settings groups
+    (simulation, controller, designer with ``actuators``) and material, and the settings fixed for
+    every run (``fixed``)."""
 
     scene: str
     base: TriMesh
     targets: list  # [(name, TriMesh)]
     actuators: int
-    designer: dict  # designer settings from the scene (cell_radius, ...)
+    settings: dict  # the scene's settings groups {group: {key: value}}
     fixed: dict = field(default_factory=dict)  # {name: value} applied to every run
+    material: dict = field(default_factory=dict)  # the scene design's material fields (none: the default)
 
 
 @dataclass
@@ -71,10 +75,12 @@ def load_problem(scene: str | None = None, targets=None, fixed: dict | None = No
     named = _load_targets(targets) if targets else list(zip(sc.target_names, sc.targets))
     if not named:
         raise SweepError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
-    opts = dict((sc.settings or {}).get("designer", {}))
-    actuators = int(opts.pop("actuators", 4))
+    groups = {g: dict(v) for g, v in (sc.settings or {}).items() if g in ("simulation", "controller", "designer")}
+    actuators = int(groups.get("designer", {}).pop("actuators", DEFAULT_ACTUATORS))
     checked = {key: check_values(key, [value]).values[0] for key, value in (fixed or {}).items()}
-    return Problem(scene=str(name), base=base, targets=named, actuators=actuators, designer=opts, fixed=checked)
+    material = dataclasses.asdict(sc.design.material) if sc.design is not None else {}
+    return Problem(scene=str(name), base=base, targets=named, actuators=actuators, settings=groups, fixed=checked,
+                   material=material)
 
 
 def run_id(names, swept: dict) -> str:
@@ -90,11 +96,10 @@ def _base_mesh(base: TriMesh, subdivisions) -> TriMesh:
 
 
 def _task(problem: Problem, index: int, names, values: dict, swept: dict, device: str) -> RunTask:
-    """One run: the scene's designer options, then the fixed settings, then the swept values."""
+    """One run: the scene's settings and material, then the fixed settings, then the swept values."""
     groups = split_params({**problem.fixed, **values})
-    designer = {k: v for k, v in problem.designer.items()}
-    designer.update(groups["designer"])
-    groups["designer"] = designer
+    for group, scene_values in [*problem.settings.items(), ("material", problem.material)]:
+        groups[group] = {**scene_values, **groups.get(group, {})}
     run = groups.pop("run")
     actuators = int(run.get("actuators", problem.actuators))
     own = dict(problem.targets)

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ..controller import ControlSettings
 from ..designer import DesignSettings, design
+from ..designer.run_settings import RunSettings
 from ..io.atomic import StagedFolder, write_json
 from ..io.outputs import is_run_output, record_round, write_design_outputs
 from ..material import Material
@@ -26,15 +26,15 @@ from .plan import RunTask
 __all__ = ["execute", "row_of", "error_row", "read_outputs"]
 
 
-def _settings(task: RunTask):
-    """(DesignSettings, ControlSettings, Material, design() keywords) of a run."""
+def _settings(task: RunTask) -> tuple[RunSettings, dict]:
+    """The run's RunSettings (the scene's groups and material, the fixed and the swept values) and
+    its other design() keywords."""
     s = task.settings
-    simulation = ControlSettings().simulation.replace(**s.get("simulation", {}))
-    control = ControlSettings().replace(simulation=simulation, **s.get("controller", {}))
     known = DesignSettings.__dataclass_fields__
-    designer = DesignSettings(**{k: v for k, v in s.get("designer", {}).items() if k in known})
-    material = Material(**s.get("material", {}))
-    return designer, control, material, dict(s.get("design", {}))
+    run = RunSettings.from_groups({"simulation": s.get("simulation", {}), "controller": s.get("controller", {}),
+                                   "designer": {k: v for k, v in s.get("designer", {}).items() if k in known}},
+                                  material=Material(**s.get("material", {})))
+    return run, dict(s.get("design", {}))
 
 
 def _head(task: RunTask) -> dict:
@@ -95,10 +95,10 @@ def execute(task: RunTask) -> tuple[dict, dict]:
         record_round(records, i, design_i, results, task.target_names)
 
     try:
-        settings, control, material, keywords = _settings(task)
+        run, keywords = _settings(task)
         result = design(task.base, task.targets, actuators=task.actuators, device=task.device,
-                        target_names=task.target_names, settings=settings, control_settings=control,
-                        material=material, on_round=on_round, **keywords)
+                        target_names=task.target_names, settings=run.designer, control_settings=run.control,
+                        material=run.material, on_round=on_round, **keywords)
         files = _outputs(task, result, records, time.perf_counter() - t0)
         return row_of(task, result, time.perf_counter() - t0), files
     except Exception as exc:  # a failing run is recorded, the sweep goes on
