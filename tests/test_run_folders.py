@@ -164,16 +164,16 @@ def test_interrupt_keeps_the_previous_finished_run(tmp_path, ctrl_c_in_round_1, 
 def test_a_design_that_stops_early_records_each_round_once(tmp_path, monkeypatch):
     """When no candidate set helps, the design is controlled again as the last round: rounds.json
     holds that round once, matching the saved design."""
-    import warp_shape.designer.loop as designer_loop
+    import warp_shape.designer.greedy as greedy
 
-    real = designer_loop.greedy_placement
+    real = greedy.greedy_placement
 
     def stop_in_round_1(current, results, ctx, i, *args, **kwargs):
         if i == 1:  # no candidate gains 99.9 %: the design stops
             ctx = dataclasses.replace(ctx, settings=ctx.settings.replace(min_gain=0.999))
         return real(current, results, ctx, i, *args, **kwargs)
 
-    monkeypatch.setattr(designer_loop, "greedy_placement", stop_in_round_1)
+    monkeypatch.setattr(greedy, "greedy_placement", stop_in_round_1)
     out = tmp_path / "out"
     assert main(["design", "--out", str(out), "--subdivisions", "2", "--actuators", "3", "--candidates", "1",
                  "--placement", "greedy", "--targets", "oval"]) == 0

@@ -13,9 +13,9 @@ from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
 from ..settings import settings_or_default
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
-from .placement import PlacementContext
+from .placement import PlacementContext, check_record
 from .result import DesignResult
-from .rounds import DesignRun, control_round
+from .rounds import DesignRun
 from .selection import Selection
 from .settings import PLACEMENTS, DesignSettings, round_control_settings
 
@@ -34,6 +34,24 @@ def _placement_info(settings: DesignSettings, names, start_pcc: np.ndarray) -> d
     uses = PLACEMENTS[settings.placement].uses_candidates
     return dict(method=settings.placement, candidates=settings.candidates if uses else 1,
                 start_pcc=start_pcc.tolist(), bad_start=bad, rounds=[], stopped=None)
+
+
+def control_round(run: DesignRun, i: int, round_settings: ControlSettings, hold=None) -> list:
+    """Round ``i``: the current design controlled to every target (one batch of worlds), the actuators
+    each target leaves out held neutral; recorded, appended to ``run.designs`` and ``run.rounds``.
+    ``hold``: what the round records instead of the results (``Placement.hold``); the results are
+    returned."""
+    run.designs.append(copy_design(run.current))
+    results = control_many(run.current, run.targets, device=run.device, settings=round_settings,
+                           progress=run.round_progress(i), passive_ipams=run.selection.passive_ipams(),
+                           passive_cells=run.selection.passive_cells(), recorder=run.recorder,
+                           recorder_prefix=f"design/round_{i}", target_names=run.names)
+    run.rounds.append(results if hold is None else hold(results))
+    if run.recorder is not None:
+        run.recorder.log_design_round(i, np.array([r.pcc for r in run.rounds[-1]]), run.names, run.designs[-1])
+    if run.on_round is not None:
+        run.on_round(i, run.designs[-1], run.rounds[-1])
+    return results
 
 
 def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", target_names=None,
@@ -80,7 +98,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         record = placement.place(run, results, i, round_settings)
         if record is None:  # the placement asks for this round again (run.final or run.round_control changed)
             continue
-        run.added.append(record)
+        run.added.append(check_record(placement, record))
         i += 1
     placement.finish(run, i)
     pcc_rows = np.array([[r.pcc for r in rs] for rs in run.rounds])

@@ -5,8 +5,9 @@ actuator set goes. The design loop (``designer.loop``) calls, for every round ``
 - ``hold(run, i, round_settings)`` before a round that is not the last: None, or a function of the
   round's results returning what the round records instead (e.g. the better of two runs per target);
 - ``place(run, results, i, round_settings)`` after a round that is not the last: the record of the set
-  it added to ``run.current`` (a JSON-ready dict), or None to run the round again (it may set
-  ``run.final`` or ``run.round_control`` first);
+  it added to ``run.current`` (a JSON-ready dict with at least ``RECORD_KEYS``: the round, the target
+  it was placed for, its end faces and the scaled error at ``face_a``), or None to run the round
+  again (it may set ``run.final`` or ``run.round_control`` first);
 - ``finish(run, i)`` once after the last round;
 and the report calls ``describe(info)`` for its sentence on the method. ``summary`` is the one-line
 help of ``--placement``; ``uses_candidates`` says whether ``DesignSettings.candidates`` means
@@ -33,7 +34,10 @@ from .settings import PLACEMENTS, DesignSettings
 
 __all__ = ["PlacementContext", "scaled_errors", "free_faces", "rest_directions", "other_end", "paper_ends",
            "cell_faces", "add_actuator_set", "paper_placement", "end_angle_deg", "candidate_ends", "PLACEMENTS",
-           "Placement", "PaperPlacement", "register_placement"]
+           "Placement", "PaperPlacement", "register_placement", "RECORD_KEYS", "check_record"]
+
+#: what every placement's record of an added set holds (the report and rounds.json read them)
+RECORD_KEYS = ("round", "target", "face_a", "face_b", "error")
 
 
 @dataclass(frozen=True)
@@ -210,6 +214,15 @@ class PaperPlacement(Placement):
     @classmethod
     def describe(cls, info):
         return " (Algorithm 1 as published: every target uses every actuator)"
+
+
+def check_record(placement: Placement, record) -> dict:
+    """``record`` if it is a dict with every ``RECORD_KEYS`` entry, else an error naming the placement."""
+    missing = [k for k in RECORD_KEYS if k not in record] if isinstance(record, dict) else list(RECORD_KEYS)
+    if missing:
+        raise DesignError(f"placement {placement.name!r} returned a record without {missing}; a placement's place() "
+                          f"returns a dict with {list(RECORD_KEYS)} (or None to run the round again)")
+    return record
 
 
 def register_placement(placement, *, replace: bool = False):

@@ -1,20 +1,17 @@
-"""One design run's shared state (``DesignRun``, what the placement strategies act on) and its
-control rounds (``control_round``)."""
+"""One design run's shared state: ``DesignRun``, what the design loop and the placement strategies
+act on."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
-from ..controller import ControlSettings, control_many
+from ..controller import ControlSettings
 from ..design import Design
-from .initialize import copy_design
 from .placement import PlacementContext
 from .selection import Selection
 from .settings import DesignSettings
 
-__all__ = ["DesignRun", "control_round", "round_progress"]
+__all__ = ["DesignRun", "round_progress"]
 
 
 @dataclass
@@ -53,21 +50,3 @@ def round_progress(progress, i: int, rounds_total: int):
         if progress is not None:
             progress(i, rounds_total, step, total, done, worlds)
     return ctl_progress
-
-
-def control_round(run: DesignRun, i: int, round_settings: ControlSettings, hold=None) -> list:
-    """Round ``i``: the current design controlled to every target (one batch of worlds), the actuators
-    each target leaves out held neutral; recorded, appended to ``run.designs`` and ``run.rounds``.
-    ``hold``: what the round records instead of the results (``Placement.hold``); the results are
-    returned."""
-    run.designs.append(copy_design(run.current))
-    results = control_many(run.current, run.targets, device=run.device, settings=round_settings,
-                           progress=run.round_progress(i), passive_ipams=run.selection.passive_ipams(),
-                           passive_cells=run.selection.passive_cells(), recorder=run.recorder,
-                           recorder_prefix=f"design/round_{i}", target_names=run.names)
-    run.rounds.append(results if hold is None else hold(results))
-    if run.recorder is not None:
-        run.recorder.log_design_round(i, np.array([r.pcc for r in run.rounds[-1]]), run.names, run.designs[-1])
-    if run.on_round is not None:
-        run.on_round(i, run.designs[-1], run.rounds[-1])
-    return results
