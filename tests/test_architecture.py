@@ -169,11 +169,8 @@ def test_no_private_name_crosses_a_module():
 
 
 # ------------------------------------------------------------------------------------ the import graph
-#: Import circles known and being removed, each as its set of modules. Only this one: the inverse
-#: control method calls back up into the control loop (controller/inverse.py imports
-#: controller/loop.py's control_many, loop.py dispatches to inverse.py); it goes when control methods
-#: become a registry, and this entry with it.
-KNOWN_CIRCLES = [{"warp_shape.controller.loop", "warp_shape.controller.inverse"}]
+#: Import circles known and being removed, each as its set of modules: none.
+KNOWN_CIRCLES: list[set] = []
 
 
 def import_graph() -> dict[str, dict[str, int]]:
@@ -273,7 +270,7 @@ def test_circles_are_found():
 def test_import_graph_resolves_relative_and_function_level_imports():
     graph = import_graph()
     assert "warp_shape.io.atomic" in graph["warp_shape.io.valve"]  # from .atomic import ...
-    assert "warp_shape.controller.inverse" in graph["warp_shape.controller.loop"]  # inside a function
+    assert "warp_shape.simulator" in graph["warp_shape.controller.loop"]  # inside a function
     assert "warp_shape.model" in graph["warp_shape.physics.ipam"]  # under TYPE_CHECKING
 
 
