@@ -144,8 +144,8 @@ def test_default_run_writes_report_figures(default_run):
 
 
 @pytest.mark.parametrize("argv,match", [
-    (["--actuators", "0"], "actuators must be a whole number >= 1"),
-    (["--candidates", "0"], "candidates must be a whole number >= 1"),
+    (["--actuators", "0"], "--actuators takes 1..500, got 0"),
+    (["--candidates", "0"], "--candidates takes 1.."),
     (["--actuators", "400"], "faces of jamming cells"),
     (["--targets", "oval", "oval"], "duplicate target"),
     (["--targets", "missing_file.stl"], "not found"),
