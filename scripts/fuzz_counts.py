@@ -11,6 +11,11 @@ it was, or swapped in keeping every file the manifest does not list), ``faults``
 swallowed, and a full disk at every phase of a design run: one line, exit 130 or 1, the previous
 set whole) and ``sizes`` (every bounded flag past its bounds: one line naming them, nothing written).
 
+The fixed ``special`` cases (``fuzz_special``) must each be refused: a FIFO, a link to /dev/zero or
+/dev/null and a folder given to every file reader and composed by scenes (text and binary), absurd
+sizes (directions, IPAMs, sweep runs, simulated steps, a target 100x or 10^5x too big), strings and
+numbers for booleans and fractions for counts; one that is accepted counts as "other" ("accepted").
+
     python scripts/fuzz_counts.py [--n 400] [--cli 130] [--seed 0] [--timeout 20]
 """
 
