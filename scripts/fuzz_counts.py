@@ -892,6 +892,9 @@ def special_cases(folder: Path, bases: dict) -> list:
                       by_ext["json"] if kind == "fifo" else None))
     for name, p, fifo in _composing_scenes(folder, bases, paths):
         cases.append((name, lambda p=p: ws.load_scene(p), True, fifo))
+    obj = folder / "special" / "names_a_fifo.obj"  # its material library is a FIFO: read without it
+    obj.write_text(f"mtllib {paths['fifo']['stl'].name}\n" + bases["obj"].decode())
+    cases.append(("OBJ whose mtllib is a fifo", lambda: ws.TriMesh.load(obj), False, paths["fifo"]["stl"]))
     cases += _size_cases(folder, bases)
     cases += _type_cases()
     return cases

@@ -109,6 +109,17 @@ def test_a_scene_composing_a_special_file_is_refused_before_usd_opens_it(kind, h
         ws.load_scene(scene)
 
 
+TETRA_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+
+
+@pytest.mark.parametrize("kind", ["fifo", "zero"])
+def test_a_mesh_file_naming_a_special_file_reads_without_it(kind, special, tmp_path):
+    special(kind, "pipe.mtl")
+    obj = tmp_path / "tetra.obj"
+    obj.write_text("mtllib pipe.mtl\n" + TETRA_OBJ)  # the material library is not read: no block, no flood
+    assert ws.TriMesh.load(obj).n_faces == 4 and len(ws.load_scan(obj)[0]) == 4
+
+
 def test_special_manifest_and_sweep_results_are_no_files_of_ours(special, tmp_path):
     from warp_shape.io.atomic import read_manifest
     from warp_shape.sweep.params import SweepError
@@ -137,7 +148,7 @@ def test_an_input_file_over_the_size_cap_is_refused_unread(tmp_path):
 
 def test_view_of_a_mesh_file_says_it_is_not_a_recording(tmp_path, capsys):
     tetra = tmp_path / "tetra.obj"
-    tetra.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    tetra.write_text(TETRA_OBJ)
     err = error_of(capsys, ["view", tetra])
     assert "tetra.obj is not a rerun recording" in err and "--rerun FILE.rrd" in err
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MeshError, check_input_file, check_whole, numeric_array
+from .errors import MeshError, check_input_file, check_whole, numeric_array, read_input_file
 
 __all__ = ["TriMesh", "EdgeTopology", "icosphere", "icosphere_like", "edge_topology"]
 
@@ -162,6 +162,28 @@ def _int_array(value) -> bool:
         return False
 
 
+def regular_file_resolver(path):
+    """A trimesh resolver for the files a mesh file names (an OBJ's ``mtllib``, a glTF's buffers), next to
+    ``path``: each is read only if it is a regular file (``errors.read_input_file``); a FIFO there would
+    block the read."""
+    import os
+
+    import trimesh.resolvers
+
+    class Resolver(trimesh.resolvers.FilePathResolver):
+        def get(self, name: str):
+            for candidate in (name.strip(), name.strip().lstrip("/"), os.path.split(name)[-1]):
+                try:
+                    p = self.absolute(candidate)
+                except ValueError:
+                    continue
+                if p.exists():
+                    return read_input_file(p, f"file {name} that {path} names", MeshError)
+            return super().get(name)
+
+    return Resolver(str(path))
+
+
 class TriMesh:
     """A validated closed triangle mesh.
 
@@ -204,7 +226,7 @@ class TriMesh:
         except ImportError as exc:  # pragma: no cover - trimesh is a dependency
             raise MeshError("reading mesh files needs trimesh (pip install trimesh)") from exc
         try:
-            loaded = trimesh.load(str(path), force="mesh", process=False)
+            loaded = trimesh.load(str(path), force="mesh", process=False, resolver=regular_file_resolver(path))
             if not hasattr(loaded, "faces") or len(getattr(loaded, "faces", [])) == 0:
                 raise MeshError(f"{path} holds no triangles")
             raw = np.asarray(loaded.vertices, dtype=np.float64)

@@ -47,7 +47,7 @@ import warp as wp
 
 from .errors import MeshError, ShapeError, check_input_file
 from .kernels import raycast
-from .mesh import TriMesh
+from .mesh import TriMesh, regular_file_resolver
 from .sampling import RadialSampler, radial_metrics
 from .targets import TARGET_NAMES, target
 
@@ -132,7 +132,7 @@ def load_scan(scan) -> tuple[np.ndarray, np.ndarray | None]:
         import trimesh
 
         try:
-            scan = trimesh.load(str(path))
+            scan = trimesh.load(str(path), resolver=regular_file_resolver(path))
         except Exception as exc:  # trimesh raises many types for unreadable files
             raise ShapeError(f"could not read scan {path}: {exc}") from exc
     if hasattr(scan, "geometry") and isinstance(getattr(scan, "geometry"), dict):  # trimesh.Scene
