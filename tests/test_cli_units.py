@@ -186,7 +186,8 @@ def test_target_files_are_read_in_their_unit_and_named_in_errors(mm_files, tmp_p
     no_work(monkeypatch)
     _, oval_mm = mm_files
     err = error_of(capsys, ["design", "--targets", str(oval_mm), "--units", "m", "--out", str(tmp_path / "o")])
-    assert f"target file {oval_mm} is 101.3 m across read in m" in err and "--units mm" in err
+    assert f"target file {oval_mm} is 101.3 m across read in m" in err and "is it in mm? (--units mm or auto)" in err
+    assert "centimetres" not in err  # 101 mm is a display, 101 cm hardly: millimetres are named
     err = error_of(capsys, ["control", "--targets", str(oval_mm), "--units", "m", "--out", str(tmp_path / "o")])
     assert f"target file {oval_mm} is 101.3 m across" in err
     with pytest.raises(AssertionError, match="work started"):  # read in millimetres, the design starts

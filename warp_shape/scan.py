@@ -181,7 +181,11 @@ def length_unit_of(points, units: str, what: str) -> str:
     ext = float(np.max(np.ptp(points, axis=0))) * LENGTH_UNITS[units]
     if not PLAUSIBLE_EXTENT_M[0] <= ext <= PLAUSIBLE_EXTENT_M[1]:
         other = next(u for u in LENGTH_UNITS if u != units)
-        guess = _centimetres(ext / LENGTH_UNITS[units]) or f"; is it in {other}? (--units {other} or auto)"
+        raw = ext / LENGTH_UNITS[units]  # the file's own numbers: the other unit first, then centimetres
+        if PLAUSIBLE_EXTENT_M[0] <= raw * LENGTH_UNITS[other] <= PLAUSIBLE_EXTENT_M[1]:
+            guess = f"; is it in {other}? (--units {other} or auto)"
+        else:
+            guess = _centimetres(raw) or "; nor in m or mm: scale the file to metres or millimetres"
         raise ShapeError(f"{what} is {ext:.4g} m across read in {units}: no shape display is{guess}")
     return units
 
