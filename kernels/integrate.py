@@ -80,8 +80,7 @@ def rk4_stage_fused(
     # Out (read and updated):
     fg_out: wp.array3d(dtype=Any),  # (2, W, V) the stage's forces without pressure, dV/dx; reset for the next stage
     xv_out: wp.array3d(dtype=Any),  # (2, W, V) positions, velocities at the end of the step: written at the last stage
-    stage_xv_out: wp.array3d(dtype=Any),  # (2, W, V) scratch: the next stage point
-    acc_out: wp.array3d(dtype=Any),  # (2, W, V) scratch: weighted sums of the stage slopes
+    scratch_out: wp.array3d(dtype=Any),  # (4, W, V) scratch: the next stage point (x, v), the weighted slope sums
     status_out: wp.array(dtype=wp.int32),  # (W,) worst blow-up code (see flag_blowup)
 ):
     """Classical RK4 on y = (x, v), y' = (v, f/m) with pressure applied here; controls held."""
@@ -89,33 +88,33 @@ def rk4_stage_fused(
     p = gauge_pressure(air_in[w], volume_in[w, stage], gas_rt, p_atm)
     kx = xv_in[1, w, i]  # the velocity at the stage point
     if stage > 0:
-        kx = stage_xv_out[1, w, i]
+        kx = scratch_out[1, w, i]
     kv = (fg_out[0, w, i] + fg_out[1, w, i] * type(h)(p)) * inv_mass[i]
     one = type(h)(1.0)
     two = type(h)(2.0)
     half = type(h)(0.5)
     if stage == 0:
-        acc_out[0, w, i] = kx
-        acc_out[1, w, i] = kv
+        scratch_out[2, w, i] = kx
+        scratch_out[3, w, i] = kv
     else:
         weight = two
         if stage == 3:
             weight = one
-        acc_out[0, w, i] = acc_out[0, w, i] + kx * weight
-        acc_out[1, w, i] = acc_out[1, w, i] + kv * weight
+        scratch_out[2, w, i] = scratch_out[2, w, i] + kx * weight
+        scratch_out[3, w, i] = scratch_out[3, w, i] + kv * weight
     if stage < 3:
         c = half * h
         if stage == 2:
             c = h
-        stage_xv_out[0, w, i] = xv_in[0, w, i] + kx * c
+        scratch_out[0, w, i] = xv_in[0, w, i] + kx * c
         v_next = xv_in[1, w, i] + kv * c
-        stage_xv_out[1, w, i] = v_next
+        scratch_out[1, w, i] = v_next
         fg_out[0, w, i] = v_next * (-viscous_damping)
         fg_out[1, w, i] = v_next * type(h)(0.0)
     else:
         sixth = h / type(h)(6.0)
-        x_new = xv_in[0, w, i] + acc_out[0, w, i] * sixth
-        v_new = xv_in[1, w, i] + acc_out[1, w, i] * sixth
+        x_new = xv_in[0, w, i] + scratch_out[2, w, i] * sixth
+        v_new = xv_in[1, w, i] + scratch_out[3, w, i] * sixth
         xv_out[0, w, i] = x_new
         xv_out[1, w, i] = v_new
         flag_blowup(x_new, v_new, x_bound, v_bound, w, status_out)

@@ -125,10 +125,11 @@ class RK4Solver(Solver):
 
     def __init__(self, model: Model, worlds: int, paper_bending: bool = False):
         super().__init__(model, worlds, paper_bending)
-        shape, dev, vec3 = self.fg.shape, model.device, model.vec3
-        self.stage_xv = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) the next stage point
-        self.xs, self.vs = self.stage_xv[0], self.stage_xv[1]
-        self.acc = wp.zeros(shape, dtype=vec3, device=dev)  # (2, W, V) weighted slope sums
+        _, W, V = self.fg.shape
+        # one (4, W, V) buffer (one kernel argument): the next stage point (x, v), then the weighted slope sums
+        self.scratch = wp.zeros((4, W, V), dtype=model.vec3, device=model.device)
+        self.stage_xv, self.acc = self.scratch[0:2], self.scratch[2:4]  # (2, W, V) views
+        self.xs, self.vs = self.scratch[0], self.scratch[1]
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float, launch: Launch | None = None):
         """One internal step ``dt`` (s) from state_in into state_out (see ``Solver``)."""
@@ -145,7 +146,7 @@ class RK4Solver(Solver):
             launch(ki.rk4_stage_fused, (W * V,),
                    [m.inv_mass, m.scalar(m.viscous_damping), *self.pressure_args(), hs, stage, W, V,
                     *self.check_args(dt), control.air, self.volume, state_in.xv, self.fg, state_out.xv,
-                    self.stage_xv, self.acc, self.status])
+                    self.scratch, self.status])
 
 
 INTEGRATORS = {"rk4": RK4Solver, "semi_implicit": SemiImplicitSolver}
