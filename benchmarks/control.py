@@ -14,6 +14,8 @@ import numpy as np
 
 from warp_shape.controller import ControlSettings, control_many
 from warp_shape.design import Design
+from warp_shape.designer import design
+from warp_shape.io.scene_read import load_scene
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.targets import target
 
@@ -35,9 +37,6 @@ def fig6_with_ipams(n: int, subdivisions: int = 3) -> Design:
 
 
 def _oval_heart_design(device: str) -> tuple[Design, list]:
-    from warp_shape.designer import design
-    from warp_shape.io.scene_read import load_scene
-
     sc = load_scene("oval_heart")
     opts = sc.settings["designer"]
     res = design(sc.design.rest, sc.targets, actuators=opts["actuators"], target_names=sc.target_names,

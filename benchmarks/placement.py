@@ -20,6 +20,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import warp as wp
+
+import warp_shape as ws
+from warp_shape.designer import DesignSettings, design
+from warp_shape.io.atomic import atomic_write
+from warp_shape.io.scene_read import load_scene
 
 SINGLE = ("oval", "pear", "heart", "cube")
 SCENES = ("oval_heart", "four_targets_5", "four_targets_20")
@@ -46,9 +52,6 @@ def corner_ends(design, cell_radius: float) -> list[int]:
 
 
 def _problem(case: str):
-    import warp_shape as ws
-    from warp_shape.io.scene_read import load_scene
-
     if case in SINGLE:
         return ws.icosphere(3, 0.035), [case], [ws.target(case)], dict(actuators=5, initialize=False)
     sc = load_scene(case)
@@ -59,8 +62,6 @@ def _problem(case: str):
 
 def run_case(case: str, placement: str, candidates: int | None = None, device: str = "cpu", on_round=None) -> dict:
     """Design ``case`` with ``placement``; the JSON-ready record described in the module docstring."""
-    from warp_shape.designer import DesignSettings, design
-
     if case not in CASES:
         raise SystemExit(f"unknown case {case!r}; choose one of {', '.join(CASES)}")
     base, names, targets, opts = _problem(case)
@@ -95,11 +96,7 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu")
     p.add_argument("--out", default="out")
     args = p.parse_args(argv)
-    import warp as wp
-
     wp.config.quiet = True
-    from warp_shape.io.atomic import atomic_write
-
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"placement_{args.case}_{args.placement}.json"

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..model import HostModel, WorldRef
 from ..sampling import RadialSampler
+from ..simulator import Simulator
 from .observe import fit_of, ipam_neutral_pressures, vertex_area_shares
 from .worlds import mask_passive, max_speeds
 
@@ -48,8 +49,6 @@ class Explorer:
         self.world_steps = 0  # world-steps simulated so far (cost)
 
     def _sim(self, worlds: int):
-        from ..simulator import Simulator
-
         if worlds not in self._sims:
             self._sims[worlds] = Simulator(self.design, device=self.device, settings=self.sim_settings, worlds=worlds)
         return self._sims[worlds]

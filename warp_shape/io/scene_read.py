@@ -16,6 +16,7 @@ import numpy as np
 from ..designer import DesignSettings
 from ..designer.run_settings import designer_fields
 from ..design import MAX_IPAMS, Design
+from ..designer import DesignSettings
 from ..errors import DesignError, MeshError, SceneError, read_input_file
 from ..material import Material
 from ..mesh import TriMesh

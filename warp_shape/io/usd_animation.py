@@ -33,6 +33,7 @@ from ..errors import SceneError
 from .scene_schema import IPAMS, MEMBRANE, NS, ROOT_NAME, Scene
 from .scene_write import build_stage, write_stage_atomic
 from .usd_common import FRAME_RATE, check_extension, face_colors, ipam_endpoints, load_pxr
+from .valve import DEFAULT_MAX_SLEW_KPA_S, row_times
 
 __all__ = ["export_animation", "playback_times", "PLAYBACKS"]
 
@@ -44,8 +45,6 @@ def playback_times(result, playback: str = "valve", *, max_slew_kpa_s: float | N
     """(n_rows,) seconds from 0 of each control step of ``result``: ``"valve"`` the valve schedule's
     (re-timed to ``max_slew_kpa_s``, default ``io.valve.DEFAULT_MAX_SLEW_KPA_S``), ``"simulated"``
     the simulator's clock."""
-    from .valve import DEFAULT_MAX_SLEW_KPA_S, row_times
-
     if playback not in PLAYBACKS:
         raise SceneError(f"playback must be one of {', '.join(PLAYBACKS)}, got {playback!r}")
     if playback == "simulated":

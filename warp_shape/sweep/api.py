@@ -12,6 +12,7 @@ from .backends import BACKENDS, require_ray, run_ray, run_serial
 from .params import Param, SweepError, check_values, parse_param
 from .plan import grid_plan, load_problem, subsets_plan
 from .results import ResultsTable, columns_for, place_outputs
+from .run import execute
 from .summary import write_summary
 
 __all__ = ["sweep", "SweepResult", "KINDS"]
@@ -129,8 +130,6 @@ def _execute(kind, problem, plist, tasks, folder: Path, *, backend, workers, add
 
 def _run_locked(table, kind, names, swept, tasks, folder: Path, *, backend, workers, address, device, retries,
                 restart, progress, run_fn) -> SweepResult:
-    from .run import execute
-
     if restart:
         for stale in ("results.json", "results.csv", "runs"):
             p = folder / stale

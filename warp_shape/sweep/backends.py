@@ -14,6 +14,7 @@ import socket
 import time
 
 from .params import SweepError
+from .run import error_row
 
 __all__ = ["BACKENDS", "run_serial", "run_ray", "require_ray", "start_ray", "check_address"]
 
@@ -80,8 +81,6 @@ def run_serial(tasks, run_fn, on_done) -> None:
 
 
 def _crash_row(task, exc) -> tuple[dict, dict]:
-    from .run import error_row
-
     name = type(exc).__name__
     text = str(exc).strip().splitlines()
     return error_row(task, f"{name}: {text[0] if text else 'the worker running this run died'}"), {}

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..designer.run_settings import DEFAULT_ACTUATORS
+from ..io.scene_read import load_scene
 from ..mesh import TriMesh, icosphere_like
 from ..targets import load_target
 from .params import Param, SweepError, check_values, split_params
@@ -67,8 +68,6 @@ def _load_targets(specs) -> list:
 def load_problem(scene: str | None = None, targets=None, fixed: dict | None = None) -> Problem:
     """The design problem of a scene (default ``oval_heart``, as ``warp-shape design``), its targets
     replaced by ``targets`` (names or mesh files) when given; ``fixed`` settings are checked."""
-    from ..io.scene_read import load_scene
-
     name = scene or DEFAULT_SCENE
     sc = load_scene(name)
     base = sc.base_mesh()
