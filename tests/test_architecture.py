@@ -23,7 +23,7 @@ LAYERS = [
     ("warp_shape.kernels", 0),
     ("warp_shape.errors", 1), ("warp_shape.interrupts", 1), ("warp_shape.registry", 1), ("warp_shape.settings", 1),
     ("warp_shape.material", 1), ("warp_shape.mesh", 1),
-    ("warp_shape.design", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
+    ("warp_shape.actuators", 2), ("warp_shape.design", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
     ("warp_shape.integrators", 2), ("warp_shape.crossing", 2), ("warp_shape.stability", 2), ("warp_shape.step_plan", 2),
     ("warp_shape.simulator", 2),
     ("warp_shape.targets", 3), ("warp_shape.sampling", 3), ("warp_shape.scan", 3),
@@ -271,7 +271,7 @@ def test_import_graph_resolves_relative_and_function_level_imports():
     graph = import_graph()
     assert "warp_shape.io.atomic" in graph["warp_shape.io.valve"]  # from .atomic import ...
     assert "warp_shape.simulator" in graph["warp_shape.controller.loop"]  # inside a function
-    assert "warp_shape.model" in graph["warp_shape.physics.ipam"]  # under TYPE_CHECKING
+    assert "warp_shape.model" in graph["warp_shape.physics.bending"]  # under TYPE_CHECKING
 
 
 def test_no_import_circle():

@@ -78,12 +78,40 @@ class Design:
             raise DesignError(f"Design.material must be a ws.Material, got {type(material).__name__}")
         self.rest = rest
         self.material = material
-        self.ipams: list[Ipam] = []
+        self.actuators: dict[str, list] = {"ipam": []}  # the elements of each actuator family, by family name
         self.cells: list[Cell] = []
         self._face_cell = np.full(rest.n_faces, -1, dtype=np.int64)
 
     # ------------------------------------------------------------------ actuators
-    def _check_face(self, face, what: str) -> int:
+    @property
+    def ipams(self) -> list[Ipam]:
+        """The IPAMs (the elements of the "ipam" actuator family)."""
+        return self.actuators["ipam"]
+
+    def elements(self, family: str) -> list:
+        """The elements of actuator family ``family`` (a list, empty when the design has none)."""
+        return self.actuators.setdefault(family, [])
+
+    def add_element(self, family: str, element) -> int:
+        """Append ``element`` to actuator family ``family``'s elements (an ``ActuatorFamily`` builds and
+        checks it); returns its index among them."""
+        if not isinstance(family, str) or not family.isidentifier():
+            raise DesignError(f"an actuator family is named by an identifier, got {family!r}")
+        elements = self.elements(family)
+        elements.append(element)
+        return len(elements) - 1
+
+    def check_vertex(self, vertex, what: str) -> int:
+        """``vertex`` as a vertex index of the rest mesh; anything else raises ``DesignError`` naming ``what``."""
+        if isinstance(vertex, (bool, np.bool_)) or not isinstance(vertex, (int, np.integer)):
+            raise DesignError(f"{what} must be a vertex index (int), got {vertex!r}")
+        vertex = int(vertex)
+        if not 0 <= vertex < self.rest.n_vertices:
+            raise DesignError(f"{what} = {vertex} is out of range: the rest mesh has {self.rest.n_vertices} vertices")
+        return vertex
+
+    def check_face(self, face, what: str) -> int:
+        """``face`` as a face index of the rest mesh; anything else raises ``DesignError`` naming ``what``."""
         if isinstance(face, (bool, np.bool_)) or not isinstance(face, (int, np.integer)):
             raise DesignError(f"{what} must be a face index (int), got {face!r}")
         face = int(face)
@@ -101,8 +129,8 @@ class Design:
         """
         if len(self.ipams) >= MAX_IPAMS:
             raise DesignError(f"a design holds at most {MAX_IPAMS} IPAMs (the paper's displays have 4-20); use fewer")
-        a = self._check_face(face_a, "IPAM face_a")
-        b = self._check_face(face_b, "IPAM face_b")
+        a = self.check_face(face_a, "IPAM face_a")
+        b = self.check_face(face_b, "IPAM face_b")
         if a == b:
             raise DesignError(f"IPAM ends coincide (both on face {a}); join two different faces")
         fa, fb = self.rest.faces[a], self.rest.faces[b]
@@ -147,8 +175,7 @@ class Design:
         ipam = Ipam(face_a=a, face_b=b, stiffness=float(stiffness), area=float(area),
                     free_length=float(free_length), pressure_limits=(lo, hi), damping=float(damping),
                     pairs=pairs, offsets=sub_rest - rest_length, rest_length=rest_length)
-        self.ipams.append(ipam)
-        return len(self.ipams) - 1
+        return self.add_element("ipam", ipam)
 
     def add_cell(self, faces, shared: bool = False) -> int:
         """Add a jamming cell over these face indices; returns its index. Cells may not overlap, except
@@ -195,4 +222,5 @@ class Design:
         return np.unique(topo.face_edges[self.cells[cell].faces].reshape(-1)).astype(np.int32)
 
     def __repr__(self) -> str:
-        return f"Design(rest={self.rest!r}, ipams={self.n_ipams}, cells={self.n_cells})"
+        others = "".join(f", {k}={len(v)}" for k, v in self.actuators.items() if k != "ipam" and v)
+        return f"Design(rest={self.rest!r}, ipams={self.n_ipams}{others}, cells={self.n_cells})"

@@ -9,11 +9,10 @@ import warp as wp
 from warp_shape.kernels import integrate as ki
 
 from .errors import SimulationError
-from .forces import eval_hinges
+from .forces import eval_actuators, eval_hinges
 from .model import Control, Model, State
 from .physics import Launch
 from .physics.damping import eval_init_step
-from .physics.ipam import eval_ipams
 from .settings import SimulationSettings
 
 __all__ = ["Solver", "RK4Solver", "SemiImplicitSolver", "make_solver", "blowup_error", "BlowupWatch", "INTEGRATORS",
@@ -81,9 +80,9 @@ class Solver:
 
     def forces(self, state_in: State, control: Control, xv, x, v, slot: int, launch: Launch):
         """Accumulate every force family but pressure (applied by the stage kernel) at xv = (x, v),
-        with state_in's jam fields."""
+        with state_in's jam fields: the fused hinge pass, then each actuator family."""
         eval_hinges(self.model, state_in, xv, self.fg, self.volume, slot, launch, self.paper_bending)
-        eval_ipams(self.model, x, v, control, self.f, launch)
+        eval_actuators(self.model, state_in, control, x, v, self.f, launch)
 
     def prepare(self, state_in: State, state_out: State) -> None:
         """Check the pair of states; state_out takes state_in's jam fields (a step does not change them).

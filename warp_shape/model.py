@@ -16,10 +16,12 @@ from warp_shape.kernels import common as kc
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
+from .actuators import families
+from .physics import ipam as ipam_family  # noqa: F401  (registers the IPAM family, the first)
 from .physics.bending_law import dihedral_angles_np
 
 __all__ = ["Model", "State", "Control", "WorldRef", "copy_worlds", "check_layout", "build_model", "check_device",
-           "HostModel", "host_model", "PRECISIONS", "cell_anchor_faces"]
+           "HostModel", "host_model", "PRECISIONS", "cell_anchor_faces", "model_families"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -36,7 +38,6 @@ class Model:
     n_vertices: int
     n_faces: int
     n_edges: int
-    n_ipams: int
     n_cells: int
     # material scalars (SI)
     spring_damping: float
@@ -52,15 +53,28 @@ class Model:
     hinge_owns: wp.array  # (E,) int32: bit 0 / bit 1 where the hinge owns face A / B (see face_owners)
     edge_stiffness: wp.array  # (E,) k_e, N/m
     inv_mass: wp.array  # (V,) 1/kg
-    ipam_sub_pairs: wp.array | None  # (3 n_ipam,) vec2i
-    ipam_sub_offsets: wp.array | None  # (3 n_ipam,) m
-    ipam_stiffness: wp.array | None  # (n_ipam,) N/m
-    ipam_area_over_k: wp.array | None  # (n_ipam,) m/Pa
-    ipam_free_length: wp.array | None  # (n_ipam,) m
-    ipam_damping: wp.array | None  # (n_ipam,) N s/m
     cell_edges: list  # n_cell x wp.array (n_c,) int32
     # host copies (float64) used for estimates, energies, observations and read-outs
     host: HostModel = field(repr=False)
+    # actuator family name -> its device arrays (ActuatorFamily.device_arrays; empty without elements)
+    actuators: dict = field(default_factory=dict, repr=False)
+
+    # the IPAM family's device arrays (``actuators["ipam"]``; None without IPAMs)
+    ipam_sub_pairs = property(lambda self: self.actuators["ipam"].get("sub_pairs"), doc="(3 n_ipam,) vec2i")
+    ipam_sub_offsets = property(lambda self: self.actuators["ipam"].get("sub_offsets"), doc="(3 n_ipam,) m")
+    ipam_stiffness = property(lambda self: self.actuators["ipam"].get("stiffness"), doc="(n_ipam,) N/m")
+    ipam_area_over_k = property(lambda self: self.actuators["ipam"].get("area_over_k"), doc="(n_ipam,) m/Pa")
+    ipam_free_length = property(lambda self: self.actuators["ipam"].get("free_length"), doc="(n_ipam,) m")
+    ipam_damping = property(lambda self: self.actuators["ipam"].get("damping"), doc="(n_ipam,) N s/m")
+
+    @property
+    def families(self) -> tuple:
+        """The model's actuator families (``HostModel.families``)."""
+        return self.host.families
+
+    @property
+    def n_ipams(self) -> int:
+        return self.host.n_ipams
 
     @property
     def scalar(self):
@@ -92,8 +106,8 @@ class Model:
         return State(self, worlds, jam_from)
 
     def control(self, worlds: int = 1, air_moles: float | None = None) -> Control:
-        """A new ``Control`` of ``worlds`` worlds: ``air_moles`` (mol; the rest air when None), IPAM
-        pressures zero, every IPAM enabled."""
+        """A new ``Control`` of ``worlds`` worlds: ``air_moles`` (mol; the rest air when None), every
+        actuator family at its rest controls (IPAM pressures zero), every element enabled."""
         return Control(self, worlds, self.host.rest_air if air_moles is None else air_moles)
 
 
@@ -141,24 +155,35 @@ class HostModel:
     rest_angle: np.ndarray  # (E,) rad
     edge_stiffness: np.ndarray  # (E,) k_e, N/m
     mass: np.ndarray  # (V,) kg
-    ipam_faces: np.ndarray  # (n, 2) int64: end faces a, b
-    ipam_sub_pairs: np.ndarray  # (3 n, 2) int64: vertex of face a, vertex of face b
-    ipam_sub_offsets: np.ndarray  # (3 n,) m
-    ipam_stiffness: np.ndarray  # (n,) k, N/m
-    ipam_area_over_k: np.ndarray  # (n,) A / k, m/Pa
-    ipam_free_length: np.ndarray  # (n,) L0, m
-    ipam_damping: np.ndarray  # (n,) N s/m per sub-spring
-    ipam_limits: np.ndarray  # (n, 2) Pa gauge: P_min, P_max
     cell_edges: list  # n_cell x (n_c,) int32 edge indices
     cell_faces: list  # n_cell x (n_c,) int64 face indices
     cell_anchors: np.ndarray  # (c,) int64: each cell's curvature reference face (see cell_anchor_faces)
     gas_rt: float  # R T, J/mol
     atmospheric_pressure: float  # Pa absolute
     rest_air: float  # mol: the air that holds the rest volume at atmospheric pressure
+    families: tuple = ()  # the model's actuator families (ActuatorFamily), in the order their forces add
+    actuators: dict = field(default_factory=dict)  # family name -> its host arrays (ActuatorFamily.host_arrays)
+
+    # the IPAM family's host arrays (``actuators["ipam"]``), n IPAMs
+    ipam_faces = property(lambda self: self.actuators["ipam"]["faces"],
+                          doc="(n, 2) int64: end faces a, b")
+    ipam_sub_pairs = property(lambda self: self.actuators["ipam"]["sub_pairs"],
+                              doc="(3 n, 2) int64: vertex of face a, vertex of face b")
+    ipam_sub_offsets = property(lambda self: self.actuators["ipam"]["sub_offsets"], doc="(3 n,) m")
+    ipam_stiffness = property(lambda self: self.actuators["ipam"]["stiffness"], doc="(n,) k, N/m")
+    ipam_area_over_k = property(lambda self: self.actuators["ipam"]["area_over_k"], doc="(n,) A / k, m/Pa")
+    ipam_free_length = property(lambda self: self.actuators["ipam"]["free_length"], doc="(n,) L0, m")
+    ipam_damping = property(lambda self: self.actuators["ipam"]["damping"], doc="(n,) N s/m per sub-spring")
+    ipam_limits = property(lambda self: self.actuators["ipam"]["limits"], doc="(n, 2) Pa gauge: P_min, P_max")
 
     @property
     def n_ipams(self) -> int:
         return len(self.ipam_faces)
+
+    def count(self, family: str) -> int:
+        """Number of elements of actuator family ``family`` (0 when the model does not hold it)."""
+        fam = next((f for f in self.families if f.name == family), None)
+        return 0 if fam is None else len(fam.rest_controls(self.actuators[family]))
 
     @property
     def n_cells(self) -> int:
@@ -174,26 +199,25 @@ def host_model(design: Design) -> HostModel:
     areas = mesh.face_areas()
     rest_length = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1)
     hinge_area = areas[topo.faces[:, 0]] + areas[topo.faces[:, 1]]
-    ips = design.ipams
+    fams = model_families(design)
     return HostModel(
         rest_vertices=x, faces=mesh.faces.astype(np.int64), hinges=hinges.astype(np.int64),
         hinge_faces=topo.faces.astype(np.int64), hinge_owns=face_owners(topo),
         rest_length=rest_length, rest_angle=dihedral_angles_np(x, hinges),
         edge_stiffness=mat.stretch_modulus * hinge_area / rest_length**2,
         mass=mat.areal_density * mesh.vertex_areas(),
-        ipam_faces=np.array([[ip.face_a, ip.face_b] for ip in ips], dtype=np.int64).reshape(-1, 2),
-        ipam_sub_pairs=np.concatenate([ip.pairs for ip in ips] or [np.zeros((0, 2))]).astype(np.int64),
-        ipam_sub_offsets=np.concatenate([ip.offsets for ip in ips] or [np.zeros(0)]),
-        ipam_stiffness=np.array([ip.stiffness for ip in ips], dtype=np.float64),
-        ipam_area_over_k=np.array([ip.area_over_stiffness for ip in ips], dtype=np.float64),
-        ipam_free_length=np.array([ip.free_length for ip in ips], dtype=np.float64),
-        ipam_damping=np.array([ip.damping for ip in ips], dtype=np.float64),
-        ipam_limits=np.array([ip.pressure_limits for ip in ips], dtype=np.float64).reshape(-1, 2),
         cell_edges=[design.cell_edges(c) for c in range(design.n_cells)],
         cell_faces=[c.faces.astype(np.int64) for c in design.cells], cell_anchors=cell_anchor_faces(design),
         gas_rt=GAS_CONSTANT * mat.temperature, atmospheric_pressure=mat.atmospheric_pressure,
         rest_air=mat.atmospheric_pressure * mesh.volume() / (GAS_CONSTANT * mat.temperature),
+        families=fams, actuators={f.name: f.host_arrays(design) for f in fams},
     )
+
+
+def model_families(design: Design) -> tuple:
+    """The actuator families a model of ``design`` holds: every registered one that is ``always`` held
+    or has elements in the design, in registration order."""
+    return tuple(f for f in families() if f.always or f.count(design))
 
 
 def check_device(device) -> str:
@@ -217,26 +241,18 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32",
     host = host_model(design) if host is None else host
     hinges, stiffness, mass = host.hinges, host.edge_stiffness, host.mass
 
-    def arr(a, dtype=scalar):
+    def arr(a, dtype=None):
+        if dtype is None:
+            a, dtype = np.asarray(a).astype(np_dtype), scalar
         return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device)
 
-    n_ipam = design.n_ipams
-    ipam_arrays = dict.fromkeys(["ipam_sub_pairs", "ipam_sub_offsets", "ipam_stiffness", "ipam_area_over_k",
-                                 "ipam_free_length", "ipam_damping"])
-    if n_ipam:
-        ipam_arrays = dict(
-            ipam_sub_pairs=arr(host.ipam_sub_pairs.astype(np.int32), wp.vec2i),
-            ipam_sub_offsets=arr(host.ipam_sub_offsets.astype(np_dtype)),
-            ipam_stiffness=arr(host.ipam_stiffness.astype(np_dtype)),
-            ipam_area_over_k=arr(host.ipam_area_over_k.astype(np_dtype)),
-            ipam_free_length=arr(host.ipam_free_length.astype(np_dtype)),
-            ipam_damping=arr(host.ipam_damping.astype(np_dtype)),
-        )
+    device_arrays = {f.name: f.device_arrays(host.actuators[f.name], arr) if f.count(design) else {}
+                     for f in host.families}
     cell_edges_np = host.cell_edges
 
     return Model(
         device=str(device), precision=precision,
-        n_vertices=mesh.n_vertices, n_faces=mesh.n_faces, n_edges=topo.count, n_ipams=n_ipam,
+        n_vertices=mesh.n_vertices, n_faces=mesh.n_faces, n_edges=topo.count,
         n_cells=design.n_cells,
         spring_damping=mat.spring_damping, bending_stiffness=mat.bending_stiffness,
         viscous_damping=mat.viscous_damping, jam_stretch_factor=mat.jam_stretch_factor,
@@ -248,8 +264,7 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32",
         edge_stiffness=arr(stiffness.astype(np_dtype)),
         inv_mass=arr((1.0 / mass).astype(np_dtype)),
         cell_edges=[arr(c.astype(np.int32), wp.int32) for c in cell_edges_np],
-        host=host,
-        **ipam_arrays,
+        host=host, actuators=device_arrays,
     )
 
 
@@ -321,22 +336,39 @@ class State:
 
 
 class Control:
-    """Per-world controls: chamber air amount, IPAM gauge pressures (float64) and the IPAM mask
-    ``ipam_enabled`` (W, n_ipam) int32: 0 where an IPAM is masked out of a world (no force there), so
-    one model can hold alternative actuator sets and each world enable its own."""
+    """Per-world controls: chamber air amount and, per actuator family of the model, one float64
+    control per element (``values[name]`` (W, n); the IPAM's are gauge pressures, ``ipam_pressure``)
+    and its mask (``enabled[name]`` (W, n) int32, 0 where an element is masked out of a world: no
+    force there, so one model can hold alternative actuator sets and each world enable its own).
+    A family without elements keeps a (W, 1) placeholder (valid arrays, never launched)."""
 
     def __init__(self, model: Model, worlds: int, air_moles: float):
         dev = model.device
         self.air = wp.array(np.full(worlds, air_moles, dtype=np.float64), dtype=wp.float64, device=dev)  # (W,) mol
-        n = max(model.n_ipams, 1)  # a (W, 1) placeholder keeps the array valid; never launched when no IPAMs
-        self.ipam_pressure = wp.zeros((worlds, n), dtype=wp.float64, device=dev)  # (W, n_ipam) Pa gauge
-        self.ipam_enabled = wp.array(np.ones((worlds, n), dtype=np.int32), dtype=wp.int32, device=dev)  # (W, n_ipam)
+        self.values, self.enabled = {}, {}
+        for fam in model.families:
+            rest = fam.rest_controls(model.host.actuators[fam.name])
+            full = np.zeros((worlds, max(rest.size, 1)))
+            full[:, : rest.size] = rest
+            self.values[fam.name] = wp.array(full, dtype=wp.float64, device=dev)
+            self.enabled[fam.name] = wp.array(np.ones(full.shape, dtype=np.int32), dtype=wp.int32, device=dev)
+
+    @property
+    def ipam_pressure(self) -> wp.array:
+        """(W, n_ipam) IPAM gauge pressures, Pa."""
+        return self.values["ipam"]
+
+    @property
+    def ipam_enabled(self) -> wp.array:
+        """(W, n_ipam) int32 IPAM mask."""
+        return self.enabled["ipam"]
 
     def clone(self) -> Control:
         """A copy of these controls (copied on the device)."""
         out = Control.__new__(Control)
-        out.air, out.ipam_pressure, out.ipam_enabled = (wp.clone(self.air), wp.clone(self.ipam_pressure),
-                                                        wp.clone(self.ipam_enabled))
+        out.air = wp.clone(self.air)
+        out.values = {k: wp.clone(a) for k, a in self.values.items()}
+        out.enabled = {k: wp.clone(a) for k, a in self.enabled.items()}
         return out
 
 
@@ -352,7 +384,8 @@ class WorldRef:
 def check_layout(src: State, src_control: Control, dst: State, dst_control: Control) -> None:
     """Refuse a world copy between states (and controls) of different designs or precisions."""
     if src.xv.dtype != dst.xv.dtype or src.xv.shape[2] != dst.xv.shape[2] or src.edge.shape[2] != dst.edge.shape[2] \
-            or src_control.ipam_pressure.shape[1] != dst_control.ipam_pressure.shape[1]:
+            or {k: a.shape[1] for k, a in src_control.values.items()} \
+            != {k: a.shape[1] for k, a in dst_control.values.items()}:
         raise DesignError("world copies go between states of one design in one precision; these differ "
                           f"({src.xv.shape[2]} vs {dst.xv.shape[2]} vertices, {src.xv.dtype.__name__} vs "
                           f"{dst.xv.dtype.__name__}): load worlds of a simulator of the same design and precision")
@@ -361,10 +394,10 @@ def check_layout(src: State, src_control: Control, dst: State, dst_control: Cont
 def copy_worlds(src: State, src_control: Control, src_worlds, dst: State, dst_control: Control, dst_worlds,
                 device: str) -> None:
     """Copy worlds ``src_worlds`` (n,) of (src, src_control) into worlds ``dst_worlds`` (n,) of (dst,
-    dst_control) on the device: positions, velocities, the jam fields of the edges, the air and the
-    IPAM pressures, and the host jam flags and times of the cells (the IPAM and cell masks stay the
-    destination's). A source world may go to several destinations; destinations must differ, and
-    must not be read as a source of the same copy."""
+    dst_control) on the device: positions, velocities, the jam fields of the edges, the air and every
+    actuator family's controls (the IPAM pressures), and the host jam flags and times of the cells
+    (the actuator and cell masks stay the destination's). A source world may go to several
+    destinations; destinations must differ, and must not be read as a source of the same copy."""
     si = np.asarray(src_worlds, dtype=np.int64).reshape(-1)
     di = np.asarray(dst_worlds, dtype=np.int64).reshape(-1)
     if si.shape != di.shape or len(set(di.tolist())) != len(di):
@@ -379,8 +412,8 @@ def copy_worlds(src: State, src_control: Control, src_worlds, dst: State, dst_co
         return
     s_idx = wp.array(si.astype(np.int32), dtype=wp.int32, device=device)
     d_idx = wp.array(di.astype(np.int32), dtype=wp.int32, device=device)
-    pairs = [(src.xv, dst.xv), (src.edge, dst.edge), (src.jammed, dst.jammed), (src_control.air, dst_control.air),
-             (src_control.ipam_pressure, dst_control.ipam_pressure)]
+    pairs = [(src.xv, dst.xv), (src.edge, dst.edge), (src.jammed, dst.jammed), (src_control.air, dst_control.air)]
+    pairs += [(a, dst_control.values[k]) for k, a in src_control.values.items()]
     for a, b in pairs:
         a3 = a if a.ndim == 3 else a.reshape((1, a.shape[0], -1))
         b3 = b if b.ndim == 3 else b.reshape((1, b.shape[0], -1))

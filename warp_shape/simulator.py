@@ -18,13 +18,11 @@ from warp_shape.kernels import common as kc
 
 from .design import Design
 from .errors import DesignError, SimulationError
-from .forces import eval_forces, eval_forces_fused
+from .forces import eval_forces, eval_forces_fused, force_terms
 from .integrators import BlowupWatch, blowup_error, make_solver
 from .crossing import check_rest_mesh, self_crossing
 from .model import State, WorldRef, build_model, check_device, check_layout, copy_worlds, host_model
-from .physics import FORCE_TERMS
 from .physics.bending import bending_energy_np
-from .physics.ipam import ipam_energy_np
 from .physics.ipam_law import axial_force_np, ipam_lengths_np, natural_length_np
 from .physics.jamming import eval_jam, jammed_factor_np
 from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, volumes_np
@@ -210,18 +208,41 @@ class Simulator:
 
     @ipam_pressures.setter
     def ipam_pressures(self, value):
-        n = self.model.n_ipams
-        if n == 0:
+        if self.model.n_ipams == 0:
             raise DesignError("this design has no IPAMs; add one with Design.add_ipam before setting pressures")
-        a = self._per_world(value, (n,), "ipam_pressures")
-        lim = self.model.host.ipam_limits
-        low, high = a < lim[:, 0] - 1e-9, a > lim[:, 1] + 1e-9
-        if np.any(low | high):
-            w, i = np.argwhere(low | high)[0]
-            raise DesignError(
-                f"IPAM {i} pressure {a[w, i]:.6g} Pa is outside its limits [{lim[i, 0]:.6g}, {lim[i, 1]:.6g}] Pa; "
-                f"clip it or widen pressure_limits in Design.add_ipam")
-        self.control.ipam_pressure.assign(a)
+        self.set_actuator_controls("ipam", value, "ipam_pressures")
+
+    def _family(self, family: str):
+        fam = next((f for f in self.model.families if f.name == family), None)
+        if fam is None:
+            raise DesignError(f"this design has no actuators of family {family!r}; its families: "
+                              f"{[f.name for f in self.model.families]}")
+        return fam
+
+    def actuator_controls(self, family: str) -> np.ndarray:
+        """(n,) the controls of actuator family ``family``'s elements ((W, n) with several worlds); the
+        IPAM's are ``ipam_pressures``."""
+        self._family(family)
+        return self._out(self.control.values[family].numpy()[:, : self.model.host.count(family)].copy())
+
+    def set_actuator_controls(self, family: str, value, name: str | None = None) -> None:
+        """Set the controls of actuator family ``family``'s elements ((n,) or (W, n)), each within the
+        family's limits; ``name`` names the value in errors."""
+        fam, n = self._family(family), self.model.host.count(family)
+        a = self._per_world(value, (n,), name or f"{family} controls")
+        lim = fam.control_limits(self.model.host.actuators[family])
+        if lim is not None:
+            low, high = a < lim[:, 0] - 1e-9, a > lim[:, 1] + 1e-9
+            if np.any(low | high):
+                w, i = np.argwhere(low | high)[0]
+                unit = fam.control_unit
+                raise DesignError(
+                    f"{fam.label} {i} {fam.control_name} {a[w, i]:.6g} {unit} is outside its limits "
+                    f"[{lim[i, 0]:.6g}, {lim[i, 1]:.6g}] {unit}; clip it or widen {fam.limits_name} in {fam.owner}")
+        if n:
+            full = self.control.values[family].numpy().copy()
+            full[:, :n] = a
+            self.control.values[family].assign(full)
 
     def _mask(self, value, n: int, name: str) -> np.ndarray:
         a = np.asarray(value)
@@ -328,9 +349,11 @@ class Simulator:
     # ------------------------------------------------------------------ read-outs
     def forces(self, term: str | None = None) -> np.ndarray:
         """Total force on every vertex (N), all terms and damping included; or one term of
-        ``FORCE_TERMS`` ('spring' (with its dampers), 'bending', 'pressure', 'ipam', 'viscous')."""
-        if term is not None and term not in FORCE_TERMS:
-            raise DesignError(f"unknown force term {term!r}; choose one of {FORCE_TERMS}")
+        ``FORCE_TERMS`` ('spring' (with its dampers), 'bending', 'pressure', 'ipam', 'viscous') or
+        of the model's other actuator families (by family name)."""
+        terms = force_terms(self.model)
+        if term is not None and term not in terms:
+            raise DesignError(f"unknown force term {term!r}; choose one of {terms}")
         st, paper = self.state, self.bending == "paper"
         if term is None:  # the total goes through the same fused kernels as a step
             eval_forces_fused(self.model, st, self.control, self._fg_probe, self._vol2_probe, self._direct,
@@ -388,7 +411,8 @@ class Simulator:
         return self._out(self._edge_len.numpy().astype(np.float64)), self._out(self._edge_ang.numpy().astype(np.float64))
 
     def energy(self) -> dict:
-        """Mechanical energy terms in J (float64, host): kinetic, spring, bending, gas, ipam, total.
+        """Mechanical energy terms in J (float64, host): kinetic, spring, bending, gas, one per actuator
+        family of the model (ipam, ...), total.
 
         Gas energy is p_atm V - n R T ln V (its negative gradient is the pressure force); the
         total is conserved by the undamped dynamics with fixed air and IPAM pressures.
@@ -402,9 +426,11 @@ class Simulator:
         out = dict(kinetic=0.5 * np.einsum("v,wvi,wvi->w", h.mass, v, v),
                    spring=spring_energy_np(x, h.hinges, st.rest_length.numpy(), k), bending=zero,
                    gas=gas_energy_np(volumes_np(x, h.faces), self.control.air.numpy(), m.gas_rt,
-                                     m.atmospheric_pressure),
-                   ipam=ipam_energy_np(x, h, self._ipam_pressure(), self.ipam_mask.reshape(self.worlds, -1))
-                   if m.has_ipams else zero)
+                                     m.atmospheric_pressure))
+        for fam in m.families:
+            n = m.host.count(fam.name)
+            out[fam.name] = fam.energy(h.actuators[fam.name], x, self.control.values[fam.name].numpy()[:, :n],
+                                       self.control.enabled[fam.name].numpy()[:, :n].astype(bool))
         if m.has_bending:
             kt = m.bending_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
             out["bending"] = bending_energy_np(x, h.hinges, st.rest_angle.numpy(), kt)

@@ -17,7 +17,6 @@ from .material import GAS_CONSTANT, Material
 from .model import HostModel, Model
 from .physics.bending import bending_rows_np, hinge_gradients_np
 from .physics.damping import viscous_rows_np
-from .physics.ipam import ipam_operator_terms, ipam_rows_np
 from .physics.jamming import jammed_factor_np
 from .physics.pressure import pressure_rows_np, volumes_np
 from .physics.springs import spring_operator_terms, spring_rows_np
@@ -49,8 +48,9 @@ class ElasticOperator:
         a, b = [hinges[:, 0]], [hinges[:, 1]]
         k_ax, k_tr, d = spring_operator_terms(xT, hinges[:, 0], hinges[:, 1], k_edge, rest_len)
         k_ax, k_tr, dirs = [k_ax], [k_tr], [d]
-        if model.has_ipams:
-            for part, term in zip((a, b, k_ax, k_tr, dirs), ipam_operator_terms(xT, h)):
+        for fam in model.families:
+            terms = fam.operator_terms(xT, h.actuators[fam.name])
+            for part, term in zip((a, b, k_ax, k_tr, dirs), terms or ()):
                 part.append(term)
         self.a, self.b = np.concatenate(a), np.concatenate(b)
         self.dir = np.concatenate(dirs, axis=1)
@@ -154,8 +154,8 @@ def gershgorin_rows(model: Model, edge_jammed: np.ndarray, air: np.ndarray, x: n
     damp += viscous_rows_np(model.viscous_damping, inv_m)
     if kt is not None:
         bending_rows_np(stiff, h.hinges, kt, h.rest_vertices, inv_sqrt)
-    if model.has_ipams:
-        ipam_rows_np(stiff, damp, h, inv_m, inv_sqrt)
+    for fam in model.families:
+        fam.stiffness_rows(stiff, damp, h.actuators[fam.name], inv_m, inv_sqrt)
     press, gas_eig = pressure_rows_np(x, h.faces, air, model.gas_rt, model.atmospheric_pressure, inv_m)
     return stiff, press, gas_eig, damp
 
@@ -256,19 +256,17 @@ def check_storable(h: HostModel, mat, precision: str) -> None:
               1.0 / h.mass, "areal_density (vertex mass)": h.mass,
               "bending_stiffness x jam_bend_factor": mat.bending_stiffness * mat.jam_bend_factor,
               "spring_damping": mat.spring_damping, "viscous_damping": mat.viscous_damping,
-              "youngs_modulus x thickness x jam_stretch_factor": h.edge_stiffness * mat.jam_stretch_factor,
-              "(IPAM) stiffness": h.ipam_stiffness, "(IPAM) area / stiffness": h.ipam_area_over_k,
-              "(IPAM) free_length": h.ipam_free_length, "(IPAM) damping": h.ipam_damping,
-              "(IPAM) natural length at its pressure limits": h.ipam_free_length[:, None]
-              + h.ipam_area_over_k[:, None] * h.ipam_limits}
+              "youngs_modulus x thickness x jam_stretch_factor": h.edge_stiffness * mat.jam_stretch_factor}
+    values = {("Material", what): v for what, v in values.items()}
+    for fam in h.families:  # each actuator family's values, named by where they are set
+        values.update({(fam.owner, what): v for what, v in fam.storable_values(h.actuators[fam.name]).items()})
     with np.errstate(all="ignore"):
-        for what, v in values.items():
+        for (owner, what), v in values.items():
             v = np.asarray(v, dtype=np.float64)
             kept = v.astype(dtype)
             if not np.all(np.isfinite(v)) or not np.all(np.isfinite(kept)) or np.any((kept == 0) & (v != 0)):
-                owner = "Design.add_ipam" if what.startswith("(IPAM)") else "Material"
                 raise DesignError(
-                    f"{owner} {what.removeprefix('(IPAM) ')} = {float(np.abs(v).max()):.3g} (SI) does not fit in "
+                    f"{owner} {what} = {float(np.abs(v).max()):.3g} (SI) does not fit in "
                     f"{precision}; use realistic values or precision='float64'")
 
 

@@ -7,6 +7,7 @@ History columns (one row per control step: the state measured at that step, befo
   target_volume_m3, ipam{i}_pressure_pa, ipam{i}_length_m, ipam{i}_target_length_m, ipam{i}_force_n
   (axial, + = tension), ipam{i}_strain ((L - L0) / L0), cell{j}_kappa_m, cell{j}_kappa_target_m,
   cell{j}_jammed (0/1), max_speed_m_s (largest vertex speed), objective, pcc, mare_m, mpre_pct.
+Another actuator family's columns (``ActuatorFamily.history_columns``) follow the IPAM's.
 """
 
 from __future__ import annotations
@@ -30,13 +31,9 @@ def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: H
     row = dict(step=obs.step, time=obs.time, phase=int(phase), air_mol=controls.air[w],
                pressure_pa=obs.pressure_abs[w] - dev.atmospheric_pressure, volume_m3=obs.volume[w],
                target_volume_m3=obs.target_volume[w])
-    free = dev.ipam_free_length
-    for i in range(dev.n_ipams):
-        row[f"ipam{i}_pressure_pa"] = controls.pressures[w, i]
-        row[f"ipam{i}_length_m"] = obs.ipam_lengths[w, i]
-        row[f"ipam{i}_target_length_m"] = obs.ipam_target_lengths[w, i]
-        row[f"ipam{i}_force_n"] = obs.ipam_forces[w, i]
-        row[f"ipam{i}_strain"] = (obs.ipam_lengths[w, i] - free[i]) / free[i]
+    for fam in dev.families:  # the IPAM's columns, then every other actuator family's
+        part = obs.actuators[fam.name]
+        row.update(fam.history_row(part, part["controls"], w, dev.actuators[fam.name]))
     for j in range(dev.n_cells):
         row[f"cell{j}_kappa_m"] = obs.kappa[w, j]
         row[f"cell{j}_kappa_target_m"] = obs.kappa_target[w, j]

@@ -7,6 +7,8 @@ returning a ``LawStep`` for the worlds still running (the others keep their cont
 the readings of the paper's ambiguities, e.g. where the jam rule's last curvature starts). ``LAWS``: the laws by name,
 each a class with ``name`` and ``summary`` built as ``law(settings, device_constants, passive_ipams, passive_cells)``;
 ``controller.methods.register_law`` makes a law a control method too.
+A law controls the actuator families its ``families`` names (the paper's law: the IPAM);
+``hold_neutral`` holds the others at their neutral controls.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from ..model import HostModel
 from .observe import Observation, ipam_neutral_pressures
 from .settings import LAWS, ControlSettings
 
-__all__ = ["Controls", "LawStep", "PaperLaw", "LAWS"]
+__all__ = ["Controls", "LawStep", "PaperLaw", "LAWS", "hold_neutral"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,7 @@ class PaperLaw:
 
     name = "paper"
     summary = "the paper's law (eqs. 11-15)"
+    families = ("ipam",)  # the actuator families it controls; hold_neutral holds the others
 
     def __init__(self, settings: ControlSettings, dev: HostModel, passive_ipams: np.ndarray,
                  passive_cells: np.ndarray):
@@ -136,3 +139,15 @@ class PaperLaw:
 
 
 LAWS.register(PaperLaw)
+
+
+def hold_neutral(sim, law, dev: HostModel, obs: Observation, active: np.ndarray) -> None:
+    """Set every actuator family of ``sim`` that ``law`` does not control (its ``families``; the IPAM
+    when it names none) to its neutral controls in the ``active`` (W,) worlds (the others keep theirs)."""
+    known = getattr(law, "families", ("ipam",))
+    for fam in dev.families:
+        if fam.name in known or not dev.count(fam.name):
+            continue
+        part = obs.actuators[fam.name]
+        neutral = fam.neutral_controls(dev.actuators[fam.name], part, part["controls"])
+        sim.set_actuator_controls(fam.name, np.where(active[:, None], neutral, part["controls"]))

@@ -16,7 +16,7 @@ from ..sampling import RadialSampler
 from ..settings import SimulationSettings
 from .checks import check_targets_against_rest
 from .history import History
-from .laws import Controls, PaperLaw
+from .laws import Controls, PaperLaw, hold_neutral
 from .observe import Observation, Observer
 from .result import ControlResult
 from .settings import ControlSettings
@@ -172,6 +172,7 @@ def _apply(sim, observer: Observer, law, ending: _Ending, obs: Observation, cont
     sim.air_moles = controls.air
     if observer.dev.n_ipams:
         sim.ipam_pressures = controls.pressures
+    hold_neutral(sim, law, observer.dev, obs, active)
     return controls
 
 

@@ -2,7 +2,7 @@
 
 An observation holds, per world: the membrane and the target sampled radially through its vertices,
 the enclosed and target volumes and the absolute chamber pressure, each IPAM's length, target length
-and axial force, each cell's curvature and target curvature and jam state, the mean edge stretch, the
+and axial force (and what every other actuator family observes), each cell's curvature and target curvature and jam state, the mean edge stretch, the
 largest vertex speed and the fit: the objective (``sampling.fit_objective``: area-weighted RMS of
 (R - r) / V_t^(1/3), weights the sampled target's vertex area shares, V_t the target mesh's own
 volume), PCC, MARE and MPRE, each by its one implementation in ``sampling``.
@@ -10,12 +10,12 @@ volume), PCC, MARE and MPRE, each by its one implementation in ``sampling``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..model import HostModel
-from ..physics.ipam_law import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
+from ..physics.ipam import IPAM
 from ..physics.pressure import volumes_np
 from ..sampling import RadialSampler, fit_objective, mare, mpre, pcc
 
@@ -28,21 +28,13 @@ def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray,
     """The IPAM law on the host: (W, n_ipam) length L (distance between the end-face centroids),
     target length L_t (the same on the sampled target) and axial force k (L - L_n), L_n = L0 + (A/k) P
     (N, + = tension). ``centroids``: (W, F, 3) face centroids; ``pressures``: (W, n_ipam) gauge Pa."""
-    W = centroids.shape[0]
-    if not dev.n_ipams:
-        return np.zeros((W, 0)), np.zeros((W, 0)), np.zeros((W, 0))
-    length = centroid_distances_np(centroids, dev.ipam_faces)
-    target = centroid_distances_np(target_centroids, dev.ipam_faces)
-    force = axial_force_np(dev.ipam_stiffness, length,
-                           natural_length_np(dev.ipam_free_length, dev.ipam_area_over_k, pressures))
-    return length, target, force
+    return IPAM.lengths_and_forces(dev.actuators[IPAM.name], centroids, target_centroids, pressures)
 
 
 def ipam_neutral_pressures(lengths: np.ndarray, dev: HostModel) -> np.ndarray:
     """(W, n_ipam) the gauge pressures (within limits) whose natural length is the current length:
     an IPAM held at such a pressure exerts no force."""
-    lim = dev.ipam_limits
-    return np.clip(pressure_for_length_np(dev.ipam_free_length, dev.ipam_area_over_k, lengths), lim[:, 0], lim[:, 1])
+    return IPAM.neutral_pressures(dev.actuators[IPAM.name], lengths)
 
 
 @dataclass
@@ -68,6 +60,9 @@ class Observation:
     pcc: np.ndarray  # (W,) eq. (10) on vertex radii
     mare: np.ndarray  # (W,) m
     mpre: np.ndarray  # (W,) %
+    # actuator family name -> what it observed ({quantity: (W, n)}, ActuatorFamily.observe) and the
+    # controls it was observed at ("controls", (W, n)); the IPAM's quantities are also the fields above
+    actuators: dict = field(default_factory=dict)
 
     def volume_within(self, deadband: float) -> np.ndarray:
         """(W,) bool: |V - V_t| / V_t below ``deadband``."""
@@ -118,7 +113,7 @@ class Observer:
 
     def observe(self, sim, step: int, air: np.ndarray, pressures: np.ndarray) -> Observation:
         """The state of every world of ``sim`` now; ``air`` (W,) mol and ``pressures`` (W, n_ipam) Pa
-        are the controls in force."""
+        are the controls in force (the other actuator families' are read from ``sim``)."""
         dev, W = self.dev, len(self.world_index)
         x = np.asarray(sim.positions, dtype=np.float64).reshape(W, -1, 3)
         sampled = self.sampler.sample_worlds(x, self.world_index)
@@ -126,15 +121,20 @@ class Observer:
         vol_t = volumes_np(sampled, dev.faces)
         cen = x[:, dev.faces].mean(axis=2)  # (W, F, 3)
         cen_t = sampled[:, dev.faces].mean(axis=2)
-        length, target_length, force = ipam_lengths_and_forces(cen, cen_t, dev, pressures)
+        parts = {}
+        for fam in dev.families:
+            controls = pressures if fam is IPAM else \
+                np.asarray(sim.actuator_controls(fam.name)).reshape(W, dev.count(fam.name))
+            parts[fam.name] = dict(fam.observe(dev, x, sampled, cen, cen_t, controls), controls=controls)
+        ipam = parts[IPAM.name]
         stretch = np.linalg.norm(x[:, dev.hinges[:, 1]] - x[:, dev.hinges[:, 0]], axis=2) / dev.rest_length
         v = np.asarray(sim.velocities, dtype=np.float64).reshape(W, -1, 3)
         fit = fit_of(x, sampled, dev.faces, self.target_volumes)
         return Observation(
             step=step, time=sim.time, positions=x, sampled=sampled, volume=vol, target_volume=vol_t,
-            pressure_abs=air * dev.gas_rt / vol, ipam_lengths=length, ipam_target_lengths=target_length,
-            ipam_forces=force, kappa=_curvatures(np.linalg.norm(cen, axis=2), dev),
+            pressure_abs=air * dev.gas_rt / vol, ipam_lengths=ipam["lengths"],
+            ipam_target_lengths=ipam["target_lengths"], ipam_forces=ipam["forces"], kappa=_curvatures(np.linalg.norm(cen, axis=2), dev),
             kappa_target=_curvatures(np.linalg.norm(cen_t, axis=2), dev),
             jammed=np.asarray(sim.jammed).reshape(W, dev.n_cells),
             mean_stretch=np.array([s.mean() for s in stretch]), max_speed=np.linalg.norm(v, axis=2).max(axis=1),
-            **fit)
+            actuators=parts, **fit)

@@ -13,18 +13,18 @@ from pathlib import Path
 
 import numpy as np
 
+from ..actuators import families
 from ..designer import DesignSettings
 from ..designer.run_settings import designer_fields
-from ..design import MAX_IPAMS, Design
-from ..designer import DesignSettings
+from ..design import Design
 from ..errors import DesignError, MeshError, SceneError, read_input_file
 from ..material import Material
 from ..mesh import TriMesh
 from ..settings import SimulationSettings
 from .scene_registry import resolve_scene
-from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, IPAM_ATTRIBUTES, IPAMS, MATERIAL_ATTRIBUTES,
+from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, MATERIAL_ATTRIBUTES,
                            MEMBRANE, NS, REST_POINTS, ROOT_NAME, SCENE_FORMAT_VERSION, SETTINGS, TARGET_POINTS,
-                           TARGETS, Scene, SceneAttribute, ipam_arguments, material_attribute_for)
+                           TARGETS, Scene, SceneAttribute, material_attribute_for)
 from .usd_common import load_pxr
 
 __all__ = ["read_stage", "load_scene", "validate_usd", "load_actuated_shape"]
@@ -366,13 +366,16 @@ def _read_design(r: _Reader, root) -> Design | None:
     UsdGeom = load_pxr().UsdGeom
     membrane = root.GetChild(MEMBRANE)
     if not membrane:
-        if root.GetChild(IPAMS):
-            raise r.error(root.GetChild(IPAMS), None, "IPAMs need a Membrane prim next to them")
+        for fam in families():
+            if root.GetChild(fam.scene_prim):
+                raise r.error(root.GetChild(fam.scene_prim), None,
+                              f"{fam.plural} need a Membrane prim next to them")
         return None
     if not membrane.IsA(UsdGeom.Mesh):
         raise r.error(membrane, None, f"must be a Mesh, is a {membrane.GetTypeName() or 'typeless prim'}")
     design = Design(_read_rest(r, membrane), _read_material(r, membrane))
-    _read_ipams(r, root, design)
+    for fam in families():
+        _read_family(r, root, design, fam)
     _read_cells(r, membrane, design)
     return design
 
@@ -400,36 +403,30 @@ def _read_material(r: _Reader, membrane) -> Material:
         raise r.error(membrane, material_attribute_for(msg), msg) from None
 
 
-def _read_ipams(r: _Reader, root, design: Design) -> None:
-    """Add every IPAM of the Ipams prim to ``design`` (derived attributes are recomputed, not read)."""
-    prim = root.GetChild(IPAMS)
+def _read_family(r: _Reader, root, design: Design, fam) -> None:
+    """Add every element of an actuator family's prim to ``design`` (derived attributes are
+    recomputed, not read); the family checks and adds them."""
+    prim = root.GetChild(fam.scene_prim)
     if not prim:
         return
-    faces_name = IPAM_ATTRIBUTES[0].name
+    first = fam.scene_attributes[0].name
     values = {}
-    for attr in IPAM_ATTRIBUTES:
+    for attr in fam.scene_attributes:
         if not attr.required:
             continue
         a = r.table_value(prim, attr)
-        n = values["faces"].shape[0] if values else a.shape[0]
+        n = next(iter(values.values())).shape[0] if values else a.shape[0]
         if a.shape[0] != n:
-            raise r.error(prim, attr.name, f"has {a.shape[0]} entries for {n} IPAMs ({faces_name})")
+            raise r.error(prim, attr.name, f"has {a.shape[0]} entries for {n} {fam.plural} ({first})")
         values[attr.field] = a
-    faces, nf = values["faces"], design.rest.n_faces
-    if faces.shape[0] > MAX_IPAMS:
-        raise r.error(prim, faces_name, f"{faces.shape[0]} IPAMs, more than the {MAX_IPAMS} a design holds (the "
-                      f"paper's displays have 4-20); use fewer")
-    bad = np.flatnonzero(((faces < 0) | (faces >= nf)).any(axis=1))
-    if bad.size:
-        i = int(bad[0])
-        raise r.error(prim, faces_name, f"IPAM {i} joins faces {faces[i].tolist()}, out of range: the "
-                      f"membrane has {nf} faces")
-    for i in range(faces.shape[0]):
-        (a, b), kwargs = ipam_arguments(values, i)
+    problem = fam.check_scene_values(design, values)
+    if problem:
+        raise r.error(prim, first, problem)
+    for i in range(next(iter(values.values())).shape[0]):
         try:
-            design.add_ipam(a, b, **kwargs)
+            fam.add_from_scene(design, values, i)
         except DesignError as exc:
-            raise r.error(prim, faces_name, f"IPAM {i}: {exc}") from None
+            raise r.error(prim, first, f"{fam.label} {i}: {exc}") from None
 
 
 def _read_cells(r: _Reader, membrane, design: Design) -> None:

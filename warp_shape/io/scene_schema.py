@@ -2,8 +2,9 @@
 
 A scene is a design (or none), target meshes and free-form settings; ``docs/scene_format.md``
 describes the file. This module knows no USD library: ``scene_write`` and ``scene_read`` author
-and read the attributes listed here (``MATERIAL_ATTRIBUTES``, ``IPAM_ATTRIBUTES``), so the writer
-and the reader cannot disagree on a name, a type or a field.
+and read the attributes listed here (``MATERIAL_ATTRIBUTES``) and those of every actuator family
+(``ActuatorFamily.scene_attributes``; the IPAM's are ``IPAM_ATTRIBUTES``), so the writer and the
+reader cannot disagree on a name, a type or a field.
 """
 
 from __future__ import annotations
@@ -12,10 +13,12 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from ..actuators import SCENE_NAMESPACE, SceneAttribute
 from ..design import Design
 from ..errors import SceneError
 from ..material import Material
 from ..mesh import TriMesh, icosphere, icosphere_like
+from ..physics.ipam import IPAM, IPAM_ATTRIBUTES
 from ..settings import SimulationSettings
 from ..targets import is_identifier
 
@@ -26,9 +29,10 @@ __all__ = ["Scene", "SceneAttribute", "MATERIAL_ATTRIBUTES", "IPAM_ATTRIBUTES", 
 
 SCENE_FORMAT_VERSION = 1
 SCENE_EXTENSIONS = (".usda", ".usdc", ".usd")
-NS = "warpShape"  # namespace of every warp_shape attribute
+NS = SCENE_NAMESPACE  # namespace of every warp_shape attribute
 ROOT_NAME = "Scene"  # the default prim
-MEMBRANE, IPAMS, TARGETS, SETTINGS = "Membrane", "Ipams", "Targets", "Settings"  # children of the default prim
+MEMBRANE, TARGETS, SETTINGS = "Membrane", "Targets", "Settings"  # children of the default prim
+IPAMS = IPAM.scene_prim  # the IPAM family's prim; every actuator family has one (ActuatorFamily.scene_prim)
 CELL_FAMILY = "jammingCell"  # GeomSubset family of the jamming cells
 FORMAT_VERSION_ATTRIBUTE = f"{NS}:formatVersion"
 REST_POINTS = f"{NS}:restPoints"  # exact (float64) rest positions of the membrane
@@ -40,52 +44,9 @@ def _camel(name: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- attribute table
-@dataclass(frozen=True)
-class SceneAttribute:
-    """One row of the attribute table: a USD attribute and the field it holds.
-
-    ``name``: the attribute name. ``usd_type``: its Sdf value type name (``double``,
-    ``double[]``, ``double2[]``, ``int2[]``). ``field``: the ``Material`` or ``Ipam`` field
-    (``faces`` is the pair (face_a, face_b)). ``width``: numbers per array element (1 for scalars
-    and plain arrays). ``required``: read on loading; False for derived values, written for other
-    tools and recomputed on loading.
-    """
-
-    name: str
-    usd_type: str
-    field: str
-    width: int
-    required: bool
-
-    @property
-    def is_array(self) -> bool:
-        """True for an array attribute (one or more elements per IPAM)."""
-        return self.usd_type.endswith("[]")
-
-    @property
-    def is_integer(self) -> bool:
-        """True for integer attributes (face and vertex indices)."""
-        return self.usd_type.startswith("int")
-
-
 #: The Membrane prim: every ``Material`` field as ``custom double warpShape:<camelCaseName>`` (SI).
 MATERIAL_ATTRIBUTES = tuple(SceneAttribute(f"{NS}:{_camel(f.name)}", "double", f.name, 1, True)
                             for f in fields(Material))
-
-#: The Ipams prim: per-IPAM attributes, one element per IPAM (``pairs`` / ``offsets``: three).
-IPAM_ATTRIBUTES = (
-    SceneAttribute(f"{NS}:faces", "int2[]", "faces", 2, True),
-    SceneAttribute(f"{NS}:stiffness", "double[]", "stiffness", 1, True),
-    SceneAttribute(f"{NS}:area", "double[]", "area", 1, True),
-    SceneAttribute(f"{NS}:areaOverStiffness", "double[]", "area_over_stiffness", 1, False),
-    SceneAttribute(f"{NS}:freeLength", "double[]", "free_length", 1, True),
-    SceneAttribute(f"{NS}:restLength", "double[]", "rest_length", 1, False),
-    SceneAttribute(f"{NS}:pressureLimits", "double2[]", "pressure_limits", 2, True),
-    SceneAttribute(f"{NS}:damping", "double[]", "damping", 1, True),
-    SceneAttribute(f"{NS}:pairs", "int2[]", "pairs", 2, False),
-    SceneAttribute(f"{NS}:offsets", "double[]", "offsets", 1, False),
-)
-
 
 def material_attribute_for(message: str) -> str | None:
     """The attribute of the Material field that a ``Material`` error message names, if any."""
@@ -95,25 +56,13 @@ def material_attribute_for(message: str) -> str | None:
 def ipam_attribute_values(design: Design, attr: SceneAttribute) -> np.ndarray:
     """Values of ``attr`` over every IPAM of ``design``, in IPAM order: (n,) or (n, width) arrays
     (int32 for indices, float64 otherwise)."""
-    def value(ip):
-        return (ip.face_a, ip.face_b) if attr.field == "faces" else getattr(ip, attr.field)
-
-    flat = np.concatenate([np.asarray(value(ip)).reshape(-1) for ip in design.ipams])
-    flat = flat.astype(np.int32 if attr.is_integer else np.float64)
-    return flat if attr.width == 1 else flat.reshape(-1, attr.width)
+    return IPAM.attribute_values(design, attr)
 
 
 def ipam_arguments(values: dict, i: int) -> tuple[tuple, dict]:
     """``Design.add_ipam`` arguments of IPAM ``i`` from the required attributes' arrays
     (``{field: array}``, as read): ((face_a, face_b), keyword arguments)."""
-    faces = (int(values["faces"][i, 0]), int(values["faces"][i, 1]))
-    kwargs = {}
-    for attr in IPAM_ATTRIBUTES:
-        if not attr.required or attr.field == "faces":
-            continue
-        v = values[attr.field][i]
-        kwargs[attr.field] = tuple(float(p) for p in v) if attr.width > 1 else float(v)
-    return faces, kwargs
+    return IPAM.scene_arguments(values, i)
 
 
 # ---------------------------------------------------------------------------------------------- Scene

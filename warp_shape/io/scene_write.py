@@ -7,21 +7,20 @@ The format is ``docs/scene_format.md``; the attribute names and types come from 
 from __future__ import annotations
 
 import errno
-import math
 import os
 import re
 from pathlib import Path
 
 import numpy as np
 
+from ..actuators import families
 from ..design import Design
 from ..errors import SceneError
 from .atomic import atomic_target
-from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, IPAM_ATTRIBUTES, IPAMS, MATERIAL_ATTRIBUTES,
-                           MEMBRANE, NS, REST_POINTS, ROOT_NAME, SCENE_FORMAT_VERSION, SETTINGS, TARGET_POINTS,
-                           TARGETS, Scene, ipam_attribute_values)
-from .usd_common import (IPAM_COLOR, TARGET_COLOR, TARGET_OPACITY, author_attribute, author_mesh, check_extension,
-                         extent, face_colors, ipam_endpoints, load_pxr)
+from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, MATERIAL_ATTRIBUTES, MEMBRANE, NS, REST_POINTS,
+                           ROOT_NAME, SCENE_FORMAT_VERSION, SETTINGS, TARGET_POINTS, TARGETS, Scene)
+from .usd_common import (TARGET_COLOR, TARGET_OPACITY, author_attribute, author_mesh, check_extension, extent,
+                         face_colors, load_pxr)
 
 __all__ = ["build_stage", "save_scene", "write_stage_atomic", "export_layer", "usd_write_error"]
 
@@ -49,8 +48,9 @@ def build_stage(scene: Scene, stage=None, *, target_references: dict | None = No
     _author_root(stage)
     if scene.design is not None:
         _author_membrane(stage, scene.design)
-        if scene.design.n_ipams:
-            _author_ipams(stage, scene.design)
+        for fam in families():
+            if fam.count(scene.design):
+                _author_family(stage, scene.design, fam)
     if scene.targets:
         _author_targets(stage, scene, dict(target_references or {}))
     if scene.settings:
@@ -94,23 +94,24 @@ def _author_membrane(stage, d: Design) -> None:
         UsdGeom.Subset.SetFamilyType(mesh, CELL_FAMILY, UsdGeom.Tokens.nonOverlapping)
 
 
-def _author_ipams(stage, d: Design) -> None:
-    """Every IPAM as a 2-point linear curve (end-face centroids) with its per-IPAM attributes."""
+def _author_family(stage, d: Design, fam) -> None:
+    """Every element of an actuator family as a 2-point linear curve (``fam.curve_ends``) on the
+    family's prim, with its attributes (``fam.scene_attributes``, one array element per element)."""
     pxr = load_pxr()
     UsdGeom, Vt = pxr.UsdGeom, pxr.Vt
-    curves = UsdGeom.BasisCurves.Define(stage, f"/{ROOT_NAME}/{IPAMS}")
+    n = fam.count(d)
+    curves = UsdGeom.BasisCurves.Define(stage, f"/{ROOT_NAME}/{fam.scene_prim}")
     curves.CreateTypeAttr(UsdGeom.Tokens.linear)
-    curves.CreateCurveVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(d.n_ipams, 2, dtype=np.int32)))
-    ends = ipam_endpoints(d, d.rest.vertices)
+    curves.CreateCurveVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(n, 2, dtype=np.int32)))
+    ends = np.asarray(fam.curve_ends(d, d.rest.vertices)).reshape(2 * n, 3)
     curves.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(ends, dtype=np.float32)))
     curves.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(extent(ends)))
-    widths = np.array([2.0 * math.sqrt(ip.area / math.pi) for ip in d.ipams], dtype=np.float32)
-    curves.CreateWidthsAttr(Vt.FloatArray.FromNumpy(widths))
+    curves.CreateWidthsAttr(Vt.FloatArray.FromNumpy(np.asarray(fam.curve_widths(d), dtype=np.float32)))
     curves.SetWidthsInterpolation(UsdGeom.Tokens.uniform)
-    curves.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([IPAM_COLOR]))
+    curves.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([tuple(fam.color)]))
     prim = curves.GetPrim()
-    for attr in IPAM_ATTRIBUTES:
-        author_attribute(prim, attr.name, attr.usd_type, ipam_attribute_values(d, attr))
+    for attr in fam.scene_attributes:
+        author_attribute(prim, attr.name, attr.usd_type, fam.attribute_values(d, attr))
 
 
 def _author_targets(stage, scene: Scene, refs: dict) -> None:

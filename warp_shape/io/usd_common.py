@@ -13,6 +13,7 @@ import numpy as np
 from ..design import Design
 from ..errors import SceneError
 from ..interrupts import held_interrupts
+from ..physics.ipam import IPAM
 from .scene_schema import SCENE_EXTENSIONS
 
 __all__ = ["FRAME_RATE", "load_pxr", "check_extension", "extent", "face_colors", "ipam_endpoints", "author_mesh",
@@ -24,7 +25,7 @@ FRAME_RATE = 24.0
 MEMBRANE_COLOR = (0.86, 0.80, 0.74)  # unjammed silicone
 TARGET_COLOR = (0.35, 0.60, 0.90)
 TARGET_OPACITY = 0.35
-IPAM_COLOR = (0.08, 0.08, 0.08)
+IPAM_COLOR = IPAM.color
 JAMMED_SHADE = 0.45  # a jammed cell's colour is its palette colour times this
 
 #: array value types -> (Vt array class name, numpy dtype) used to author them from numpy
@@ -87,10 +88,7 @@ def extent(points: np.ndarray) -> np.ndarray:
 def ipam_endpoints(design: Design, positions) -> np.ndarray:
     """End-face centroids of every IPAM, (2 n_ipam, 3) (or (..., 2 n_ipam, 3) for stacked frames):
     face a, face b of IPAM 0, then of IPAM 1, ..."""
-    x = np.asarray(positions)
-    ends = np.array([[ip.face_a, ip.face_b] for ip in design.ipams], dtype=np.int64).reshape(-1)
-    tri = design.rest.faces[ends]  # (2n, 3)
-    return x[..., tri, :].mean(axis=-2)
+    return IPAM.curve_ends(design, positions)
 
 
 def author_attribute(prim, name: str, usd_type: str, value):

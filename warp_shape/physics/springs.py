@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from warp_shape.kernels import springs as ks
 
 from . import Launch
 
-if TYPE_CHECKING:
-    from ..model import Model, State
+# Model and State (warp_shape.model) are named in annotations only: importing them, even for type
+# checking, would close a circle model -> physics.ipam (the IPAM family) -> springs -> model
 
 __all__ = ["eval_springs", "edge_lengths_np", "spring_energy_np", "spring_rows_np", "spring_operator_terms"]
 

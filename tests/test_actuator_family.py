@@ -1,0 +1,112 @@
+"""A second actuator family from outside the package (tests/toy_family.py, a tendon): registered,
+stepped, saved to a scene and read back, and held neutral by the paper's control law."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from toy_family import TENDON, add_tendon
+from warp_shape.actuators import ACTUATOR_FAMILIES
+from warp_shape.errors import DesignError
+
+
+@pytest.fixture(autouse=True)
+def tendon_family():
+    """The toy family registered for each test of this module (and removed after)."""
+    ACTUATOR_FAMILIES.register(TENDON, replace=True)
+    yield TENDON
+    ACTUATOR_FAMILIES.unregister(TENDON.name)
+
+
+def far_vertices(mesh) -> tuple[int, int]:
+    """Vertex 0 and the vertex at about a quarter turn around the sphere from it."""
+    u = mesh.vertices / np.linalg.norm(mesh.vertices, axis=1, keepdims=True)
+    return 0, int(np.argmin(np.abs(u @ u[0])))
+
+
+def tendon_design(rest_length=None):
+    design = ws.Design(ws.icosphere(1, 0.04))
+    a, b = far_vertices(design.rest)
+    add_tendon(design, a, b, stiffness=20.0, rest_length=rest_length)
+    return design, a, b
+
+
+def test_tendon_force_is_minus_the_gradient_of_its_energy():
+    design, a, b = tendon_design()
+    sim = ws.Simulator(design, precision="float64")
+    assert sim.design.n_ipams == 0 and [f.name for f in sim.model.families] == ["ipam", "tendon"]
+    sim.set_actuator_controls("tendon", [0.6 * np.linalg.norm(design.rest.vertices[b] - design.rest.vertices[a])])
+    rng = np.random.default_rng(1)
+    x0 = design.rest.vertices + 1e-4 * rng.standard_normal(design.rest.vertices.shape)
+    sim.positions = x0
+    force = sim.forces("tendon")
+    assert np.abs(force[a]).max() > 1e-2  # a stretched tendon pulls
+    h = 1e-7
+    for v in (a, b):
+        for c in range(3):
+            e = []
+            for s in (1, -1):
+                x = x0.copy()
+                x[v, c] += s * h
+                sim.positions = x
+                e.append(sim.energy()["tendon"])
+            assert force[v, c] == pytest.approx(-(e[0] - e[1]) / (2 * h), rel=1e-5, abs=1e-9)
+    others = np.delete(np.arange(design.rest.n_vertices), [a, b])
+    assert np.all(force[others] == 0)
+    assert np.allclose(force[a], -force[b])
+
+
+def test_a_shortened_tendon_draws_its_vertices_together():
+    design, a, b = tendon_design()
+    rest = float(np.linalg.norm(design.rest.vertices[b] - design.rest.vertices[a]))
+    distance = {}
+    for frac in (1.0, 0.5):
+        sim = ws.Simulator(design)
+        sim.set_actuator_controls("tendon", [frac * rest])
+        assert "eval_tendon_kernel" in " ".join(sim.step_kernels)
+        sim.step(20)
+        x = sim.positions
+        assert np.all(np.isfinite(x))
+        distance[frac] = float(np.linalg.norm(x[b] - x[a]))
+    assert distance[1.0] == pytest.approx(rest, rel=1e-3)  # at its rest length: no force
+    assert distance[0.5] < rest - 1e-3  # shortened: the ends came closer by over a millimetre
+    assert np.asarray(sim.actuator_controls("tendon")) == pytest.approx([0.5 * rest])
+
+
+def test_tendon_controls_are_checked():
+    design, _, _ = tendon_design()
+    sim = ws.Simulator(design)
+    with pytest.raises(DesignError, match="tendon controls must have shape"):
+        sim.set_actuator_controls("tendon", [0.01, 0.02])
+    with pytest.raises(DesignError, match="no actuators of family 'rope'"):
+        sim.actuator_controls("rope")
+
+
+def test_tendon_round_trips_through_a_scene(tmp_path):
+    design, a, b = tendon_design(rest_length=0.03)
+    design.add_ipam(5, 40)
+    path = ws.save_scene(ws.Scene(design=design), tmp_path / "tendon.usda")
+    text = path.read_text()
+    assert "def BasisCurves \"Tendons\"" in text and "warpShape:restLength = [0.03]" in text
+    back = ws.load_scene(path).design
+    (t,) = back.elements("tendon")
+    assert t == design.elements("tendon")[0] and t.vertices == (a, b)
+    assert back.n_ipams == 1 and back.ipams[0].face_a == 5
+    # a scene with tendons read where the family is not registered: the tendons are not read
+    ACTUATOR_FAMILIES.unregister("tendon")
+    assert ws.load_scene(path).design.elements("tendon") == []
+
+
+def test_paper_law_holds_an_unknown_family_neutral():
+    design, a, b = tendon_design()
+    design.add_cell([0, 1, 2])
+    res = ws.control(design, ws.target("oval"), method="paper", max_steps=4, max_settle_steps=2)
+    h = res.history
+    assert np.all(np.isfinite(h["tendon0_length_m"])) and np.all(np.isfinite(h["objective"]))
+    assert np.isfinite(res.objective)
+    # every step of the law sets the rest length to the length just observed: no tendon force
+    law = h["phase"][:-1] != 3
+    assert np.array_equal(h["tendon0_rest_length_m"][1:][law], h["tendon0_length_m"][:-1][law])
+    assert h["tendon0_length_m"][-1] != h["tendon0_length_m"][0]  # the membrane moved it

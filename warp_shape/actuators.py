@@ -1,0 +1,222 @@
+"""Actuator families: what a kind of actuator adds to a design, its model, its controls and its files.
+
+An ``ActuatorFamily`` declares, for its elements (``Design.elements(name)``): the host arrays
+(``HostModel.actuators[name]``), the device arrays (``Model.actuators[name]``), one float64 control
+per element and world (``Control.values[name]``, with the mask ``Control.enabled[name]``), the
+force launch ``eval_forces`` (skipping empty work), the float64 energy, the stiffness bound rows
+and elastic operator terms of the stable-step estimate, the values a precision must hold, what it
+adds to an observation and to the control record, its scene attributes (one prim of the design
+holding one array element per element) and its neutral control (what a control law that does not
+know the family holds it at). The simulator, the force passes, the stable-step estimate, the
+controller's observation and record and the scene reader and writer loop over
+``ACTUATOR_FAMILIES``; the IPAM (``physics/ipam.py``) is its first member, and a family registered
+from outside the package (``ACTUATOR_FAMILIES.register``) is stepped, controlled and saved like it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import DesignError
+
+__all__ = ["ActuatorFamily", "ACTUATOR_FAMILIES", "FamilyRegistry", "SceneAttribute", "families", "SCENE_NAMESPACE"]
+
+#: namespace of every warp_shape scene attribute (``warpShape:<name>``)
+SCENE_NAMESPACE = "warpShape"
+
+
+@dataclass(frozen=True)
+class SceneAttribute:
+    """One row of a scene's attribute table: a USD attribute and the field it holds.
+
+    ``name``: the attribute name. ``usd_type``: its Sdf value type name (``double``,
+    ``double[]``, ``double2[]``, ``int2[]``). ``field``: the ``Material`` field or the element's
+    field (an IPAM's ``faces`` is the pair (face_a, face_b)). ``width``: numbers per array element
+    (1 for scalars and plain arrays). ``required``: read on loading; False for derived values,
+    written for other tools and recomputed on loading.
+    """
+
+    name: str
+    usd_type: str
+    field: str
+    width: int
+    required: bool
+
+    @property
+    def is_array(self) -> bool:
+        """True for an array attribute (one or more values per element)."""
+        return self.usd_type.endswith("[]")
+
+    @property
+    def is_integer(self) -> bool:
+        """True for integer attributes (face and vertex indices)."""
+        return self.usd_type.startswith("int")
+
+
+class ActuatorFamily:
+    """A kind of actuator. Subclasses set the class attributes and implement the methods that raise
+    ``NotImplementedError``; the others have defaults that add nothing.
+
+    ``name``: identifier (the key of its elements, arrays and controls). ``summary``: one line.
+    ``label`` / ``plural``: how messages name one element / several ("tendon", "tendons").
+    ``control_unit``: the unit of its control (e.g. "Pa", "m"). ``scene_prim``: the prim under the
+    scene's default prim holding its elements; ``scene_attributes``: its attribute table (the first
+    row is the one every other row's length is checked against). ``history_columns``: the record's
+    per-element columns, ``{i}`` the element index. ``color``: its display colour in scenes.
+    ``owner``: what a storability error names as the place to change a value. ``always``: its
+    arrays and controls exist in every model, even one without its elements (else only in models
+    of designs that have some).
+    """
+
+    name = ""
+    summary = ""
+    label = "actuator"
+    plural = "actuators"
+    control_unit = ""
+    control_name = "control"  # what messages call its control ("pressure")
+    limits_name = "its limits"  # what messages call the limits of its control ("pressure_limits")
+    scene_prim = ""
+    scene_attributes: tuple = ()
+    history_columns: tuple = ()
+    color = (0.08, 0.08, 0.08)
+    owner = "the actuator's constructor"  # where a storability error says to change a value
+    always = False  # True: its arrays and controls exist in every model, even with no elements
+
+    # ------------------------------------------------------------------ host and device
+    def count(self, design) -> int:
+        """Number of this family's elements in ``design``."""
+        return len(design.elements(self.name))
+
+    def host_arrays(self, design) -> dict:
+        """float64 / int64 host arrays of the elements of ``design`` (``HostModel.actuators[name]``)."""
+        raise NotImplementedError
+
+    def device_arrays(self, host: dict, arr) -> dict:
+        """Device arrays from the host arrays; ``arr(array, dtype=None)`` copies one to the device in
+        the model's precision (or as ``dtype``). Called only when the design has elements."""
+        raise NotImplementedError
+
+    def rest_controls(self, host: dict) -> np.ndarray:
+        """(n,) float64 control of every element when a Control is allocated (default zeros)."""
+        return np.zeros(len(next(iter(host.values()))) if host else 0)
+
+    def control_limits(self, host: dict) -> np.ndarray | None:
+        """(n, 2) allowed range of each element's control, or None when any finite value is allowed."""
+        return None
+
+    # ------------------------------------------------------------------ physics
+    def eval_forces(self, model, state, control, x, v, f, launch) -> None:
+        """Accumulate the elements' forces at (x, v) (W, V) into f; launch nothing without elements."""
+        raise NotImplementedError
+
+    def energy(self, host: dict, x: np.ndarray, controls: np.ndarray, enabled: np.ndarray) -> np.ndarray:
+        """(W,) float64 elastic energy in J at positions x (W, V, 3) with controls (W, n) and mask
+        enabled (W, n) bool; its negative gradient is the force ``eval_forces`` adds."""
+        raise NotImplementedError
+
+    def stiffness_rows(self, stiff: np.ndarray, damp: np.ndarray, host: dict, inv_m: np.ndarray,
+                       inv_sqrt: np.ndarray) -> None:
+        """Add the elements' Gershgorin rows of M^-1/2 K M^-1/2 to stiff (W, V) and of the damping rates
+        to damp (W, V)."""
+
+    def operator_terms(self, xT: np.ndarray, host: dict):
+        """(a, b, axial k, transverse k, directions (3, n)) of the elements' springs for the elastic
+        operator at positions xT (3, V), or None (no spring terms)."""
+        return None
+
+    def storable_values(self, host: dict) -> dict:
+        """{description: array} of the model values a precision must hold (see ``check_storable``)."""
+        return {}
+
+    # ------------------------------------------------------------------ controller
+    def observe(self, dev, x: np.ndarray, sampled: np.ndarray, centroids: np.ndarray, target_centroids: np.ndarray,
+                controls: np.ndarray) -> dict:
+        """{quantity: (W, n) array} this family adds to an observation of the host model ``dev`` at
+        positions x (W, V, 3), the sampled target (W, V, 3), their face centroids (W, F, 3) and
+        controls (W, n) (its host arrays: ``dev.actuators[name]``)."""
+        return {}
+
+    def history_row(self, observed: dict, controls: np.ndarray, w: int, host: dict) -> dict:
+        """World ``w``'s values of ``history_columns`` from its observation part and controls (W, n)."""
+        return {}
+
+    def neutral_controls(self, host: dict, observed: dict, controls: np.ndarray) -> np.ndarray:
+        """(W, n) the controls a law that does not know this family holds it at (default: unchanged)."""
+        return controls
+
+    # ------------------------------------------------------------------ scenes
+    def curve_ends(self, design, positions: np.ndarray) -> np.ndarray:
+        """(n, 2, 3) the two ends each element is drawn between at positions (V, 3)."""
+        raise NotImplementedError
+
+    def curve_widths(self, design) -> np.ndarray:
+        """(n,) display width of each element in m."""
+        return np.full(self.count(design), 1e-3)
+
+    def attribute_values(self, design, attr: SceneAttribute) -> np.ndarray:
+        """Values of ``attr`` over every element of ``design``: (n,) or (n, width) arrays (int32 for
+        indices, float64 otherwise)."""
+        flat = np.concatenate([np.asarray(getattr(e, attr.field)).reshape(-1) for e in design.elements(self.name)])
+        flat = flat.astype(np.int32 if attr.is_integer else np.float64)
+        return flat if attr.width == 1 else flat.reshape(-1, attr.width)
+
+    def check_scene_values(self, design, values: dict) -> str | None:
+        """A message for element values read from a scene that cannot be added (indices out of range),
+        naming the element, or None. ``values``: {field: array} of the required attributes."""
+        return None
+
+    def add_from_scene(self, design, values: dict, i: int) -> None:
+        """Add element ``i`` of the required attributes' arrays ``values`` to ``design``."""
+        raise NotImplementedError
+
+
+class FamilyRegistry:
+    """Actuator families by name, in registration order (the order their forces are added)."""
+
+    kind = "actuator family"
+
+    def __init__(self):
+        self._entries: dict = {}
+
+    def register(self, family: ActuatorFamily, *, replace: bool = False) -> ActuatorFamily:
+        """Add ``family`` and return it; a name taken already is an error unless ``replace``."""
+        name = getattr(family, "name", None)
+        if not isinstance(family, ActuatorFamily) or not isinstance(name, str) or not name.isidentifier():
+            raise DesignError(f"an {self.kind} is an ActuatorFamily with an identifier name, got {family!r}")
+        if name in self._entries and not replace and self._entries[name] is not family:
+            raise DesignError(f"{self.kind} {name!r} is registered already; pass replace=True to replace it")
+        self._entries[name] = family
+        return family
+
+    def unregister(self, name: str) -> None:
+        """Remove ``name`` (a family registered for a while, e.g. in a test)."""
+        self._entries.pop(name, None)
+
+    def get(self, name: str) -> ActuatorFamily:
+        """The family called ``name``; an unknown name is an error listing the families."""
+        try:
+            return self._entries[name]
+        except (KeyError, TypeError):
+            raise DesignError(f"unknown {self.kind} {name!r}; registered: {list(self._entries)}") from None
+
+    __getitem__ = get
+
+    def __contains__(self, name) -> bool:
+        return name in self._entries
+
+    def __iter__(self):
+        return iter(self._entries)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+
+#: every actuator family, the IPAM first (registered by ``physics/ipam.py``)
+ACTUATOR_FAMILIES = FamilyRegistry()
+
+
+def families() -> tuple:
+    """The registered families, in registration order."""
+    return tuple(ACTUATOR_FAMILIES.get(n) for n in ACTUATOR_FAMILIES)
