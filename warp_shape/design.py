@@ -103,21 +103,20 @@ class Design:
 
     def check_vertex(self, vertex, what: str) -> int:
         """``vertex`` as a vertex index of the rest mesh; anything else raises ``DesignError`` naming ``what``."""
-        if isinstance(vertex, (bool, np.bool_)) or not isinstance(vertex, (int, np.integer)):
-            raise DesignError(f"{what} must be a vertex index (int), got {vertex!r}")
-        vertex = int(vertex)
-        if not 0 <= vertex < self.rest.n_vertices:
-            raise DesignError(f"{what} = {vertex} is out of range: the rest mesh has {self.rest.n_vertices} vertices")
-        return vertex
+        return self._check_index(vertex, self.rest.n_vertices, "vertex", "vertices", what)
 
     def check_face(self, face, what: str) -> int:
         """``face`` as a face index of the rest mesh; anything else raises ``DesignError`` naming ``what``."""
-        if isinstance(face, (bool, np.bool_)) or not isinstance(face, (int, np.integer)):
-            raise DesignError(f"{what} must be a face index (int), got {face!r}")
-        face = int(face)
-        if not 0 <= face < self.rest.n_faces:
-            raise DesignError(f"{what} = {face} is out of range: the rest mesh has {self.rest.n_faces} faces")
-        return face
+        return self._check_index(face, self.rest.n_faces, "face", "faces", what)
+
+    @staticmethod
+    def _check_index(value, count: int, kind: str, plural: str, what: str) -> int:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise DesignError(f"{what} must be a {kind} index (int), got {value!r}")
+        value = int(value)
+        if not 0 <= value < count:
+            raise DesignError(f"{what} = {value} is out of range: the rest mesh has {count} {plural}")
+        return value
 
     def add_ipam(self, face_a, face_b, stiffness: float = DEFAULT_IPAM_STIFFNESS, area: float = DEFAULT_IPAM_AREA,
                  free_length: float | None = None, pressure_limits=DEFAULT_IPAM_PRESSURE_LIMITS,
