@@ -10,7 +10,8 @@ holding one array element per element) and its neutral control (what a control l
 know the family holds it at). The simulator, the force passes, the stable-step estimate, the
 controller's observation and record and the scene reader and writer loop over
 ``ACTUATOR_FAMILIES``; the IPAM (``physics/ipam.py``) is its first member, and a family registered
-from outside the package (``ACTUATOR_FAMILIES.register``) is stepped, controlled and saved like it.
+from outside the package (``ACTUATOR_FAMILIES.register``, e.g. in a module named in
+``WARP_SHAPE_PLUGINS``) is stepped, controlled and saved like it.
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import DesignError
+from .registry import Registry
 
-__all__ = ["ActuatorFamily", "ACTUATOR_FAMILIES", "FamilyRegistry", "SceneAttribute", "families", "SCENE_NAMESPACE"]
+__all__ = ["ActuatorFamily", "ACTUATOR_FAMILIES", "SceneAttribute", "families", "SCENE_NAMESPACE"]
 
 #: namespace of every warp_shape scene attribute (``warpShape:<name>``)
 SCENE_NAMESPACE = "warpShape"
@@ -172,49 +173,8 @@ class ActuatorFamily:
         raise NotImplementedError
 
 
-class FamilyRegistry:
-    """Actuator families by name, in registration order (the order their forces are added)."""
-
-    kind = "actuator family"
-
-    def __init__(self):
-        self._entries: dict = {}
-
-    def register(self, family: ActuatorFamily, *, replace: bool = False) -> ActuatorFamily:
-        """Add ``family`` and return it; a name taken already is an error unless ``replace``."""
-        name = getattr(family, "name", None)
-        if not isinstance(family, ActuatorFamily) or not isinstance(name, str) or not name.isidentifier():
-            raise DesignError(f"an {self.kind} is an ActuatorFamily with an identifier name, got {family!r}")
-        if name in self._entries and not replace and self._entries[name] is not family:
-            raise DesignError(f"{self.kind} {name!r} is registered already; pass replace=True to replace it")
-        self._entries[name] = family
-        return family
-
-    def unregister(self, name: str) -> None:
-        """Remove ``name`` (a family registered for a while, e.g. in a test)."""
-        self._entries.pop(name, None)
-
-    def get(self, name: str) -> ActuatorFamily:
-        """The family called ``name``; an unknown name is an error listing the families."""
-        try:
-            return self._entries[name]
-        except (KeyError, TypeError):
-            raise DesignError(f"unknown {self.kind} {name!r}; registered: {list(self._entries)}") from None
-
-    __getitem__ = get
-
-    def __contains__(self, name) -> bool:
-        return name in self._entries
-
-    def __iter__(self):
-        return iter(self._entries)
-
-    def __len__(self) -> int:
-        return len(self._entries)
-
-
 #: every actuator family, the IPAM first (registered by ``physics/ipam.py``)
-ACTUATOR_FAMILIES = FamilyRegistry()
+ACTUATOR_FAMILIES = Registry("actuator family")
 
 
 def families() -> tuple:
