@@ -246,55 +246,52 @@ class Terminal(io.StringIO):
         return True
 
 
-def test_progress_counts_finished_work_and_is_quiet_off_a_terminal():
+def test_design_progress_counts_phases_by_the_time_they_take(monkeypatch):
+    """Construction rounds of 2.5 s: the bar says "compiling kernels" before the first step, counts
+    the final round, the refinement and the outputs by their weights, creeps within a long phase,
+    says how long a phase has run, and shows "ETA ?" rather than 0:00 when a phase overruns."""
+    from warp_shape.cli import progress
+
+    clock = [100.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
+    term = Terminal()
+    bar = progress.DesignProgress(5, n_targets=2, stream=term, refine_rounds=True, outputs=True)
+    bar.tqdm.refresh()
+    assert "compiling kernels" in term.getvalue() and bar.eta() == "?"
+    weights = [1, 1, 1, 1, progress.FINAL_ROUND_WEIGHT, progress.REFINE_WEIGHT, progress.OUTPUTS_WEIGHT]
+    assert bar.tqdm.total == sum(weights)
+    on_round = bar.wrap_round(lambda i, d, r: None)
+    for i in range(5):
+        bar.update(i, 4, 3, 300, 0, 2)
+        assert bar.tqdm.n == pytest.approx(sum(weights[:i]))
+        clock[0] += 2.5 if i < 4 else 0.0
+    # 4 rounds in 10 s: the phases left weigh 46 rounds of 2.5 s
+    assert bar.eta() == f"{int(2.5 * 46 // 60)}:{int(2.5 * 46 % 60):02d}"
+    bar.update(4, 4, 24, 300, 2, 2)
+    assert "model-based refinement of the final control" in bar.compose(bar._text)
+    clock[0] += 20.0  # half the final round's estimate: the bar creeps half way through it
+    text = bar.compose(bar._text)
+    assert bar.tqdm.n == pytest.approx(4 + 0.5 * weights[4]) and "(20 s in this phase)" in text
+    clock[0] += 45.0  # 65 s: far past its 40 s estimate
+    assert bar.eta() == "?" and "phase 5/7" in bar.compose(bar._text)
+    on_round(4, None, None)
+    assert bar.tqdm.n == pytest.approx(20.0)
+    bar.update(4, 4, 7, 300, 0, 9)  # the refinement: 9 worlds for 2 targets
+    assert "refinement: 9 worlds, step 7" in bar.compose(bar._text)
+    bar.writing_outputs()
+    assert bar.tqdm.n == pytest.approx(48.0) and "writing the molds" in bar.compose(bar._text)
+    bar.__exit__(None, None, None)
+    assert bar.tqdm.n == bar.tqdm.total and bar.eta() == "0:00"
+
+
+def test_progress_is_quiet_off_a_terminal():
     from warp_shape.cli.progress import ControlProgress, DesignProgress
 
-    term = Terminal()
-    bar = DesignProgress(5, n_targets=2, stream=term)
-    seen = []
-    on_round = bar.wrap_round(lambda i, d, r: seen.append(i))
-    bar.update(0, 4, 17, 300, 1, 2)
-    on_round(0, None, None)
-    assert bar.tqdm.n == 0  # round 0 is done with its placement, when round 1 starts
-    bar.update(0, 4, 5, 300, 0, 8)  # 8 worlds for 2 targets: 4 candidate sets
-    bar.tqdm.refresh()
-    assert "round 0/4: 4 candidate sets, step 5" in term.getvalue()
-    for i in (1, 2, 3, 4):
-        bar.update(i, 4, 3, 300, 0, 2)
-        assert bar.tqdm.n == i
-    bar._drawn = 0.0
-    bar.update(4, 4, 24, 300, 2, 2)
-    assert "round 4/4: refining the final control" in term.getvalue()
-    bar._drawn = 0.0
-    bar.update(4, 4, 7, 300, 0, 8)  # the simulated placement's refinement: 8 worlds for 2 targets
-    assert "round 4/4: refining, 8 worlds, step 7" in term.getvalue()
-    on_round(4, None, None)
-    assert bar.tqdm.n == 5 and seen == [0, 4]
-    bar.close()
-    text = term.getvalue()
-    assert "5/5 rounds" in text and "ETA 0:" in text  # count, unit, ETA
     with DesignProgress(5, stream=Terminal()) as early:  # a design that stops early ends complete
         early.update(2, 4, 3, 300, 0, 1)
-    assert early.tqdm.n == 5
+    assert early.tqdm.n == early.tqdm.total
     quiet = io.StringIO()  # not a terminal: nothing drawn
     with ControlProgress(stream=quiet) as steps:
         steps.update(40, 300, 0, 2)
         assert steps.tqdm.total is None  # counted, never against the step limit
     assert quiet.getvalue() == ""
-
-
-def test_design_eta_counts_the_final_refinement(monkeypatch):
-    """Rounds of 5 s each: after 3 of 5, two are left, the last with its model-based refinement worth
-    two rounds, so 15 s (without the refinement, 10 s)."""
-    from warp_shape.cli import progress
-
-    clock = [100.0]
-    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
-    for refine, eta in ((True, "0:15"), (False, "0:10")):
-        clock[0] = 100.0
-        bar = progress.DesignProgress(5, stream=Terminal(), refine_last=refine)
-        for i in (1, 2, 3):
-            clock[0] += 5.0
-            bar.to(i)
-        assert bar.eta() == eta
-        bar.close()

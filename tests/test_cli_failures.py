@@ -203,7 +203,7 @@ def test_a_corrupt_sweep_table_is_one_line_naming_the_fix(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["export", "out/design.usda", "--what", "control", "--rate", "1e9"], "--rate takes 0 or 0.001..10000, got 1e+09"),
     (["export", "out/design.usda", "--max-slew", "1e-6"], "--max-slew takes 0 or 0.1..1e+09, got 1e-06"),
-    (["export", "out/design.usda", "--max-flow", "1e-9"], "--max-flow takes 0.01..1e+09, got 1e-09"),
+    (["export", "out/design.usda", "--max-flow", "1e-9"], "--max-flow takes 0 or 0.01..1e+09, got 1e-09"),
     (["design", "--actuators", "100000"], "--actuators takes 1..500, got 100000"),
     (["design", "--candidates", "100000"], "--candidates takes 1..256, got 100000"),
     (["design", "--refine-rounds", "100000"], "--refine-rounds takes 0..50, got 100000"),
@@ -233,14 +233,15 @@ def test_a_valve_sequence_past_its_row_bound_is_refused_before_it_is_made():
     import numpy as np
 
     from warp_shape.errors import DesignError
-    from warp_shape.io.valve import MAX_VALVE_ROWS, valve_schedule
+    from warp_shape.io.valve import MAX_VALVE_ROWS, ValveTiming, valve_schedule
 
     n = 3
     history = {"time": np.linspace(0, 1, n), "phase": np.ones(n, int), "pressure_pa": np.zeros(n),
                "air_mol": np.ones(n), "ipam0_pressure_pa": np.array([0.0, 2e5, 0.0])}
     result = SimpleNamespace(history=history, design=None, passive_ipams=[])
-    rows = len(valve_schedule(result, rate_hz=100.0, max_slew_kpa_s=0.1)["time_s"])  # 4000 s
-    assert rows == 400_001 <= MAX_VALVE_ROWS
-    with pytest.raises(DesignError, match=r"would have 4e\+06 rows \(4000 s at 1000 Hz\), more than 1000000"):
-        valve_schedule(result, rate_hz=1000.0, max_slew_kpa_s=0.1)
+    slow = dict(max_slew_kpa_s=0.1, max_flow_ml_s=None)  # 200 kPa at 0.1 kPa/s (planned 0.1 % below): 2002 s
+    rows = len(valve_schedule(result, ValveTiming(rate_hz=100.0, **slow))["time_s"])  # 4004 s
+    assert rows == 2 * 200_201 + 1 <= MAX_VALVE_ROWS
+    with pytest.raises(DesignError, match=r"would have 4e\+06 rows \(4004 s at 1000 Hz\), more than 1000000"):
+        valve_schedule(result, ValveTiming(rate_hz=1000.0, **slow))
 

@@ -35,10 +35,15 @@ def _check_png(path, min_w=500, min_h=300):
 def test_write_figures_for_a_design_run(small_design, tmp_path):
     paths = write_figures(small_design, tmp_path)
     names = sorted(p.name for p in paths)
-    assert names == ["control_heart.png", "control_oval.png", "pcc_by_round.png"]
+    assert names == ["control_heart.png", "control_heart.svg", "control_oval.png", "control_oval.svg",
+                     "fit_heart.png", "fit_heart.svg", "fit_oval.png", "fit_oval.svg",
+                     "pcc_by_round.png", "pcc_by_round.svg", "rest_shape.png", "rest_shape.svg"]
     for p in paths:
         assert p.parent == tmp_path
-        _check_png(p)
+        if p.suffix == ".png":
+            _check_png(p)
+        else:
+            assert p.read_text().lstrip().startswith("<?xml") and "<svg" in p.read_text()[:2000]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # atomic: no temporary left
 
 
@@ -55,7 +60,7 @@ def test_write_figures_for_control_results(tmp_path):
 
     res = ws.control(cube_fig6_design(subdivisions=2), ws.target("cube"), max_steps=15)
     paths = write_figures([res], tmp_path, target_names=["cube"])
-    assert [p.name for p in paths] == ["control_cube.png"]
+    assert [p.name for p in paths] == ["control_cube.png", "control_cube.svg"]
     _check_png(paths[0])
 
 
@@ -82,18 +87,28 @@ def test_control_figure_has_seconds_pressures_passive_and_named_inflation(tmp_pa
     from matplotlib.colors import to_rgba
 
     from warp_shape.io.figures import INFLATION_LABEL, build_control_figure
+    from warp_shape.io.valve import row_times
 
     res = _synthetic_result()
     fig = build_control_figure(res, "heart")
     axes = {ax.get_title().split(" ")[0]: ax for ax in fig.axes if ax.get_title()}
     assert {"(a)", "(b)", "(c)", "(d)", "(e)", "(f)"} <= set(axes)
-    # a seconds axis from 0: the lines end at the record's duration, 0.19 s, not at step 19
+    # the lab's clock of the valve CSV from 0 (pump 5 mL/s, valves 100 kPa/s, 50 Hz), not step 19 nor
+    # the simulated 0.19 s, which is on the top axis
+    lab = row_times(res)
+    assert lab[-1] > 0.19
     for key in ("(e)", "(f)"):
-        assert axes[key].get_xlabel().startswith("time (s")
+        assert axes[key].get_xlabel().startswith("lab time (s; pump 5 mL/s, valves 100 kPa/s, 50 Hz")
+    top = [c for c in axes["(a)"].child_axes if c.get_xlabel().startswith("simulated time (s)")]
+    assert len(top) == 1
+    # its labels: the simulated time at the lab axis's ticks (the record's last tick: 0.19 s at the end)
+    ticks = [t for t in axes["(a)"].get_xticks() if 0 <= t <= lab[-1]]
+    labels = [float(x.get_text()) for x in top[0].get_xticklabels()]
+    assert labels == pytest.approx([np.interp(t, lab, 0.01 * np.arange(20)) for t in ticks], abs=6e-4)
     e = axes["(e)"]
     assert "kPa" in e.get_ylabel()
     lines = {ln.get_label(): ln for ln in e.get_lines() if not ln.get_label().startswith("_")}
-    assert max(ln.get_xdata()[-1] for ln in lines.values()) == pytest.approx(0.19)
+    assert max(ln.get_xdata()[-1] for ln in lines.values()) == pytest.approx(lab[-1])
     # IPAM 0 drawn in kPa, IPAM 1 passive: grey, dashed, labelled so, in both the pressure and length panels
     assert lines["IPAM 0"].get_ydata()[-1] == pytest.approx(60.0) and lines["IPAM 0"].get_linestyle() == "-"
     for ax in (e, axes["(b)"]):
@@ -104,7 +119,7 @@ def test_control_figure_has_seconds_pressures_passive_and_named_inflation(tmp_pa
     # the grey band is named: a labelled patch spanning the 5 inflation steps and a text inside it
     a = axes["(a)"]
     band = [p for p in a.patches if p.get_label() == INFLATION_LABEL]
-    assert len(band) == 1 and band[0].get_x() == pytest.approx(0.0) and band[0].get_width() == pytest.approx(0.04)
+    assert len(band) == 1 and band[0].get_x() == pytest.approx(0.0) and band[0].get_width() == pytest.approx(lab[4])
     assert "inflation" in [tx.get_text() for tx in a.texts]
     assert "grey band: inflation" in fig._suptitle.get_text()
     _check_png(control_figure(res, tmp_path / "c.png"))
@@ -134,3 +149,45 @@ def test_report_gives_ipam_ends_and_cells_in_mm_and_a_glossary():
     for term in ("**objective**", "**PCC**", "**MARE**", "**MPRE**", "**max scaled error**"):
         assert term in glossary
     assert "(R - r) / V_t^(1/3)" in glossary
+
+
+def test_fit_figure_colours_the_membrane_by_its_signed_radial_error(small_design):
+    """The achieved heart, coloured by r - R in mm: red where it lies outside the target, blue inside,
+    on a scale symmetric about 0; the rest-shape figure draws every IPAM and colours every cell."""
+    from warp_shape.io.figures import build_fit_figure, build_rest_figure, signed_radial_error
+
+    res = small_design.results[1]
+    err = signed_radial_error(res)
+    r = np.linalg.norm(res.achieved.vertices, axis=1)
+    R = np.linalg.norm(res.sampled_target.vertices, axis=1)
+    np.testing.assert_allclose(err, r - R)
+    assert np.mean(np.abs(err)) == pytest.approx(res.mare, rel=0.3)  # the same error as the MARE measures
+    fig = build_fit_figure(res, "heart")
+    bar = [ax for ax in fig.axes if "signed radial error" in ax.get_ylabel()]
+    assert len(bar) == 1 and "(mm)" in bar[0].get_ylabel()
+    lo, hi = bar[0].get_ylim()
+    assert lo == pytest.approx(-hi) and hi > 0.1
+    poly = [c for ax in fig.axes if ax.name == "3d" for c in ax.collections]
+    assert len(poly) == 2  # two views
+    colors = poly[0].get_facecolor()  # (faces may be drawn in depth order)
+    assert len(colors) == res.achieved.n_faces
+    reddest, bluest = colors[np.argmax(colors[:, 0] - colors[:, 2])], colors[np.argmax(colors[:, 2] - colors[:, 0])]
+    assert reddest[0] > reddest[2] + 0.3 and bluest[2] > bluest[0] + 0.3  # red outside, blue inside, both there
+    face_err = err[np.asarray(res.achieved.faces)].mean(axis=1)
+    assert face_err.max() > 0 > face_err.min()
+    rest = build_rest_figure(small_design.design)
+    ax3 = [ax for ax in rest.axes if ax.name == "3d"][0]
+    assert len([t for t in ax3.texts if t.get_text().startswith("IPAM ")]) == small_design.design.n_ipams
+    cell_faces = np.flatnonzero(small_design.design.face_cell() >= 0)
+    fc = ax3.collections[0].get_facecolor()
+    coloured = np.ptp(fc[:, :3], axis=1) > 0.1  # a cell's colour, not a grey
+    assert int(coloured.sum()) == len(cell_faces)
+
+
+def test_line_colours_are_distinct_and_never_grey():
+    from matplotlib.colors import to_rgba
+
+    for n in (4, 9, 16, 20, 40):
+        rgb = np.array([to_rgba(c)[:3] for c in ws.io.figures.line_colors(n)])
+        assert len(np.unique(np.round(rgb, 3), axis=0)) == n, n
+        assert np.all(np.ptp(rgb, axis=1) > 0.1), n  # not a grey (grey is for passive IPAMs)

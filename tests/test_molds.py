@@ -4,6 +4,8 @@ cavity is the membrane's outer surface, registration keys in both halves, open p
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
 
 import numpy as np
 import pytest
@@ -48,9 +50,13 @@ def test_files_are_millimetre_solids(design, written):
     assert core.is_watertight and core.is_winding_consistent and core.volume > 0
     # the core holds the rest shape (70 mm across for the 35 mm-radius cube design), bosses stand <= 2 mm proud
     assert np.all(core.bounds[0] <= rest_lo + 1e-3) and np.all(core.bounds[1] >= rest_hi - 1e-3)
-    assert np.all(core.bounds[0] >= rest_lo - 2.0 - 1e-3) and np.all(core.bounds[1] <= rest_hi + 2.0 + 1e-3)
+    assert np.all(core.bounds[0, :2] >= rest_lo[:2] - 2.0 - 1e-3) and np.all(core.bounds[1] <= rest_hi + 2.0 + 1e-3)
+    # below, the seat: 5 mm under the lowest point of the core (bosses included)
+    assert core.bounds[0, 2] == pytest.approx(info["core_seat"]["bottom_z"], abs=1e-4)  # STL: float32
+    assert rest_lo[2] - 2.0 - 5.0 - 1e-3 <= core.bounds[0, 2] <= rest_lo[2] - 5.0 + 1e-3
     assert 60.0 < core.extents.min() < 80.0
-    assert core.volume == pytest.approx(design.rest.volume() * 1e9, rel=0.05)
+    # the rest shape plus its bosses and the seat's stem below it (about 7 % of a 35 mm sphere)
+    assert 1.0 < core.volume / (design.rest.volume() * 1e9) < 1.10
     cavity_hi = outer_mold(design, LAYER).vertices.max(axis=0) * 1e3
     for half in ("bottom", "top"):
         m = trimesh.load(out / f"mold_shell_{half}_mm.stl")
@@ -134,3 +140,80 @@ def test_bad_mold_sizes_are_clear(design):
         mold_set(design, wall=4e-3)
     with pytest.raises(DesignError, match="layer_thickness"):
         mold_set(design, layer_thickness=0.0)
+
+
+def test_core_stands_on_a_flat_seat_clear_of_the_ipam_ends(design, molds):
+    """The core's lowest layer is a flat disk (the seat, where the air tubes leave the device): under
+    the centroid, 25 mm in radius at most (30 % of the core's width), unless IPAM ends lie there;
+    the Fig. 6 device has one at the bottom pole, so its seat moves beside it and keeps the bosses
+    clear. The sidecar names the boss tips and face centroids apart and says how each part prints."""
+    core, info = molds.core, molds.info
+    seat = info["core_seat"]
+    bottom = core.bounds[0, 2]
+    flat = (core.face_normals[:, 2] < -0.999) & (np.abs(core.triangles_center[:, 2] - bottom) < 1e-4)
+    area = float(core.area_faces[flat].sum())
+    assert area == pytest.approx(np.pi * seat["radius"] ** 2, rel=0.01)  # a 64-sided disk
+    assert 8.0 <= seat["radius"] <= min(25.0, 0.3 * 70.0)
+    ends = np.array([m["face_centroid"] for m in info["ipam_markers"]])
+    low = ends[ends[:, 2] < 0]
+    gap = np.linalg.norm(low[:, :2] - np.array(seat["center"][:2]), axis=1).min()
+    assert gap >= seat["radius"] + info["marker_radius"]  # no boss under the seat
+    assert "air tubes" in seat["note"] and seat["covers_ipam_ends"] == []
+    m = info["ipam_markers"][0]
+    tip, face = np.array(m["position"]), np.array(m["face_centroid"])
+    assert np.linalg.norm(tip - face) == pytest.approx(info["marker_height"], abs=1e-6)  # 2 mm proud
+    assert "report.md" in info["ipam_markers_note"]
+    assert "pins stick up" in info["printing"]["shell_bottom"]
+
+
+def test_seat_goes_under_the_centroid_when_nothing_is_there(design):
+    from warp_shape.molds import seat_place
+
+    body = design.rest.to_trimesh()
+    centre, radius = seat_place(body, np.zeros((0, 3)))
+    assert centre == pytest.approx(body.centroid[:2], abs=1e-12) and radius == pytest.approx(0.3 * 0.07, rel=0.02)
+
+
+def _designs_with(n_ipams: int):
+    """A design of the shipped problems' shape with ``n_ipams`` IPAMs: the rest shape the designer
+    starts from (heart alone for 1, oval and heart for 4, the four targets for 20), each IPAM joining
+    the faces nearest to a pair of opposite directions spread over the sphere (no design run)."""
+    import warp_shape as ws
+    from warp_shape.design import Design
+    from warp_shape.designer.initialize import initial_rest_shape
+
+    names = {1: ["heart"], 4: ["oval", "heart"], 20: ["oval", "pear", "heart", "cube"]}[n_ipams]
+    rest = initial_rest_shape(ws.load_scene("four_targets_20").design.rest, [ws.target(t) for t in names])
+    d = Design(rest)
+    c = rest.face_centroids()
+    u = c / np.linalg.norm(c, axis=1, keepdims=True)
+    taken: set = set()
+    for k in range(n_ipams):  # a Fibonacci spiral of directions; the first is the top-bottom axis
+        z = 1.0 - (k + 0.5) / n_ipams if n_ipams > 1 else 1.0
+        r, a = np.sqrt(1.0 - z * z), k * np.pi * (3.0 - np.sqrt(5.0))
+        ends = []
+        for sign in (1.0, -1.0):
+            f = next(int(f) for f in np.argsort(-sign * (u @ [r * np.cos(a), r * np.sin(a), z])) if int(f) not in taken)
+            taken.add(f)
+            ends.append(f)
+        d.add_ipam(*ends)
+    return d
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("prusa-slicer") is None,
+                    reason="PrusaSlicer is not installed here (apt-get install prusa-slicer): the slicing check is skipped")
+@pytest.mark.parametrize("n_ipams", [1, 4, 20])
+def test_prusa_slicer_slices_every_mold_part(n_ipams, tmp_path):
+    """PrusaSlicer with its default settings (no supports) slices every part into G-code; before the
+    seat, the core of the one- and four-IPAM designs stood on a point ("There is an object with no
+    extrusions in the first layer")."""
+    write_molds(_designs_with(n_ipams), tmp_path, marker_height=2e-3, layer_thickness=LAYER)
+    for part in ("mold_core", "mold_shell_bottom", "mold_shell_top"):
+        stl, gcode = tmp_path / f"{part}_mm.stl", tmp_path / f"{part}.gcode"
+        run = subprocess.run(["prusa-slicer", "--export-gcode", str(stl), "--output", str(gcode)],
+                             capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0 and gcode.exists(), (n_ipams, part, run.stdout[-500:], run.stderr[-500:])
+        text = gcode.read_text()
+        assert text.count(";LAYER_CHANGE") > 100, (n_ipams, part)  # ~90 mm at 0.3 mm layers
+        assert "; support_material = 0" in text

@@ -143,3 +143,18 @@ def test_in_memory_recording_and_two_recorders_side_by_side(fig6, tmp_path):
     assert "/control/oval/membrane" in got and "/control/cube/membrane" in got
     assert list(read_recording(tmp_path / "f.rrd")["entities"]) and "/control/oval/membrane" not in \
         read_recording(tmp_path / "f.rrd")["entities"]
+
+
+def test_report_figures_are_static_images_in_the_recording(fig6, tmp_path):
+    """The report's figures (the rest shape, each target's fit) go into the recording as the same PNGs."""
+    pytest.importorskip("matplotlib")
+    from warp_shape.io.figures import build_rest_figure
+
+    png = tmp_path / "rest_shape.png"
+    build_rest_figure(fig6).savefig(png, format="png", dpi=60)
+    path = tmp_path / "figs.rrd"
+    with Recorder(path) as rec:
+        rec.log_figures([png])
+    ent = read_recording(path)["entities"]["/design/figures/rest_shape"]["static"]
+    blob = [v for k, v in ent.items() if k.endswith("blob")][0]
+    assert bytes(np.asarray(blob, dtype=np.uint8)) == png.read_bytes()

@@ -224,3 +224,14 @@ def test_a_killed_worker_is_retried_within_the_sweep(ray_local, tmp_path):
     res = ws.sweep("subsets", targets=["heart"], actuators=1, fixed=dict(TINY), out=tmp_path / "s", backend="ray",
                    retries=1, run_fn=kill_once(str(markers)))
     assert (markers / "heart.tried").exists() and res.ran == 1 and not res.failed
+
+
+def test_grid_summary_ticks_counts_at_the_swept_values_only(tmp_path):
+    pytest.importorskip("matplotlib")
+    from warp_shape.sweep.summary import build_summary_figure, write_summary
+
+    rows = [dict(status="ok", targets="oval", actuators=a, pcc_oval=p) for a, p in ((1, 0.91), (2, 0.95))]
+    ax = build_summary_figure(rows, ["oval"], ["actuators"], "grid").axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["1", "2"]  # no 1.2, 1.4 actuators
+    written = write_summary(tmp_path, rows, ["oval"], ["actuators"], "grid")
+    assert {p.name for p in written} == {"summary.md", "summary.png", "summary.svg"}

@@ -483,14 +483,16 @@ def test_animation_plays_over_a_given_duration(tmp_path, recorded):
 
 
 def test_control_animation_plays_at_the_valve_schedule(tmp_path):
-    """A controlled run's animation lasts as long as its valve schedule (slew-limited seconds), not
-    the simulator's fraction of a second; ``playback="simulated"`` keeps the simulated clock."""
+    """A controlled run's animation lasts as long as its valve schedule (the lab's clock: pump and
+    valve limits, every frame a row of the valve CSV), not the simulator's fraction of a second;
+    ``playback="simulated"`` keeps the simulated clock."""
     from warp_shape.io.outputs import write_control_usd
     from warp_shape.io.usd_animation import playback_times
     from warp_shape.io.valve import valve_schedule
 
     res = ws.control(cube_fig6_design(subdivisions=2), ws.target("cube"), max_steps=15)
-    valve_s = float(valve_schedule(res, rate_hz=None)["time_s"][-1])
+    schedule = valve_schedule(res)
+    valve_s = float(schedule["time_s"][-1])
     sim_s = float(res.history["time"][-1] - res.history["time"][0])
     assert valve_s > 2 * sim_s  # real valves are slower than the simulated steps
     for playback, seconds in (("valve", valve_s), ("simulated", sim_s)):
@@ -499,7 +501,15 @@ def test_control_animation_plays_at_the_valve_schedule(tmp_path):
         assert stage.GetStartTimeCode() == 0.0
         assert stage.GetEndTimeCode() == pytest.approx(24.0 * seconds, rel=1e-9)
         assert stage.GetRootLayer().customLayerData["warpShape:playback"]["timing"] == playback
-    assert playback_times(res, "valve")[-1] == pytest.approx(valve_s)
+    frames = playback_times(res, "valve")
+    assert frames[-1] == pytest.approx(valve_s)
+    # every frame is a row of the valve CSV: its time on the 50 Hz grid, its simulated time the step's
+    rows = np.searchsorted(schedule["time_s"], frames - 1e-9)
+    np.testing.assert_allclose(schedule["time_s"][rows], frames, atol=1e-12)
+    np.testing.assert_allclose(schedule["sim_time_s"][rows], playback_times(res, "simulated"), atol=1e-12)
+    stage = Usd.Stage.Open(str(tmp_path / "valve.usdc"))
+    meta = stage.GetRootLayer().customLayerData["warpShape:playback"]
+    assert (meta["max_flow_ml_s"], meta["max_slew_kpa_s"], meta["rate_hz"]) == (5.0, 100.0, 50.0)
     with pytest.raises(SceneError, match="playback"):
         playback_times(res, "fast")
 

@@ -5,8 +5,9 @@ Geometry is built in metres (the design's units) and written in the units a slic
 engine), so each part is a closed, watertight, manifold solid.
 
 - **core**: the rest shape (the inner membrane's surface) with a cylindrical boss raised on every
-  IPAM attachment face, where the actuator end caps are glued. Brush silicone over it for the inner
-  membrane.
+  IPAM attachment face, where the actuator end caps are glued, standing on a flat seat (a stem
+  under the centroid, where the air tubes leave the device), so it prints without supports. Brush
+  silicone over it for the inner membrane.
 - **shell**: a block whose cavity is the membrane's outer surface, i.e. the rest shape moved radially
   outward by the jamming-layer thickness (:func:`outer_mold`). It is split on a horizontal plane (the
   cavity's widest section, so both halves release) into a bottom half carrying three registration
@@ -26,7 +27,8 @@ from .design import Design
 from .errors import DesignError
 from .mesh import TriMesh
 
-__all__ = ["outer_mold", "MoldSet", "mold_set", "UNIT_SCALES", "check_mold_lengths", "equivalent_radius"]
+__all__ = ["outer_mold", "MoldSet", "mold_set", "mold_core", "core_seat", "seat_place", "UNIT_SCALES",
+           "check_mold_lengths", "equivalent_radius"]
 
 #: output unit -> factor from metres
 UNIT_SCALES = {"mm": 1000.0, "cm": 100.0, "m": 1.0, "in": 1000.0 / 25.4}
@@ -119,10 +121,12 @@ def _cylinder(p0, p1, radius: float, sections: int = 32):
     return trimesh.creation.cylinder(radius=radius, segment=np.array([p0, p1], dtype=float), sections=sections)
 
 
-def mold_core(design: Design, *, marker_height: float = 2e-3, marker_radius: float = 3e-3):
+def mold_core(design: Design, *, marker_height: float = 2e-3, marker_radius: float = 3e-3,
+              seat_radius: float = 25e-3, seat_height: float = 5e-3):
     """The core (metres): the rest shape unioned with a boss of radius ``marker_radius`` standing
-    ``marker_height`` proud of every IPAM end face (along its normal, from the face centroid).
-    Returns (solid, markers): markers lists per IPAM end its face and boss tip position."""
+    ``marker_height`` proud of every IPAM end face (along its normal, from the face centroid), and a
+    flat seat below (``core_seat``). Returns (solid, markers, seat): markers lists per IPAM end its
+    face, the face centroid and the boss tip position; seat describes the stem."""
     if not (0 <= marker_height < math.inf and 0 < marker_radius < math.inf):
         raise DesignError(f"marker_height must be >= 0 m and marker_radius > 0 m, got {marker_height}, {marker_radius}")
     rest = design.rest
@@ -131,14 +135,75 @@ def mold_core(design: Design, *, marker_height: float = 2e-3, marker_radius: flo
     markers = []
     for i, ip in enumerate(design.ipams):
         for end, f in (("a", ip.face_a), ("b", ip.face_b)):
-            markers.append({"ipam": i, "end": end, "face": int(f),
+            markers.append({"ipam": i, "end": end, "face": int(f), "face_centroid": centroids[f].tolist(),
                             "position": (centroids[f] + marker_height * normals[f]).tolist()})
     if marker_height > 0 and design.ipams:
         bosses = [_cylinder(centroids[f] - max(marker_height, marker_radius) * normals[f],
                             centroids[f] + marker_height * normals[f], marker_radius)
                   for f in ipam_end_faces(design)]
         solid = _bool("union", [solid, *bosses])
-    return solid, markers
+    centre, radius = seat_place(rest.to_trimesh(), centroids[ipam_end_faces(design)] if design.ipams else
+                                np.zeros((0, 3)), seat_radius=seat_radius, clearance=marker_radius + 1e-3)
+    stem, seat = core_seat(solid, centre, seat_radius=radius, seat_height=seat_height)
+    seat["covers_ipam_ends"] = [dict(ipam=m["ipam"], end=m["end"]) for m in markers
+                                if np.hypot(*(np.array(m["face_centroid"][:2]) - seat["center"][:2])) < seat["radius"]
+                                and m["face_centroid"][2] < seat["top_z"]]
+    return _bool("union", [solid, stem]), markers, seat
+
+
+def seat_place(body, ends: np.ndarray, *, seat_radius: float = 25e-3, clearance: float = 4e-3,
+               min_radius: float = 8e-3, spacing: float = 2e-3) -> tuple[np.ndarray, float]:
+    """Where the core's seat goes (metres): (xy centre, radius). Under the body's centroid where no
+    IPAM end (``ends``, (n, 3)) lies within the seat plus ``clearance``; else the lowest spot of the
+    underside, on a grid of ``spacing``, whose disk of at least ``min_radius`` keeps that clearance
+    (widest first among equally low ones); no such spot: under the centroid, covering the ends."""
+    cap = min(float(seat_radius), 0.3 * float(np.min(body.extents[:2])))
+    centre = np.asarray(body.centroid, dtype=np.float64)[:2]
+    low = ends[ends[:, 2] < body.bounds[0, 2] + 0.5 * body.extents[2]] if len(ends) else ends
+
+    def room(xy):  # (P,) the widest seat at each xy keeping the clearance from the low IPAM ends
+        if not len(low):
+            return np.full(len(xy), cap)
+        d = np.linalg.norm(xy[:, None, :] - low[None, :, :2], axis=2).min(axis=1)
+        return np.minimum(cap, d - clearance)
+
+    if room(centre[None])[0] >= cap:
+        return centre, cap
+    lo, hi = body.bounds[0, :2] + cap, body.bounds[1, :2] - cap
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + 1e-9, spacing), np.arange(lo[1], hi[1] + 1e-9, spacing))
+    xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    r = room(xy)
+    z = np.nanmin(vertical_crossings(body, xy), axis=1) if len(xy) else np.zeros(0)
+    ok = (r >= min_radius) & np.isfinite(z)
+    if not ok.any():
+        return centre, cap
+    k = np.flatnonzero(ok)[np.lexsort((-r[ok], np.round(z[ok], 3)))[0]]
+    return xy[k], float(r[k])
+
+
+def core_seat(solid, centre, *, seat_radius: float = 25e-3, seat_height: float = 5e-3):
+    """A flat seat for the core (metres), so that it stands on the print bed without supports: a
+    vertical stem of ``seat_radius`` (at most 30 % of the core's narrower horizontal extent) with its
+    axis at ``centre`` (x, y; ``seat_place``), from ``seat_height`` below the core's lowest point up
+    into the body.
+    It is where the paper's air tubes leave the device (a plug a few centimetres across): the inner
+    membrane brushed over the core keeps an opening there. Returns (stem solid, seat description)."""
+    if not (seat_radius > 0 and seat_height > 0):
+        raise DesignError(f"seat_radius and seat_height must be > 0 m, got {seat_radius}, {seat_height}")
+    radius = min(float(seat_radius), 0.3 * float(np.min(solid.extents[:2])))
+    xy = np.asarray(centre, dtype=np.float64)[:2]
+    ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+    rings = [xy + f * radius * np.stack([np.cos(ang), np.sin(ang)], axis=1) for f in (0.5, 1.0)]
+    pts = np.concatenate([xy[None], *rings])
+    z = vertical_crossings(solid, pts)
+    if np.any(np.all(np.isnan(z), axis=1)):
+        raise DesignError("the core's seat does not lie under the core; use a smaller seat_radius")
+    lower = np.nanmin(z, axis=1)  # the core's underside over the seat's disk
+    bottom = min(float(solid.bounds[0, 2]), float(lower.min())) - float(seat_height)
+    top = float(lower.max()) + 1e-3
+    stem = _cylinder([xy[0], xy[1], bottom], [xy[0], xy[1], top], radius, sections=64)
+    return stem, dict(center=[float(xy[0]), float(xy[1]), bottom], radius=radius, height=top - bottom,
+                      bottom_z=bottom, top_z=top)
 
 
 def _section_area(cavity, z: float) -> float:
@@ -248,6 +313,16 @@ def mold_shell(cavity, *, wall: float = 10e-3, key_radius: float = 2.5e-3, key_h
     return bottom, top, info
 
 
+MARKER_NOTE = ("face_centroid: the IPAM end's attachment face centroid on the rest shape (as report.md's IPAM "
+               "ends); position: the boss tip, marker_height proud of it along the face normal")
+SEAT_NOTE = ("a stem under the core, where the air tubes leave the device: the core stands on its flat "
+             "bottom (no supports); the inner membrane keeps an opening of this size there. IPAM ends in "
+             "covers_ipam_ends lie on it: their end caps are glued to the plug, their positions are in ipam_markers")
+PRINTING = dict(core="as it stands, on the seat's flat bottom", shell_bottom="as it stands, outer face down "
+                "(its pins stick up from the split face)", shell_top="split face down as written, or turned over "
+                "(outer face down) so that the cavity opens upward")
+
+
 def _scale_info(value, s: float):
     """Scale every length in a sidecar entry (nested dicts/lists of floats) by ``s``."""
     if isinstance(value, dict):
@@ -258,23 +333,27 @@ def _scale_info(value, s: float):
 
 
 def mold_set(design: Design, *, units: str = "mm", layer_thickness: float = 5e-3, marker_height: float = 2e-3,
-             marker_radius: float = 3e-3, **shell_options) -> MoldSet:
+             marker_radius: float = 3e-3, seat_radius: float = 25e-3, seat_height: float = 5e-3,
+             **shell_options) -> MoldSet:
     """The printable molds of a design in ``units`` (mm, cm, m or in): the core with IPAM bosses and
-    the two-part shell whose cavity is the rest shape offset by ``layer_thickness`` (m). Other sizes
-    (``wall``, ``key_radius``, ``key_height``, ``key_clearance``, ``pour_radius``, ``vent_radius``)
-    are in metres, see :func:`mold_shell`."""
+    a flat seat (:func:`core_seat`), and the two-part shell whose cavity is the rest shape offset by
+    ``layer_thickness`` (m). Other sizes (``wall``, ``key_radius``, ``key_height``,
+    ``key_clearance``, ``pour_radius``, ``vent_radius``) are in metres, see :func:`mold_shell`."""
     if units not in UNIT_SCALES:
         raise DesignError(f"mold units must be one of {sorted(UNIT_SCALES)}, got {units!r}")
     check_mold_lengths(equivalent_radius(design.rest), layer_thickness=layer_thickness, marker_height=marker_height)
     s = UNIT_SCALES[units]
-    core, markers = mold_core(design, marker_height=marker_height, marker_radius=marker_radius)
+    core, markers, seat = mold_core(design, marker_height=marker_height, marker_radius=marker_radius,
+                                    seat_radius=seat_radius, seat_height=seat_height)
     cavity = outer_mold(design, layer_thickness).to_trimesh()
     bottom, top, shell_info = mold_shell(cavity, **shell_options)
     for m in (core, bottom, top, cavity):
         m.apply_scale(s)
     info = dict(units=units, scale_from_metres=s, layer_thickness=layer_thickness * s,
                 marker_height=marker_height * s, marker_radius=marker_radius * s,
-                ipam_markers=_scale_info(markers, s), shell=_scale_info(shell_info, s),
+                ipam_markers=_scale_info(markers, s), ipam_markers_note=MARKER_NOTE,
+                core_seat={**_scale_info(seat, s), "note": SEAT_NOTE}, shell=_scale_info(shell_info, s),
+                printing=PRINTING,
                 cavity="the membrane's outer surface: the rest shape moved radially outward by layer_thickness")
     molds = MoldSet(units=units, core=core, shell_bottom=bottom, shell_top=top, cavity=cavity, info=info)
     info["parts"] = {name: dict(file=f"{name}_{units}.stl", extents=[float(e) for e in m.extents],

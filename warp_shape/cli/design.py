@@ -23,6 +23,7 @@ from ..io.outputs import is_run_output, record_round, write_design_outputs, writ
 from ..io.report import design_markdown
 from ..io.scene_read import load_scene
 from ..molds import equivalent_radius
+from .lab_timing import add_timing_args, timing_from_args
 from .options import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS, add_bounded, add_common_args,
                       add_units_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
                       open_recorder, print_outputs, recording_entry, run_progress, stop_if_interrupted)
@@ -58,6 +59,7 @@ def register(subparsers) -> None:
     d.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
                    help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
     add_units_arg(d)
+    add_timing_args(d)
     add_common_args(d)
     d.set_defaults(func=run)
 
@@ -97,7 +99,7 @@ def _device_radius(base, named, settings) -> float:
     return settings.volume_scale ** (1.0 / 3.0) * min(equivalent_radius(t) for _, t in named)
 
 
-def _run_designer(args, base, named, run: RunSettings, staged):
+def _run_designer(args, base, named, run: RunSettings, staged, bar, rec):
     """Run the designer; each finished round is written to the staging folder as it completes.
     Ctrl-C keeps the finished rounds (in ``<out>`` where it holds no finished run, else in
     ``<out>.partial``); any other failure removes the staging folder."""
@@ -111,14 +113,12 @@ def _run_designer(args, base, named, run: RunSettings, staged):
         write_round_outputs(staged.path, names, records, rounds)
         staged.seal(False, command="design")
 
-    bar = run_progress(run.actuators + 1, names)
     staged.lock()
     try:
-        with open_recorder(args) as rec, bar:
-            return design(base, [t for _, t in named], actuators=run.actuators, device=args.device,
-                          target_names=names, settings=run.designer, control_settings=run.control,
-                          material=run.material, progress=bar.update, on_round=bar.wrap_round(on_round),
-                          recorder=rec)
+        return design(base, [t for _, t in named], actuators=run.actuators, device=args.device,
+                      target_names=names, settings=run.designer, control_settings=run.control,
+                      material=run.material, progress=bar.update, on_round=bar.wrap_round(on_round),
+                      recorder=rec)
     except KeyboardInterrupt:
         _keep_interrupted(staged, len(records))
         raise
@@ -169,6 +169,34 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
               f"{str(complete).lower()})", file=sys.stderr)
 
 
+def _write_outputs(res, args, staged, wall: float, timing) -> list:
+    """Every output of the finished design into the staging folder: the paths written. Ctrl-C keeps
+    what is finished (``_keep_interrupted``)."""
+    try:
+        written = write_design_outputs(res, staged.path, marker_height=args.marker_height,
+                                       layer_thickness=args.layer_thickness, kept=["rounds.json", "manifest.json"],
+                                       extra_report=dict(complete=True, wall_seconds=wall, device=args.device),
+                                       timing=timing)
+        stop_if_interrupted()
+        return written
+    except KeyboardInterrupt:
+        _keep_interrupted(staged, len(res.rounds))
+        raise
+    except BaseException:
+        staged.discard()
+        raise
+
+
+def _commit(staged, args):
+    """The staged outputs swapped into ``<out>`` (the recording, closed by now, in the manifest)."""
+    try:
+        with held_interrupts():  # a Ctrl-C now lets the swap finish, then stops
+            return staged.commit(True, command="design", **recording_entry(args))
+    except BaseException:
+        staged.discard()
+        raise
+
+
 def run(args) -> int:
     """Design, then write the scene, control sequences, USD animations, molds, figures and reports."""
     staged = StagedFolder(args.out, owned=is_run_output)
@@ -177,26 +205,17 @@ def run(args) -> int:
     check_rerun(args)
     base, named, run_opts = _problem(args)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
+    timing = timing_from_args(args)
     t0 = time.perf_counter()
-    res = _run_designer(args, base, named, run_opts, staged)
-    wall = time.perf_counter() - t0
-    try:
-        write_design_outputs(res, staged.path, marker_height=args.marker_height, layer_thickness=args.layer_thickness,
-                             extra_report=dict(complete=True, wall_seconds=wall, device=args.device),
-                             kept=["rounds.json", "manifest.json"])
-        stop_if_interrupted()
-    except KeyboardInterrupt:
-        _keep_interrupted(staged, len(res.rounds))
-        raise
-    except BaseException:
-        staged.discard()
-        raise
-    try:
-        with held_interrupts():  # a Ctrl-C now lets the swap finish, then stops
-            out = staged.commit(True, command="design", **recording_entry(args))
-    except BaseException:
-        staged.discard()
-        raise
+    with run_progress(run_opts.actuators + 1, [n for n, _ in named], run_opts.designer, run_opts.control) as bar:
+        with open_recorder(args) as rec:
+            res = _run_designer(args, base, named, run_opts, staged, bar, rec)
+            wall = time.perf_counter() - t0
+            bar.writing_outputs()
+            written = _write_outputs(res, args, staged, wall, timing)
+            if rec is not None:  # the report's figures, the same images, in the recording
+                rec.log_figures([p for p in written if p.suffix == ".png"])
+        out = _commit(staged, args)
     report = json.loads((out / "report.json").read_text())
     if args.json:
         print(json.dumps(report, indent=2))

@@ -12,10 +12,10 @@ from ..io.atomic import StagedFolder
 from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
 from ..io.scene_read import load_scene
 from ..io.scene_write import save_scene
-from ..io.valve import (DEFAULT_MAX_SLEW_KPA_S, DEFAULT_RATE_HZ, MAX_VALVE_RATE_HZ, MIN_VALVE_FLOW_ML_S,
-                        MIN_VALVE_SLEW_KPA_S, write_valve_outputs)
+from ..io.valve import write_valve_outputs
 from ..molds import equivalent_radius
-from .options import (actuator_selection, add_bounded, add_common_args, check_device, check_mold_flags, check_out,
+from .lab_timing import add_timing_args, timing_from_args
+from .options import (actuator_selection, add_common_args, check_device, check_mold_flags, check_out,
                       check_rerun, control_progress, load_targets, open_recorder, stop_if_interrupted)
 
 __all__ = ["register", "run"]
@@ -39,14 +39,7 @@ def register(subparsers) -> None:
                    help="IPAM boss height on the mold core, m (0: none; at most a quarter of the device's radius)")
     e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
                    help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")
-    add_bounded(e, "--rate", 1e-3, MAX_VALVE_RATE_HZ, zero=True, type=float, default=DEFAULT_RATE_HZ, metavar="HZ",
-                   help=f"valve CSV samples per second (default {DEFAULT_RATE_HZ:g}); 0: one row per control step")
-    add_bounded(e, "--max-slew", MIN_VALVE_SLEW_KPA_S, 1e9, zero=True, type=float, default=DEFAULT_MAX_SLEW_KPA_S,
-                metavar="KPA_PER_S",
-                   help=f"slowest valve: stretch the sequence so no pressure changes faster "
-                        f"(default {DEFAULT_MAX_SLEW_KPA_S:g} kPa/s); 0: simulated timing")
-    add_bounded(e, "--max-flow", MIN_VALVE_FLOW_ML_S, 1e9, type=float, default=None, metavar="ML_PER_S",
-                   help="syringe pump: stretch the sequence so the chamber air changes no faster (default: no limit)")
+    add_timing_args(e)
     e.add_argument("--passive", choices=["neutral", "zero"], default="neutral",
                    help="pressure written for IPAMs a target does not use: the simulated neutral pressure "
                         "(force-free, default) or 0 kPa (vented)")
@@ -75,6 +68,7 @@ def _checked_inputs(args):
 def run(args) -> int:
     """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
     scene, named, settings = _checked_inputs(args)
+    timing = timing_from_args(args)
     out = Path(args.out)
     written = []
     if "molds" in args.what:
@@ -88,11 +82,9 @@ def run(args) -> int:
             results = control_many(scene.design, [t for _, t in named], device=args.device, settings=settings,
                                    progress=control_progress, recorder=rec, target_names=names,
                                    **actuator_selection(args, scene.settings, names))
-        written += write_control_outputs(results, names, out, usd="usd" in args.what)
-        written += write_valve_outputs(results, names, out, rate_hz=args.rate or None,
-                                       max_slew_kpa_s=args.max_slew or None, max_flow_ml_s=args.max_flow,
-                                       passive=args.passive)
-        written += write_figures_or_skip(results, out, names)
+        written += write_control_outputs(results, names, out, usd="usd" in args.what, timing=timing)
+        written += write_valve_outputs(results, names, out, timing, passive=args.passive)
+        written += write_figures_or_skip(results, out, names, timing=timing)
     if args.json:
         print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))
     else:

@@ -239,9 +239,13 @@ def control_progress(step, total, done, worlds, prefix: str = "") -> None:
         sys.stderr.write(f"{prefix}control: {done}/{worlds} targets done\n")
 
 
-def run_progress(rounds: int, names) -> DesignProgress:
-    """The design run's progress bar (``rounds`` rounds, the targets ``names``)."""
-    return DesignProgress(rounds, n_targets=len(names))
+def run_progress(rounds: int, names, settings=None, control=None) -> DesignProgress:
+    """The design run's progress bar (``rounds`` rounds, the targets ``names``, the phases of the
+    designer ``settings`` and the ``control`` settings: the final round's model-based refinement,
+    refinement rounds, then the outputs)."""
+    refine = settings is not None and settings.placement == "simulated" and settings.refine_rounds > 0
+    inverse = control is None or control.method == "inverse"
+    return DesignProgress(rounds, n_targets=len(names), refine_last=inverse, refine_rounds=refine, outputs=True)
 
 
 def load_targets(specs, units: str = "auto") -> list:

@@ -1,9 +1,10 @@
 """Progress bars of long runs (tqdm): drawn on a terminal, quiet otherwise (logs, pipes, tests).
 
-Each bar counts the work that is really done: design rounds, simulated steps, control steps. A
+Each bar counts the work that is really done: design phases, simulated steps, control steps. A
 control run's length is not known in advance (it stops when every target has converged), so its
-bar counts steps without a total and names the targets done; the design bar's ETA comes from the
-rounds already finished (tqdm's moving average).
+bar counts steps without a total and names the targets done; the design bar counts its phases by
+the time they take (the final round's and the refinement's model-based control dominate) and its
+ETA comes from the construction rounds already finished.
 """
 
 from __future__ import annotations
@@ -79,63 +80,111 @@ class Bar:
         self.close()
 
 
-#: the last design round (final control plus its model-based refinement) takes about two placement
-#: rounds' time on the default problem (rounds 0-3: 4-7 s each; the last: 11 s)
-FINAL_ROUND_WEIGHT = 2.0
+#: How long each phase of a design takes, in construction rounds (one construction round: every
+#: target controlled by the paper's law, then the next placement), measured on the default problem
+#: (oval + heart, 4 IPAMs, 2 CPU cores): rounds 0-3 about 2.5 s each; the final round with the
+#: model-based refinement of its control about 16 times as long; the simulated placement's
+#: refinement rounds (one batch of 9 worlds each, usually one round) about 28 times; the outputs
+#: (molds, USD, figures) about twice.
+FINAL_ROUND_WEIGHT = 16.0
+REFINE_WEIGHT = 28.0
+OUTPUTS_WEIGHT = 2.0
+#: what the bar says before the first control step: Warp loads its kernels (compiles them on a first run)
+STARTING = "compiling kernels (first run only; cached after)"
 
 
 class DesignProgress(Bar):
-    """A design run: round i counts as done when round i + 1 starts (its control run and the
-    placement after it, the work of every round but the last) or, for the last, when it is
-    recorded; what runs now beside the bar: the round's control run, the candidate sets tried for
-    the next actuator set, the model-based refinement of the final control."""
+    """A design run, as phases weighted by the time they take (``FINAL_ROUND_WEIGHT`` etc.): the
+    construction rounds, the final round (its model-based refinement included), the simulated
+    placement's refinement rounds and the writing of the outputs. The bar moves within a phase as
+    its estimate runs (never past it), the text beside it says what runs now and for how long; the
+    ETA comes from the construction rounds' measured pace and is "?" while unknown or overrun."""
 
-    def __init__(self, rounds: int, n_targets: int = 1, refine_last: bool = True, stream=None):
-        super().__init__(total=rounds, desc="design", unit="round", stream=stream)
-        self.tqdm.bar_format = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} rounds [{elapsed}{postfix}]"
+    def __init__(self, rounds: int, n_targets: int = 1, refine_last: bool = True, stream=None,
+                 refine_rounds: bool = False, outputs: bool = False):
+        self.n_rounds = max(1, int(rounds)) - 1  # rounds 0 .. n_rounds, the last being the final round
+        self.weights = [1.0] * self.n_rounds + [FINAL_ROUND_WEIGHT if refine_last else 1.0] \
+            + ([REFINE_WEIGHT] if refine_rounds else []) + ([OUTPUTS_WEIGHT] if outputs else [])
+        self.starts = [sum(self.weights[:k]) for k in range(len(self.weights))]
+        super().__init__(total=sum(self.weights), desc="design", unit="round", stream=stream)
+        self.tqdm.bar_format = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}{postfix}]"
         self.n_targets = max(1, int(n_targets))
         self.refine_last = refine_last
-        self._start = self._last_done = time.monotonic()
+        self.phase = 0
+        self._start = None  # the first control step (after the kernels are loaded)
+        self._phase_start = time.monotonic()
+        self._pace = None  # seconds per construction round, once one has finished
+        self.note(STARTING)
+
+    def _enter(self, phase: int) -> None:
+        """Phase ``phase`` starts (the phases before it are done)."""
+        phase = min(phase, len(self.weights) - 1)
+        if phase <= self.phase and self.tqdm.n > 0:
+            return
+        now = time.monotonic()
+        if self._start is None:
+            self._start = now
+        if self.phase < self.n_rounds and self.phase < phase <= self.n_rounds:
+            self._pace = max(1e-3, (now - self._start) / phase)
+        self.phase, self._phase_start = phase, now
+        Bar.to(self, self.starts[phase])
+
+    def _creep(self) -> None:
+        """Move the bar within the current phase as its estimate runs (up to 95 % of the phase)."""
+        if self._pace is None:
+            return
+        w = self.weights[self.phase]
+        frac = min(0.95, (time.monotonic() - self._phase_start) / (self._pace * w))
+        target = self.starts[self.phase] + frac * w
+        if target > self.tqdm.n:
+            self.tqdm.update(target - self.tqdm.n)
 
     def eta(self) -> str:
-        """Time left: the mean time of the finished rounds for each round still to run (the last one,
-        with the model-based refinement, as ``FINAL_ROUND_WEIGHT`` rounds), less the time the current
-        one has run ("?" before the first round is done)."""
-        n, total = self.tqdm.n, self.tqdm.total
-        if n == 0 or n >= total:
-            return "?" if n == 0 else "0:00"
-        now = time.monotonic()
-        rounds_left = total - n + (FINAL_ROUND_WEIGHT - 1.0 if self.refine_last else 0.0)
-        left = max(0.0, rounds_left * (self._last_done - self._start) / n - (now - self._last_done))
+        """Time left: the construction rounds' pace times the weight of the phases left, less the time
+        the current phase has run; "?" before the first round is done or when a phase overruns."""
+        if self.tqdm.n >= self.tqdm.total:
+            return "0:00"
+        if self._pace is None:
+            return "?"
+        ran = time.monotonic() - self._phase_start
+        left = self._pace * (self.tqdm.total - self.starts[self.phase]) - ran
+        if ran > 1.5 * self._pace * self.weights[self.phase]:
+            return "?"  # this phase takes much longer than estimated: no honest figure
         return f"{int(left // 60)}:{int(left % 60):02d}"
 
-    def to(self, done: int) -> None:
-        if done > self.tqdm.n:
-            self._last_done = time.monotonic()
-        super().to(done)
-
     def compose(self, text: str) -> str:
-        return text if text == "done" else f"ETA {self.eta()}, {text}"
+        if text == "done":
+            return text
+        self._creep()
+        ran = time.monotonic() - self._phase_start
+        return f"ETA {self.eta()}, phase {self.phase + 1}/{len(self.weights)}: {text}" \
+            + (f" ({ran:.0f} s in this phase)" if ran >= 5 else "")
 
     def update(self, i, n_rounds, step, max_steps, done, worlds) -> None:
         """The designer's ``progress`` callback."""
-        self.to(i)
-        if worlds > self.n_targets and i >= n_rounds:
-            text = f"round {i}/{n_rounds}: refining, {worlds} worlds, step {step}"
+        refining = worlds > self.n_targets and i >= n_rounds
+        self._enter(i + (1 if refining and len(self.weights) > self.n_rounds + 1 else 0))
+        if refining:
+            text = f"refinement: {worlds} worlds, " + (f"step {step}" if done < worlds else "model-based refinement")
         elif worlds > self.n_targets:
             text = f"round {i}/{n_rounds}: {worlds // self.n_targets} candidate sets, step {step}"
         elif self.refine_last and i == n_rounds and done == worlds:
-            text = f"round {i}/{n_rounds}: refining the final control"
+            text = f"round {i}/{n_rounds}: model-based refinement of the final control (no step count)"
         else:
             text = f"round {i}/{n_rounds}: step {step}, {done}/{worlds} targets done"
         self.note(text)
+
+    def writing_outputs(self) -> None:
+        """The outputs are being written (the last phase)."""
+        self._enter(len(self.weights) - 1)
+        self.note("writing the molds, USD, valve schedules, figures and reports")
 
     def wrap_round(self, on_round):
         """``on_round`` that also counts the last round as done."""
         def counted(i, design, results):
             on_round(i, design, results)
-            if i + 1 >= self.tqdm.total:
-                self.to(i + 1)
+            if i >= self.n_rounds and len(self.weights) > self.n_rounds + 1:
+                self._enter(self.n_rounds + 1)
         return counted
 
 

@@ -1,15 +1,19 @@
-"""Report figures (matplotlib, drawn off screen; PNGs written atomically).
+"""Report figures (matplotlib, drawn off screen; each a PNG with an SVG beside it, written atomically).
 
 - ``control_figure(result, path)``: the paper's Fig. 6 panels from a ``ControlResult.history``
-  against simulated time in seconds: (a) volume vs target volume, (b) IPAM lengths (solid) vs
-  targets (dashed), (c) cell curvatures (solid) vs targets (dashed) with jam times marked, (d) PCC,
-  (e) IPAM gauge pressures (kPa), (f) chamber gauge pressure (kPa) and air (mL at atmospheric
-  pressure). Passive IPAMs (not used for this target, held neutral) are grey dashed and labelled
-  so; the initial inflation is a grey band, named in panel (a).
-- ``pcc_by_round_figure(design_result_or_array, target_names, path)``: PCC per target against the
-  number of IPAMs placed (Figs. 9 and 13b).
-- ``write_figures(result, out_dir)``: ``pcc_by_round.png`` (design results only) and
-  ``control_<target>.png`` for each target.
+  against the lab's time of the valve CSV and the USD animation (``io.valve.row_times``; the
+  simulated time on a top axis): (a) volume vs target volume, (b) IPAM lengths (solid) vs targets
+  (dashed), (c) cell curvatures (solid) vs targets (dashed) with jam times marked, (d) PCC, (e) IPAM
+  gauge pressure commands (kPa), (f) chamber gauge pressure (kPa, simulated) and air (mL at
+  atmospheric pressure). Passive IPAMs (not used for this target, held neutral) are grey dashed and
+  labelled so; the initial inflation is a grey band, named in panel (a).
+- ``pcc_by_round_figure(design_result_or_array, target_names, path)``: the objective, MARE and PCC
+  per target against the number of IPAMs placed (Figs. 9 and 13b).
+- ``build_fit_figure(result)``: the achieved membrane coloured by its signed radial error (mm)
+  against the target; ``build_rest_figure(design)``: the rest shape with its jamming cells and
+  IPAMs (both seen from two sides).
+- ``write_figures(result, out_dir)``: ``pcc_by_round``, ``rest_shape`` and ``fit_<target>``
+  (design results only) and ``control_<target>`` for each target.
 
 matplotlib is imported lazily, so the rest of the package works without it.
 """
@@ -23,8 +27,10 @@ import numpy as np
 
 from ..material import GAS_CONSTANT
 from .atomic import atomic_write
+from .valve import ValveTiming, row_times
 
-__all__ = ["build_control_figure", "control_figure", "pcc_by_round_figure", "write_figures"]
+__all__ = ["build_control_figure", "control_figure", "pcc_by_round_figure", "write_figures", "line_colors", "svg_path",
+           "signed_radial_error", "build_fit_figure", "build_rest_figure", "write_shape_figures"]
 
 DPI = 120
 
@@ -40,9 +46,20 @@ def _figure(figsize):
 
 
 def _save(fig, path) -> Path:
+    """The figure as a PNG at ``path`` and, beside it, the same as an SVG (vector, for a report to
+    scale); both written atomically. Returns the PNG's path (``svg_path`` names the other)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
-    return atomic_write(path, buf.getvalue())
+    png = atomic_write(path, buf.getvalue())
+    buf = io.BytesIO()
+    fig.savefig(buf, format="svg")
+    atomic_write(svg_path(path), buf.getvalue())
+    return png
+
+
+def svg_path(path) -> Path:
+    """The SVG written beside a figure's PNG: the same name, ``.svg``."""
+    return Path(path).with_suffix(".svg")
 
 
 def _columns(history: dict, prefix: str, suffix: str) -> list[str]:
@@ -63,15 +80,59 @@ def _seconds(h: dict) -> np.ndarray:
     return t - t[0]
 
 
+def _timeline(result, timing) -> tuple[np.ndarray, np.ndarray, str]:
+    """(lab time, simulated time, x label) of each control step: the lab's clock of the valve CSV and
+    the USD animation (``io.valve.row_times`` under ``timing``); a record without the chamber's air
+    (not a controller's) keeps the simulated time."""
+    sim = _seconds(result.history)
+    timing = timing or ValveTiming()
+    if not {"time", "air_mol", "pressure_pa", "phase"} <= set(result.history):
+        return sim, sim, "time (s, simulated)"
+    return row_times(result, timing), sim, f"lab time (s; {timing.describe()}, as the valve CSV)"
+
+
+def _simulated_axis(ax, lab: np.ndarray, sim: np.ndarray) -> None:
+    """A top axis giving the simulated time at the lab time's ticks (the map is linear between control
+    steps but far from uniform: the pump's inflation stretches most)."""
+    if len(lab) < 2 or np.array_equal(lab, sim):
+        return
+    ticks = [float(t) for t in ax.get_xticks() if lab[0] - 1e-9 <= t <= lab[-1] + 1e-9]
+    top = ax.secondary_xaxis("top")
+    top.set_xticks(ticks, [f"{np.interp(t, lab, sim):.3f}" for t in ticks])
+    top.set_xlabel("simulated time (s) at these lab times", fontsize=8)
+    top.tick_params(labelsize=7)
+
+
 def _shade_inflation(ax, t, phase, *, name: bool = False):
-    """The grey band over the inflation rows (phase 1); ``name`` writes what it is inside it."""
+    """The grey band over the inflation rows (phase 1); ``name`` writes what it is at the band's top
+    (where no legend goes: legends sit at the bottom right)."""
     if phase is None or not np.any(phase == 1):
         return
     end = float(t[phase == 1].max())
     ax.axvspan(t[0], end, color="0.92", zorder=0, lw=0, label=INFLATION_LABEL if name else None)
     if name:
-        ax.text(0.5 * (t[0] + end), 0.03, "inflation", transform=ax.get_xaxis_transform(), ha="center",
-                va="bottom", fontsize=7, color="0.35", rotation=90 if end - t[0] < 0.15 * (t[-1] - t[0]) else 0)
+        narrow = end - t[0] < 0.15 * (t[-1] - t[0])
+        ax.text(0.5 * (t[0] + end), 0.97, "inflation", transform=ax.get_xaxis_transform(), ha="center",
+                va="top", fontsize=7, color="0.35", rotation=90 if narrow else 0)
+
+
+def line_colors(n: int) -> list:
+    """``n`` distinct colours, none grey (grey marks passive IPAMs): tab10 up to 9, tab20 up to 18,
+    else evenly along turbo."""
+    from matplotlib import colormaps
+
+    if n <= 9:
+        return [f"C{i}" for i in range(10) if i != 7][:n]
+    if n <= 18:
+        cmap = colormaps["tab20"]
+        return [cmap(i) for i in range(20) if i not in (14, 15)][:n]
+    cmap = colormaps["turbo"]
+    return [cmap(0.05 + 0.9 * i / (n - 1)) for i in range(n)]
+
+
+def _legend(ax, n_lines: int) -> None:
+    """A small legend at the lower right (the inflation band's name is at the top), in columns."""
+    ax.legend(loc="lower right", fontsize=6 if n_lines > 8 else 7, ncol=1 + (n_lines - 1) // 4, framealpha=0.8)
 
 
 def _plot_with_target(ax, t, values_m, targets_m, color, label, width):
@@ -89,18 +150,30 @@ def _passive(result) -> set:
 def _panel_lengths(ax, t, h, passive: set) -> None:
     """IPAM lengths (solid) and targets (dashed); passive IPAMs grey dashed, without a target."""
     lengths = _columns(h, "ipam", "_length_m")
+    colors = line_colors(len(lengths))
     for i, col in enumerate(lengths):
         if i in passive:
             ax.plot(t, np.asarray(h[col]) * 1e3, color=PASSIVE_COLOR, ls="--", lw=1.2,
                     label=f"IPAM {i} (passive, held neutral)")
         else:
-            _plot_with_target(ax, t, h[col], h[f"ipam{i}_target_length_m"], f"C{i % 10}", f"IPAM {i}", 1.8)
+            _plot_with_target(ax, t, h[col], h[f"ipam{i}_target_length_m"], colors[i], f"IPAM {i}", 1.8)
     ax.set_ylabel("length (mm)")
     ax.set_title("(b) IPAM lengths (solid) and targets (dashed)")
     if lengths:
-        ax.legend(loc="best", fontsize=7, ncol=2)
+        _legend(ax, len(lengths))
     else:
         ax.text(0.5, 0.5, "no IPAMs", ha="center", va="center", transform=ax.transAxes, color="0.5")
+
+
+def _jam_row(h, step, jam_steps, j: int) -> int:
+    """The first recorded row where cell j is jammed (-1: never)."""
+    if f"cell{j}_jammed" in h:
+        on = np.flatnonzero(np.asarray(h[f"cell{j}_jammed"]) > 0)
+        if on.size:
+            return int(on[0])
+    if j < len(jam_steps) and jam_steps[j] >= 0:
+        return min(int(np.searchsorted(step, int(jam_steps[j]))), len(step) - 1)
+    return -1
 
 
 def _panel_curvatures(ax, t, h, result) -> None:
@@ -108,22 +181,17 @@ def _panel_curvatures(ax, t, h, result) -> None:
     kappas = _columns(h, "cell", "_kappa_m")
     jam_steps = np.asarray(getattr(result, "jam_steps", np.full(len(kappas), -1)))
     step = np.asarray(h["step"])
+    colors = line_colors(len(kappas))
     for j, col in enumerate(kappas):
-        k_col = f"C{j % 10}"
-        k = _plot_with_target(ax, t, h[col], h[f"cell{j}_kappa_target_m"], k_col, f"cell {j}", 1.5)
-        idx = -1
-        if f"cell{j}_jammed" in h:  # the first recorded jammed row
-            on = np.flatnonzero(np.asarray(h[f"cell{j}_jammed"]) > 0)
-            idx = int(on[0]) if on.size else -1
-        if idx < 0 and j < len(jam_steps) and jam_steps[j] >= 0:
-            idx = min(int(np.searchsorted(step, int(jam_steps[j]))), len(step) - 1)
+        k = _plot_with_target(ax, t, h[col], h[f"cell{j}_kappa_target_m"], colors[j], f"cell {j}", 1.5)
+        idx = _jam_row(h, step, jam_steps, j)
         if idx >= 0:
-            ax.plot([t[idx]], [k[idx]], marker="v", ms=7, color=k_col, mec="k", mew=0.6, ls="none")
-            ax.axvline(t[idx], color=k_col, lw=0.6, ls=":")
-    ax.set_ylabel("curvature $\\kappa$ (mm)")
+            ax.plot([t[idx]], [k[idx]], marker="v", ms=7, color=colors[j], mec="k", mew=0.6, ls="none")
+            ax.axvline(t[idx], color=colors[j], lw=0.6, ls=":")
+    ax.set_ylabel("cell curvature $\\kappa$ (mm):\nIPAM end radius $-$ mean cell radius", fontsize=8)
     ax.set_title("(c) cell curvatures and targets; $\\blacktriangledown$ jammed")
     if kappas:
-        ax.legend(loc="best", fontsize=6, ncol=2)
+        _legend(ax, len(kappas))
     else:
         ax.text(0.5, 0.5, "no jamming cells", ha="center", va="center", transform=ax.transAxes, color="0.5")
 
@@ -131,24 +199,25 @@ def _panel_curvatures(ax, t, h, result) -> None:
 def _panel_pressures(ax, t, h, passive: set) -> None:
     """IPAM gauge pressures in kPa; passive IPAMs grey dashed (their neutral pressure)."""
     cols = _columns(h, "ipam", "_pressure_pa")
+    colors = line_colors(len(cols))
     for i, col in enumerate(cols):
         p = np.asarray(h[col]) / 1e3
         if i in passive:
             ax.plot(t, p, color=PASSIVE_COLOR, ls="--", lw=1.2, label=f"IPAM {i} (passive, held neutral)")
         else:
-            ax.plot(t, p, color=f"C{i % 10}", lw=1.8, label=f"IPAM {i}")
+            ax.plot(t, p, color=colors[i], lw=1.8, label=f"IPAM {i}")
     ax.axhline(0.0, color="0.6", lw=0.5)
     ax.set_ylabel("IPAM pressure (kPa gauge)")
-    ax.set_title("(e) IPAM pressures")
+    ax.set_title("(e) IPAM pressure commands")
     if cols:
-        ax.legend(loc="best", fontsize=7, ncol=2)
+        _legend(ax, len(cols))
 
 
 def _panel_chamber(ax, t, h, material) -> None:
-    """Chamber gauge pressure (kPa) and its air as mL at atmospheric pressure (right axis)."""
+    """Chamber gauge pressure (kPa, simulated) and its air as mL at atmospheric pressure (right axis)."""
     ax.plot(t, np.asarray(h["pressure_pa"]) / 1e3, color="k", lw=1.8, label="chamber pressure")
-    ax.set_ylabel("chamber pressure (kPa gauge)")
-    ax.set_title("(f) chamber")
+    ax.set_ylabel("chamber pressure (kPa gauge, simulated)")
+    ax.set_title("(f) chamber: pressure (simulated) and air dosed")
     if "air_mol" in h:
         temp, p_atm = (material.temperature, material.atmospheric_pressure) if material else (293.15, 101325.0)
         air = ax.twinx()
@@ -157,29 +226,39 @@ def _panel_chamber(ax, t, h, material) -> None:
         air.tick_params(axis="y", colors="C9")
 
 
-def build_control_figure(result, title: str | None = None):
+def _panel_fit(ax, t, h, result) -> None:
+    """PCC over the run on an axis fitted to its values (a 0-1 axis flattens the change)."""
+    pcc_values = np.asarray(h["pcc"], dtype=np.float64)
+    ax.plot(t, pcc_values, color="C3", lw=2)
+    ax.set_ylabel("PCC")
+    ax.set_title(f"(d) fit: final PCC {result.pcc:.4f}")
+    if pcc_values.size:
+        lo, hi = float(np.min(pcc_values)), float(np.max(pcc_values))
+        pad = 0.08 * max(hi - lo, 1e-3)
+        ax.set_ylim(lo - pad, min(1.0, hi + pad) if hi < 1.0 else hi + pad)
+
+
+def build_control_figure(result, title: str | None = None, timing=None):
     """Fig. 6-style panels of one control run (``ws.ControlResult``) as a matplotlib ``Figure``:
     (a) volume, (b) IPAM lengths, (c) cell curvatures, (d) PCC, (e) IPAM pressures, (f) chamber
-    pressure and air, against simulated time in seconds; passive IPAMs grey dashed and labelled, the
-    inflation phase a named grey band."""
+    pressure and air, against the lab's time of the valve CSV (``timing``, default
+    ``io.valve.ValveTiming()``) with the simulated time on a top axis; passive IPAMs grey dashed and
+    labelled, the inflation phase a named grey band."""
     h = result.history
-    t = _seconds(h)
+    t, sim, xlabel = _timeline(result, timing)
     phase = np.asarray(h["phase"]) if "phase" in h else None
     passive = _passive(result)
-    fig = _figure((10.0, 10.0))
+    fig = _figure((10.0, 10.5))
     (a, b), (c, d), (e, f) = fig.subplots(3, 2, sharex=True)
     _shade_inflation(a, t, phase, name=True)
     a.plot(t, np.asarray(h["volume_m3"]) * 1e6, color="C0", lw=2, label="volume")
     a.plot(t, np.asarray(h["target_volume_m3"]) * 1e6, color="C0", ls="--", lw=1.2, label="target volume")
     a.set_ylabel("volume (cm$^3$)")
     a.set_title("(a) volume")
-    a.legend(loc="best", fontsize=7)
+    a.legend(loc="lower right", fontsize=7)
     _panel_lengths(b, t, h, passive)
     _panel_curvatures(c, t, h, result)
-    d.plot(t, np.asarray(h["pcc"]), color="C3", lw=2)
-    d.set_ylabel("PCC")
-    d.set_title(f"(d) fit: final PCC {result.pcc:.4f}")
-    d.set_ylim(min(0.0, float(np.min(h["pcc"]))) if len(t) else 0.0, 1.0)
+    _panel_fit(d, t, h, result)
     _panel_pressures(e, t, h, passive)
     if "pressure_pa" in h:
         _panel_chamber(f, t, h, getattr(getattr(result, "design", None), "material", None))
@@ -187,55 +266,77 @@ def build_control_figure(result, title: str | None = None):
         _shade_inflation(ax, t, phase, name=False)
     for ax in (a, b, c, d, e, f):
         ax.grid(True, lw=0.4, alpha=0.5)
+    for ax in (a, b):
+        _simulated_axis(ax, t, sim)
     for ax in (e, f):
-        ax.set_xlabel("time (s, simulated; the valve schedule is slower)")
+        ax.set_xlabel(xlabel, fontsize=8)
     note = "grey band: inflation" + ("; grey dashed: passive IPAMs held neutral" if passive else "")
     fig.suptitle(f"{title or 'Control sequence'} ({note})")
     return fig
 
 
-def control_figure(result, path, title: str | None = None) -> Path:
-    """``build_control_figure`` of one control run as a PNG at ``path``."""
-    return _save(build_control_figure(result, title), path)
+def control_figure(result, path, title: str | None = None, timing=None) -> Path:
+    """``build_control_figure`` of one control run as a PNG at ``path`` (and an SVG beside it)."""
+    return _save(build_control_figure(result, title, timing), path)
+
+
+def _by_round(design_result_or_array) -> dict:
+    """Measure name -> (rounds, n_targets) array: PCC, and where a design result gives them the
+    objective and MARE (mm)."""
+    src = design_result_or_array
+    out = {"PCC": np.atleast_2d(np.asarray(getattr(src, "pcc_by_round", src), dtype=np.float64))}
+    rounds = getattr(src, "rounds", None)
+    if rounds:
+        out = {"objective (0 = perfect fit)": np.array([[r.objective for r in rs] for rs in rounds], dtype=np.float64),
+               "MARE (mm)": np.array([[r.mare * 1e3 for r in rs] for rs in rounds], dtype=np.float64), **out}
+    return out
 
 
 def pcc_by_round_figure(design_result_or_array, target_names=None, path="pcc_by_round.png",
                         title: str | None = None) -> Path:
-    """PCC of every target against the number of IPAMs (round i: design with i IPAMs)."""
-    pcc = getattr(design_result_or_array, "pcc_by_round", design_result_or_array)
-    pcc = np.atleast_2d(np.asarray(pcc, dtype=np.float64))
+    """The fit of every target against the number of IPAMs (round i: design with i IPAMs; Figs. 9 and
+    13b): for a design result the objective (what the designer minimises) and MARE beside the PCC,
+    each axis fitted to its values; for an array, PCC alone."""
+    measures = _by_round(design_result_or_array)
+    pcc = measures["PCC"]
     if target_names is None:
         target_names = getattr(design_result_or_array, "target_names", None)
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(pcc.shape[1])]
     rounds = np.arange(pcc.shape[0])
-    fig = _figure((6.0, 4.0))
-    ax = fig.subplots()
+    fig = _figure((4.2 * len(measures) + 0.6, 4.0))
+    axes = np.atleast_1d(fig.subplots(1, len(measures)))
     markers = "osD^vP*X"
-    for j, name in enumerate(names):
-        ax.plot(rounds, pcc[:, j], marker=markers[j % len(markers)], lw=1.8, label=name)
-    ax.set_xlabel("number of IPAMs")
-    ax.set_ylabel("PCC")
-    ax.set_xticks(rounds)
-    lo = float(np.nanmin(pcc)) if pcc.size else 0.0
-    ax.set_ylim(max(-1.0, lo - 0.05 * max(1e-3, 1.0 - lo)), 1.0)
-    ax.grid(True, lw=0.4, alpha=0.5)
-    ax.legend(loc="best")
-    ax.set_title(title or "PCC by actuator round")
+    colors = line_colors(len(names))
+    for ax, (what, values) in zip(axes, measures.items()):
+        for j, name in enumerate(names):
+            ax.plot(rounds, values[:, j], marker=markers[j % len(markers)], color=colors[j], lw=1.8, label=name)
+        ax.set_xlabel("number of IPAMs")
+        ax.set_ylabel(what)
+        ax.set_xticks(rounds)
+        ax.margins(y=0.08)
+        ax.grid(True, lw=0.4, alpha=0.5)
+        ax.set_title({"PCC": "PCC (1 = same shape)"}.get(what, what.split(" (")[0]) + (" (lower is better)"
+                     if what != "PCC" else ""), fontsize=10)
+    axes[0].legend(loc="best", fontsize=8)
+    fig.suptitle(title or "Fit by actuator round")
     return _save(fig, path)
 
 
-def write_figures(result, out_dir, target_names=None) -> list[Path]:
-    """Write the report figures into ``out_dir``.
+def write_figures(result, out_dir, target_names=None, timing=None) -> list[Path]:
+    """Write the report figures into ``out_dir``, each a PNG with an SVG beside it.
 
-    ``result``: a ``DesignResult`` (writes ``pcc_by_round.png`` and ``control_<target>.png`` for
-    every target of the final design), or a ``ControlResult`` / list of them (``control_<target>.png``
-    only; names from ``target_names``, default ``target<j>``).
+    ``result``: a ``DesignResult`` (writes ``pcc_by_round``, ``rest_shape``, and ``fit_<target>``
+    and ``control_<target>`` for every target of the final design), or a ``ControlResult`` / list of them (``control_<target>`` only;
+    names from ``target_names``, default ``target<j>``). ``timing``: the lab's clock of the time
+    axes (``io.valve.ValveTiming``, default 5 mL/s, 100 kPa/s, 50 Hz).
     """
     out = Path(out_dir)
     written = []
     if hasattr(result, "pcc_by_round"):
         names = list(target_names or result.target_names)
         written.append(pcc_by_round_figure(result, names, out / "pcc_by_round.png"))
+        shapes = write_shape_figures(result, out, names)
+        written += shapes[::2]
         results = result.results
         extra = f", {result.design.n_ipams} IPAMs"
     else:
@@ -243,5 +344,110 @@ def write_figures(result, out_dir, target_names=None) -> list[Path]:
         names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(results))]
         extra = ""
     for name, r in zip(names, results):
-        written.append(control_figure(r, out / f"control_{name}.png", title=f"Control to {name}{extra}"))
-    return written
+        written.append(control_figure(r, out / f"control_{name}.png", title=f"Control to {name}{extra}", timing=timing))
+    return [q for p in written for q in (p, svg_path(p))]
+
+
+def _mesh_axes(fig, spec, title: str, extent: float, view: tuple):
+    """A 3-D axis of equal scale in mm, seen from ``view`` (elevation, azimuth in degrees)."""
+    ax = fig.add_subplot(spec, projection="3d")
+    ax.set_title(title, fontsize=9)
+    for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
+        setter(-extent, extent)
+    ax.set_box_aspect((1, 1, 1))
+    ax.view_init(*view)
+    ax.set_xlabel("x (mm)", fontsize=7)
+    ax.set_ylabel("y (mm)", fontsize=7)
+    ax.set_zlabel("z (mm)", fontsize=7)
+    ax.tick_params(labelsize=6)
+    return ax
+
+
+def _draw_mesh(ax, vertices_mm: np.ndarray, faces: np.ndarray, face_colors) -> None:
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    ax.add_collection3d(Poly3DCollection(vertices_mm[faces], facecolors=face_colors, edgecolors=(0, 0, 0, 0.08),
+                                         linewidths=0.2))
+
+
+VIEWS = ((20, -60), (20, 120))  # front-left and back-right
+
+
+def signed_radial_error(result) -> np.ndarray:
+    """(V,) r - R of the achieved membrane against the target, m, per vertex: r its radius, R the
+    target's along the same ray from the target's centroid (``ControlResult.sampled_target``);
+    > 0 where the membrane lies outside the target."""
+    x = np.asarray(result.achieved.vertices, dtype=np.float64)
+    return np.linalg.norm(x, axis=1) - np.linalg.norm(np.asarray(result.sampled_target.vertices), axis=1)
+
+
+def build_fit_figure(result, title: str | None = None):
+    """The achieved membrane of one control run coloured by its signed radial error against the
+    target (mm, blue inside, red outside; the scale symmetric about 0), from two sides, as a
+    matplotlib ``Figure``."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    err_mm = signed_radial_error(result) * 1e3
+    faces = np.asarray(result.achieved.faces)
+    x_mm = np.asarray(result.achieved.vertices) * 1e3
+    lim = max(float(np.percentile(np.abs(err_mm), 99)), 0.1)
+    norm, cmap = Normalize(-lim, lim), colormaps["RdBu_r"]
+    colors = cmap(norm(err_mm[faces].mean(axis=1)))
+    fig = _figure((10.0, 5.0))
+    grid = fig.add_gridspec(1, 3, width_ratios=[1, 1, 0.06])
+    extent = 0.55 * float(np.max(x_mm.max(axis=0) - x_mm.min(axis=0)))
+    for k, view in enumerate(VIEWS):
+        _draw_mesh(_mesh_axes(fig, grid[0, k], ("front" if k == 0 else "back") + " view", extent, view),
+                   x_mm, faces, colors)
+    bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), cax=fig.add_subplot(grid[0, 2]))
+    bar.set_label("signed radial error r - R (mm): + outside the target, - inside")
+    fig.suptitle(f"{title or 'Achieved shape'}: MARE {result.mare * 1e3:.2f} mm, largest |error| "
+                 f"{float(np.abs(err_mm).max()):.2f} mm, PCC {result.pcc:.4f}")
+    return fig
+
+
+def build_rest_figure(design, title: str | None = None):
+    """The design's rest shape with its jamming cells (one colour each, the rest light grey) and its
+    IPAMs (a numbered line between the two end-face centroids), from two sides."""
+    rest = design.rest
+    faces = np.asarray(rest.faces)
+    x_mm = np.asarray(rest.vertices) * 1e3
+    cell_of = design.face_cell()
+    palette = line_colors(max(design.n_cells, 1))
+    from matplotlib.colors import to_rgba
+
+    normals = rest.face_normals()
+    light = 0.65 + 0.35 * np.clip(normals @ np.array([-0.4, -0.6, 0.7]) / np.linalg.norm([-0.4, -0.6, 0.7]), 0, 1)
+    base = np.array([to_rgba(palette[c]) if c >= 0 else (0.88, 0.88, 0.88, 1.0) for c in cell_of])
+    colors = np.concatenate([base[:, :3] * light[:, None], base[:, 3:]], axis=1)  # lit from the front-left
+    ends = rest.face_centroids() * 1e3
+    fig = _figure((10.0, 5.2))
+    grid = fig.add_gridspec(1, 2)
+    extent = 0.55 * float(np.max(x_mm.max(axis=0) - x_mm.min(axis=0)))
+    for k, view in enumerate(VIEWS):
+        ax = _mesh_axes(fig, grid[0, k], ("front" if k == 0 else "back") + " view", extent, view)
+        _draw_mesh(ax, x_mm, faces, colors)
+        for i, ip in enumerate(design.ipams):
+            a, b = ends[ip.face_a], ends[ip.face_b]
+            ax.plot(*np.stack([a, b]).T, color="k", lw=2.0, zorder=10)
+            mid = 0.5 * (a + b)
+            ax.text(*mid, f"IPAM {i}", fontsize=7, color="k", zorder=11)
+    fig.suptitle(f"{title or 'Rest shape'}: {design.n_ipams} IPAMs (black lines between their end faces), "
+                 f"{design.n_cells} jamming cells (coloured), {rest.n_vertices} vertices", fontsize=10)
+    return fig
+
+
+def write_shape_figures(result, out_dir, target_names=None) -> list[Path]:
+    """Per target ``fit_<target>`` (``build_fit_figure``) and ``rest_shape`` of the design
+    (``build_rest_figure``), each a PNG with an SVG beside it, from a ``DesignResult`` (or a list of
+    control results of one design, named by ``target_names``)."""
+    out = Path(out_dir)
+    results = result.results if hasattr(result, "rounds") else list(result)
+    names = list(target_names or getattr(result, "target_names", None) or [f"target{j}" for j in range(len(results))])
+    design = result.design if hasattr(result, "rounds") else results[0].design
+    written = [_save(build_rest_figure(design), out / "rest_shape.png")]
+    for name, r in zip(names, results):
+        written.append(_save(build_fit_figure(r, title=f"Achieved {name}"), out / f"fit_{name}.png"))
+    return [q for p in written for q in (p, svg_path(p))]

@@ -24,7 +24,7 @@ from .report import design_markdown
 from .scene_schema import Scene
 from .scene_write import save_scene
 from .usd_animation import export_animation, playback_times
-from .valve import write_valve_outputs
+from .valve import ValveTiming, write_valve_outputs
 
 __all__ = ["control_csv_text", "control_json_data", "write_control_usd", "write_control_outputs",
            "write_molds", "round_record", "record_round", "write_round_outputs", "write_figures_or_skip",
@@ -32,8 +32,9 @@ __all__ = ["control_csv_text", "control_json_data", "write_control_usd", "write_
 
 #: How the files a design or control run writes are named (a file in an output folder named so is
 #: part of a run's set, even in a folder written before manifests existed). Add new outputs here.
-RUN_OUTPUT_NAMES = ("design.usda", "report.json", "report.md", "rounds.json", "pcc_by_round.png", "manifest.json")
-RUN_OUTPUT_PREFIXES = ("control_", "actuation_", "mold_", "molds_", "valve_")
+RUN_OUTPUT_NAMES = ("design.usda", "report.json", "report.md", "rounds.json", "pcc_by_round.png", "pcc_by_round.svg",
+                    "rest_shape.png", "rest_shape.svg", "manifest.json")
+RUN_OUTPUT_PREFIXES = ("control_", "actuation_", "mold_", "molds_", "valve_", "fit_")
 
 
 def is_run_output(name: str) -> bool:
@@ -61,35 +62,38 @@ def control_json_data(result) -> dict:
     return data
 
 
-def write_control_usd(result, path, target_name: str = "target", playback: str = "valve") -> Path:
+def write_control_usd(result, path, target_name: str = "target", playback: str = "valve", timing=None) -> Path:
     """The controlled run as an animated USD stage (``.usda`` or ``.usdc``): membrane points, IPAM
     curves, pressures, forces and jam state time-sampled once per control step, the target as a ghost,
-    and the controller and simulation settings. ``playback``: ``"valve"`` plays the sequence as long
-    as its valve schedule lasts, ``"simulated"`` at the simulator's clock (``usd_animation``)."""
+    and the controller and simulation settings. ``playback``: ``"valve"`` plays each control step at
+    its time in the valve CSV (``io.valve.row_times`` under ``timing``, default ``ValveTiming()``),
+    ``"simulated"`` at the simulator's clock (``usd_animation``)."""
     h = result.history
     n_ipam, n_cell = len(result.ipam_forces), len(result.jammed)
     per = lambda key, n: np.stack([h[key.format(i)] for i in range(n)], axis=1) if n else None  # noqa: E731
     controller = {k: v for k, v in asdict(result.settings).items() if v is not None and k != "simulation"}
+    how = {"timing": playback, "simulated_duration_s": float(h["time"][-1] - h["time"][0])}
+    if playback == "valve":
+        how.update((timing or ValveTiming()).to_dict())
     return export_animation(
-        path, result.design, result.frames, playback_times(result, playback),
+        path, result.design, result.frames, playback_times(result, playback, timing),
         ipam_pressures=per("ipam{}_pressure_pa", n_ipam), ipam_forces=per("ipam{}_force_n", n_ipam),
         jammed=per("cell{}_jammed", n_cell).astype(bool) if n_cell else None,
         targets=[result.target] if result.target is not None else None,
         target_names=[target_name] if result.target is not None else None,
-        settings={"controller": controller, "simulation": result.settings.simulation.to_dict()},
-        playback={"timing": playback, "simulated_duration_s": float(h["time"][-1] - h["time"][0])})
+        settings={"controller": controller, "simulation": result.settings.simulation.to_dict()}, playback=how)
 
 
-def write_control_outputs(results, names, out_dir, *, usd: bool = False) -> list[Path]:
+def write_control_outputs(results, names, out_dir, *, usd: bool = False, timing=None) -> list[Path]:
     """Per target: ``control_<name>.csv`` and ``control_<name>.json`` (indented by 1), and
-    ``actuation_<name>.usdc`` when ``usd``."""
+    ``actuation_<name>.usdc`` when ``usd`` (on the lab's clock under ``timing``, see ``write_control_usd``)."""
     out = Path(out_dir)
     written = []
     for name, res in zip(names, results):
         written.append(atomic_write(out / f"control_{name}.csv", control_csv_text(res)))
         written.append(atomic_write(out / f"control_{name}.json", json.dumps(control_json_data(res), indent=1) + "\n"))
         if usd:
-            written.append(write_control_usd(res, out / f"actuation_{name}.usdc", target_name=name))
+            written.append(write_control_usd(res, out / f"actuation_{name}.usdc", target_name=name, timing=timing))
     return written
 
 
@@ -141,23 +145,25 @@ def write_round_outputs(out_dir, names, records, rounds) -> list[Path]:
             write_json(out / "report.json", report)] + write_control_outputs(rounds[-1], names, out)
 
 
-def write_figures_or_skip(result, out_dir, target_names=None) -> list[Path]:
-    """The report figures (PNG); skipped, with a note on stderr, where matplotlib is missing."""
+def write_figures_or_skip(result, out_dir, target_names=None, timing=None) -> list[Path]:
+    """The report figures (``figures.write_figures``; time axes on the lab's clock under ``timing``);
+    skipped, with a note on stderr, where matplotlib is missing."""
     try:
-        return write_figures(result, out_dir, target_names=target_names)
+        return write_figures(result, out_dir, target_names=target_names, timing=timing)
     except ImportError as exc:
         print(f"figures skipped: {exc}", file=sys.stderr)
         return []
 
 
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
-                         extra_report: dict | None = None, kept=()) -> list[Path]:
+                         extra_report: dict | None = None, kept=(), timing=None) -> list[Path]:
     """Every output of a finished design: ``design.usda`` (the design, its targets, its run settings
     (``RunSettings.groups``) and each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
     sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures,
     ``report.md`` and ``report.json`` (the result's report, ``extra_report`` entries and the list of
     outputs, with the names in ``kept``: files of the run already in ``out_dir`` such as
-    ``rounds.json``), written last."""
+    ``rounds.json``), written last. ``timing``: the lab's clock of the valve CSV, the USD animations
+    and the figures (``io.valve.ValveTiming``, default 5 mL/s, 100 kPa/s, 50 Hz)."""
     out = Path(out_dir)
     names = result.target_names
     settings = RunSettings(control=result.control_settings, designer=result.settings,
@@ -165,13 +171,14 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     settings["controller"].update(result.selection_settings())
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
-    written += write_control_outputs(result.results, names, out, usd=True)
-    written += write_valve_outputs(result.results, names, out)
+    written += write_control_outputs(result.results, names, out, usd=True, timing=timing)
+    written += write_valve_outputs(result.results, names, out, timing)
     written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
-    written += write_figures_or_skip(result, out)
+    figures = write_figures_or_skip(result, out, timing=timing)
+    written += figures
     report = result.report()
     report.update(extra_report or {})
     report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"} | set(kept))
-    written.append(atomic_write(out / "report.md", design_markdown(result)))
+    written.append(atomic_write(out / "report.md", design_markdown(result, [p.name for p in figures])))
     written.append(write_json(out / "report.json", report))
     return written

@@ -379,6 +379,11 @@ class Recorder:
             s.log("design/actuators", rr.Scalars([float(design.n_ipams)]))
         s.reset_time()
 
+    def log_figures(self, paths) -> None:
+        """The report's figures (PNG files) as static images, ``design/figures/<file stem>``."""
+        for p in paths:
+            self.stream.log(f"design/figures/{Path(p).stem}", self._rr.EncodedImage(path=str(p)), static=True)
+
     def log_design_refinement(self, r: int, record: dict, target_names) -> None:
         """Every hold tried in refinement round ``r`` of the simulated placement: its screened objective
         (``design/refine/<target>/<k>/score``, ``refine`` timeline), and per target whether a hold was

@@ -1,13 +1,14 @@
-"""The Markdown design report: PCC by round, actuators added, placement (method, K, candidate scores
-per round, a bad start), final fit (objective, PCC, MARE, MPRE,
-saturation, convergence) and actuator needs; for the builder, IPAM ends and jamming cells in mm on
-the rest shape, and a glossary of the fit measures (``lab_sections``)."""
+"""The Markdown design report: the fit achieved first, then PCC by round, actuators added, placement
+(method, K, candidate scores per round, a bad start), final fit (objective, PCC, MARE, MPRE, at
+rest) and actuator needs (with the IPAMs that ended at a pressure limit); for the builder, IPAM
+ends and jamming cells in mm on the rest shape, and a glossary of the fit measures
+(``lab_sections``)."""
 
 from __future__ import annotations
 
 from ..designer import PLACEMENTS
 
-__all__ = ["design_markdown", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
+__all__ = ["design_markdown", "figures_section", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
 
 
 def _pcc_table(result) -> list[str]:
@@ -35,26 +36,49 @@ def _added_table(result) -> list[str]:
     return lines
 
 
+def _achieved(result) -> list[str]:
+    """What the design achieves, first: each target's fit in a line."""
+    lines = ["## Achieved fit (final design, at rest)", ""]
+    for n, r in zip(result.target_names, result.results):
+        k = len(r.saturated)
+        lines.append(f"- **{n}**: mean radial error {r.mare * 1e3:.2f} mm (objective {r.objective:.4f}, PCC "
+                     f"{r.pcc:.4f}, volume within {100 * abs(r.volume_error):.1f} %)"
+                     + (f"; {k} actuator limit{'s' if k > 1 else ''} reached, see Actuator requirements" if k else ""))
+    return lines
+
+
 def _fit_table(result) -> list[str]:
     lines = ["## Final fit (measured at rest)", "",
              "Objective: area-weighted RMS of the radial error scaled by the target's size, (R - r) / V_t^(1/3); "
              "0 is a perfect fit.", "",
-             "| target | objective | PCC | MARE (mm) | MPRE (%) | volume error (%) | saturated | converged |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| target | objective | PCC | MARE (mm) | MPRE (%) | volume error (%) | at rest |",
+             "|---|---|---|---|---|---|---|"]
     for n, r in zip(result.target_names, result.results):
         lines.append(f"| {n} | {r.objective:.4f} | {r.pcc:.4f} | {r.mare * 1e3:.3f} | {r.mpre:.2f} | "
-                     f"{100 * r.volume_error:.3f} | {', '.join(r.saturated) or '-'} | "
-                     f"{'yes' if r.converged else 'no: ' + r.reason} |")
+                     f"{100 * r.volume_error:.3f} | {'yes' if getattr(r, 'settled', True) else 'no'} |")
     return lines
 
 
+def _limit_note(entry: str) -> str:
+    """ "ipam 1 at P_max 300 kPa" -> "at its 300 kPa limit" (short words for the builder)."""
+    value = entry.split(" at ", 1)[1].split(" ", 1)[1] if " at P_" in entry else entry
+    return f"**at its {value} limit**"
+
+
 def _actuator_needs(result) -> list[str]:
-    lines = ["## Actuator requirements (final design, per target)", ""]
+    lines = ["## Actuator requirements (final design, per target)", "",
+             "An IPAM **at its limit** ended there while the fit asked for more: one rated beyond that pressure "
+             "would fit that target better; the fit above is what these limits allow. Report.json gives each "
+             "run's full stop reason.", ""]
     for n, r in zip(result.target_names, result.results):
+        pinned = {int(x.split()[1]): x for x in r.saturated if x.startswith("ipam ")}
         for a in r.actuator_summary:
+            note = f"; {_limit_note(pinned[a['ipam']])}" if a["ipam"] in pinned else ""
             lines.append(f"- {n}, IPAM {a['ipam']}: push {a['peak_push_n']:.3f} N, pull {a['peak_pull_n']:.3f} N, "
                          f"strain {a['peak_strain']:.3f}, pressure {a['pressure_min_pa'] / 1e3:.1f} to "
-                         f"{a['pressure_max_pa'] / 1e3:.1f} kPa")
+                         f"{a['pressure_max_pa'] / 1e3:.1f} kPa{note}")
+        if "air at 0 mol" in r.saturated:
+            lines.append(f"- {n}, chamber: **no air left** to let out while the membrane is larger than the target")
     return lines
 
 
@@ -144,7 +168,9 @@ def ipam_geometry_section(result) -> list[str]:
     names = list(result.target_names)
     lines = ["## IPAM ends (rest shape, mm)", "",
              "End = centroid of the attachment face on the rest shape, in the coordinates of `design.usda` "
-             "and `mold_core_mm.stl` (whose bosses mark these faces); x, y, z in mm.", "",
+             "and `mold_core_mm.stl` (whose bosses mark these faces); x, y, z in mm. `molds_mm.json` gives the "
+             "same point as `face_centroid` and, as `position`, the boss tip, `--marker-height` (2 mm by "
+             "default) further out along the face normal.", "",
              "| IPAM | face a | end a (x, y, z) | face b | end b (x, y, z) | rest length (mm) | used by |",
              "|---|---|---|---|---|---|---|"]
     for i, ip in enumerate(d.ipams):
@@ -196,8 +222,8 @@ def glossary_section() -> list[str]:
             "target in that round. e > 0: the membrane lies inside the target there (it must move out); "
             "e < 0: outside. +0.05 means 5 % of the target's size.",
             "- **volume error**: (V - V_t) / V_t of the achieved membrane.",
-            "- **saturated**: an IPAM at a pressure limit while the fit asks for more; **converged**: at rest, "
-            "within the deadbands, nothing saturated."]
+            "- **at its limit** (actuator requirements): an IPAM at a pressure limit while the fit asks for "
+            "more; **at rest**: the membrane settled (every vertex slower than 1 mm/s) before the fit was measured."]
 
 
 def lab_sections(result) -> list[str]:
@@ -205,14 +231,30 @@ def lab_sections(result) -> list[str]:
     return ipam_geometry_section(result) + [""] + cell_extent_section(result) + [""] + glossary_section()
 
 
-def design_markdown(result) -> str:
-    """A short Markdown report of a ``DesignResult``: PCC table by round, actuators added, final fit,
-    actuator needs."""
+#: figure file -> its caption in the report (``{t}``: the target)
+FIGURE_CAPTIONS = (("fit_{t}.png", "{t}: the achieved shape coloured by its signed radial error (mm)"),
+                   ("control_{t}.png", "{t}: the control sequence on the lab's clock"))
+
+
+def figures_section(result, figures) -> list[str]:
+    """The report's figures (those in ``figures``, file names beside report.md), embedded."""
+    have = set(figures)
+    shown = [("rest_shape.png", "The rest shape with its IPAMs and jamming cells"),
+             ("pcc_by_round.png", "The fit by actuator round: objective, MARE and PCC")]
+    shown += [(f.format(t=n), c.format(t=n)) for n in result.target_names for f, c in FIGURE_CAPTIONS]
+    lines = [f"![{caption}]({name})" for name, caption in shown if name in have]
+    return ["## Figures", "", *[x for line in lines for x in (line, "")]][:-1] if lines else []
+
+
+def design_markdown(result, figures=()) -> str:
+    """A short Markdown report of a ``DesignResult``: the fit achieved, the figures among ``figures``
+    (file names beside the report), PCC table by round, actuators added, final fit, actuator needs."""
     d = result.design
     lines = [f"# Design report: {', '.join(result.target_names)}", "",
              f"{d.n_ipams} IPAMs, {d.n_cells} jamming cells, "
              f"{d.rest.n_vertices}-vertex membrane (rest volume {d.rest.volume() * 1e6:.1f} cm^3).", ""]
-    lines += _pcc_table(result) + [""] + _added_table(result) + [""] + _placement_section(result) + [""] \
-        + _fit_table(result) + [""] + _actuator_needs(result)
+    shown = figures_section(result, figures)
+    lines += _achieved(result) + [""] + (shown + [""] if shown else []) + _pcc_table(result) + [""] + _added_table(result) + [""] \
+        + _placement_section(result) + [""] + _fit_table(result) + [""] + _actuator_needs(result)
     lines += [""] + lab_sections(result)
     return "\n".join(lines) + "\n"

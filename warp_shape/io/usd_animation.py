@@ -16,9 +16,10 @@ Time codes: the stage's ``timeCodesPerSecond`` and ``framesPerSecond`` are both 
 (24), the rate content tools play at, so a tool that applies only one of them still plays in real
 time. Frame k's time code is ``24 * (times[k] - times[0])``: the stage starts at 0 and ends at
 24 x the sequence's duration. ``duration`` stretches the times to last that many seconds.
-``playback_times`` gives a control result's times either as simulated or re-timed to its valve
-schedule (``io.valve``: slew-limited, seconds of the physical device), the default for the
-``actuation_<target>.usdc`` files, so a sequence plays as long as the valves take.
+``playback_times`` gives a control result's times either as simulated or on the lab's clock of its
+valve schedule (``io.valve``: the pump's flow and the valves' slew limits, on the CSV's grid), the
+default for the ``actuation_<target>.usdc`` files, so a sequence plays as long as the lab takes and
+each frame's time is a row of the valve CSV.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from ..errors import SceneError
 from .scene_schema import IPAMS, MEMBRANE, NS, ROOT_NAME, Scene
 from .scene_write import build_stage, write_stage_atomic
 from .usd_common import FRAME_RATE, check_extension, face_colors, ipam_endpoints, load_pxr
-from .valve import DEFAULT_MAX_SLEW_KPA_S, row_times
+from .valve import row_times
 
 __all__ = ["export_animation", "playback_times", "PLAYBACKS"]
 
@@ -41,16 +42,16 @@ __all__ = ["export_animation", "playback_times", "PLAYBACKS"]
 PLAYBACKS = ("valve", "simulated")
 
 
-def playback_times(result, playback: str = "valve", *, max_slew_kpa_s: float | None = None) -> np.ndarray:
-    """(n_rows,) seconds from 0 of each control step of ``result``: ``"valve"`` the valve schedule's
-    (re-timed to ``max_slew_kpa_s``, default ``io.valve.DEFAULT_MAX_SLEW_KPA_S``), ``"simulated"``
-    the simulator's clock."""
+def playback_times(result, playback: str = "valve", timing=None) -> np.ndarray:
+    """(n_rows,) seconds from 0 of each control step of ``result``: ``"valve"`` the lab's clock of
+    the valve CSV (``io.valve.row_times`` under ``timing``, default ``ValveTiming()``),
+    ``"simulated"`` the simulator's clock."""
     if playback not in PLAYBACKS:
         raise SceneError(f"playback must be one of {', '.join(PLAYBACKS)}, got {playback!r}")
     if playback == "simulated":
         t = np.asarray(result.history["time"], dtype=np.float64)
         return t - t[0]
-    return row_times(result, DEFAULT_MAX_SLEW_KPA_S if max_slew_kpa_s is None else max_slew_kpa_s)
+    return row_times(result, timing)
 
 
 def export_animation(path, design: Design, frames, times, *, ipam_pressures=None, ipam_forces=None, jammed=None,

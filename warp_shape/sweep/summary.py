@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ..io.atomic import atomic_write
 
-__all__ = ["markdown_table", "write_summary", "summary_figure"]
+__all__ = ["markdown_table", "write_summary", "summary_figure", "build_summary_figure"]
 
 
 def _num(value):
@@ -92,6 +92,9 @@ def _grid_axes(fig, rows, target_names, swept_names):
                 xs, ys = zip(*pts)
                 ax.plot(xs, ys, styles[k % len(styles)], marker="o", color=f"C{j}",
                         label=t + (f" ({tag})" if tag else ""))
+    xs_all = sorted({float(r[x_name]) for rs in groups.values() for r in rs})
+    if xs_all and all(x.is_integer() for x in xs_all):  # counts (actuators): ticks at the swept values only
+        ax.set_xticks(xs_all, [f"{x:g}" for x in xs_all])
     ax.set_xlabel(x_name)
     ax.set_ylabel("PCC of the final design")
     ax.set_title(f"fit by {x_name}")
@@ -99,8 +102,8 @@ def _grid_axes(fig, rows, target_names, swept_names):
     ax.legend(fontsize=8)
 
 
-def summary_figure(rows, target_names, swept_names, kind: str, path) -> Path:
-    """``summary.png``: Fig. 11 style (subsets sweep) or Fig. 12 style (grid sweep)."""
+def build_summary_figure(rows, target_names, swept_names, kind: str):
+    """The sweep's matplotlib ``Figure``: Fig. 11 style (subsets sweep) or Fig. 12 style (grid sweep)."""
     from matplotlib.figure import Figure
 
     height = 1.2 + 0.35 * len(rows) if kind == "subsets" else 4.0
@@ -109,6 +112,15 @@ def summary_figure(rows, target_names, swept_names, kind: str, path) -> Path:
         _subsets_axes(fig, rows, target_names)
     else:
         _grid_axes(fig, rows, target_names, swept_names)
+    return fig
+
+
+def summary_figure(rows, target_names, swept_names, kind: str, path) -> Path:
+    """``summary.png`` (and ``summary.svg`` beside it): ``build_summary_figure``."""
+    fig = build_summary_figure(rows, target_names, swept_names, kind)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="svg")
+    atomic_write(Path(path).with_suffix(".svg"), buf.getvalue())
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120)
     return atomic_write(path, buf.getvalue())
@@ -120,7 +132,8 @@ def write_summary(folder, rows, target_names, swept_names, kind: str) -> list[Pa
     title = "Subsets sweep" if kind == "subsets" else "Grid sweep"
     written = [atomic_write(folder / "summary.md", f"# {title}\n\n" + markdown_table(rows, target_names, swept_names))]
     try:
-        written.append(summary_figure(rows, target_names, swept_names, kind, folder / "summary.png"))
+        png = summary_figure(rows, target_names, swept_names, kind, folder / "summary.png")
+        written += [png, png.with_suffix(".svg")]
     except ImportError:
         print("summary figure skipped: matplotlib is not installed (pip install 'warp-shape[figures]')",
               file=sys.stderr)
