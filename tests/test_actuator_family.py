@@ -10,6 +10,7 @@ import warp_shape as ws
 from toy_family import TENDON, add_tendon
 from warp_shape.actuators import ACTUATOR_FAMILIES
 from warp_shape.errors import DesignError
+from warp_shape.io.outputs import write_control_outputs
 
 
 @pytest.fixture(autouse=True)
@@ -86,7 +87,8 @@ def test_tendon_controls_are_checked():
 
 def test_tendon_round_trips_through_a_scene(tmp_path):
     design, a, b = tendon_design(rest_length=0.03)
-    design.add_ipam(5, 40)
+    c = design.rest.face_centroids()
+    design.add_ipam(5, int(np.argmin(c @ c[5])))
     path = ws.save_scene(ws.Scene(design=design), tmp_path / "tendon.usda")
     text = path.read_text()
     assert "def BasisCurves \"Tendons\"" in text and "warpShape:restLength = [0.03]" in text
@@ -99,7 +101,7 @@ def test_tendon_round_trips_through_a_scene(tmp_path):
     assert ws.load_scene(path).design.elements("tendon") == []
 
 
-def test_paper_law_holds_an_unknown_family_neutral():
+def test_paper_law_holds_an_unknown_family_neutral(tmp_path):
     design, a, b = tendon_design()
     design.add_cell([0, 1, 2])
     res = ws.control(design, ws.target("oval"), method="paper", max_steps=4, max_settle_steps=2)
@@ -110,3 +112,27 @@ def test_paper_law_holds_an_unknown_family_neutral():
     law = h["phase"][:-1] != 3
     assert np.array_equal(h["tendon0_rest_length_m"][1:][law], h["tendon0_length_m"][:-1][law])
     assert h["tendon0_length_m"][-1] != h["tendon0_length_m"][0]  # the membrane moved it
+    # the record's columns reach the control files as the IPAM's do
+    csv_path = next(p for p in write_control_outputs([res], ["oval"], tmp_path) if p.suffix == ".csv")
+    header = csv_path.read_text().splitlines()[0].split(",")
+    assert "tendon0_rest_length_m" in header and "tendon0_length_m" in header
+
+
+def test_a_registered_family_leaves_designs_without_it_unchanged():
+    """A design without tendons builds the same model (families, step kernels, energy terms) whether
+    or not the tendon family is registered."""
+    design = ws.Design(ws.icosphere(1, 0.04))
+    c = design.rest.face_centroids()
+    design.add_ipam(0, int(np.argmin(c @ c[0])))
+    seen = []
+    for registered in (True, False):
+        if not registered:
+            ACTUATOR_FAMILIES.unregister("tendon")
+        sim = ws.Simulator(design)
+        sim.ipam_pressures = [2e4]
+        sim.step(3)
+        seen.append(([f.name for f in sim.model.families], sim.step_kernels, sorted(sim.energy()), sim.positions))
+    assert seen[0][:3] == seen[1][:3] == (["ipam"], seen[1][1], sorted(seen[1][2]))
+    assert "tendon" not in seen[0][2] and "ipam" in seen[0][2]
+    assert np.array_equal(seen[0][3], seen[1][3])
+    assert ws.ACTUATOR_FAMILIES.get("ipam").summary and isinstance(TENDON, ws.ActuatorFamily)

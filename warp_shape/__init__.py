@@ -16,6 +16,7 @@ from .interrupts import hold_for_the_command
 
 hold_for_the_command()  # the warp-shape command only: Ctrl-C while it starts is answered by its main()
 
+from .actuators import ACTUATOR_FAMILIES, ActuatorFamily
 from .controller import (CONTROL_METHODS, LAWS, ControlResult, ControlSettings, control, control_many,
                          register_control_method, register_law, replay)
 from .design import Cell, Design, Ipam

@@ -15,14 +15,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import HostModel
+from ..physics.ipam import IPAM
 from .laws import Controls
 from .observe import Observation
 
 __all__ = ["HISTORY_COLUMNS", "history_row", "History"]
 
 HISTORY_COLUMNS = ("step", "time", "phase", "air_mol", "pressure_pa", "volume_m3", "target_volume_m3",
-                   "ipam{i}_pressure_pa", "ipam{i}_length_m", "ipam{i}_target_length_m", "ipam{i}_force_n",
-                   "ipam{i}_strain", "cell{j}_kappa_m", "cell{j}_kappa_target_m", "cell{j}_jammed",
+                   *IPAM.history_columns, "cell{j}_kappa_m", "cell{j}_kappa_target_m", "cell{j}_jammed",
                    "max_speed_m_s", "objective", "pcc", "mare_m", "mpre_pct")
 
 
