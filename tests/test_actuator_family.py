@@ -136,3 +136,24 @@ def test_a_registered_family_leaves_designs_without_it_unchanged():
     assert "tendon" not in seen[0][2] and "ipam" in seen[0][2]
     assert np.array_equal(seen[0][3], seen[1][3])
     assert ws.ACTUATOR_FAMILIES.get("ipam").summary and isinstance(TENDON, ws.ActuatorFamily)
+
+
+def test_tendon_controls_move_between_simulators_and_bound_the_stable_step():
+    design, a, b = tendon_design()
+    src = ws.Simulator(design, worlds=2)
+    src.set_actuator_controls("tendon", [[0.02], [0.03]])
+    dst = ws.Simulator(design, worlds=2)
+    dst.load_worlds(src.snapshot()[::-1])  # world 1 into world 0 and back
+    assert np.asarray(dst.actuator_controls("tendon")).tolist() == [[0.03], [0.02]]
+    stiff, _, _ = tendon_design()
+    stiff.elements("tendon").clear()
+    add_tendon(stiff, a, b, stiffness=2e5)
+    assert ws.Simulator(stiff).stable_dt() < 0.5 * ws.Simulator(design).stable_dt()  # its rows are in the bound
+
+
+def test_tendon_values_that_do_not_fit_the_precision_are_refused():
+    design, a, b = tendon_design()
+    design.elements("tendon").clear()
+    add_tendon(design, a, b, stiffness=1e300)
+    with pytest.raises(DesignError, match=r"toy_family.add_tendon stiffness = 1e\+300 \(SI\) does not fit in float32"):
+        ws.Simulator(design)
