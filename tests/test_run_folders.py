@@ -366,3 +366,33 @@ def test_the_staging_folder_and_the_root_are_refused_in_one_line(tmp_path, monke
     assert main(["design", "--out", "/", *SMALL]) == 2
     assert capsys.readouterr().err == ("warp-shape: error: --out / is the root folder; a run replaces its output "
                                        "folder as a whole: give it a folder of its own, e.g. --out out\n")
+
+
+def test_commands_writing_files_one_by_one_replace_only_their_own(tmp_path, monkeypatch, capsys):
+    """simulate, control and export write into --out file by file: a file under one of their names that
+    no run wrote is refused, a design run's set is never changed, and their own files (listed in the
+    folder's manifest as they write them) are theirs to replace next time."""
+    sim = ["simulate", "--subdivisions", "1", "--inflate-time", "0.01", "--actuate-time", "0.01"]
+    folder = tmp_path / "sim"
+    folder.mkdir()
+    (folder / "simulate.json").write_text("mine")
+    assert main([*sim, "--out", str(folder)]) == 2
+    assert "holds files named as this command's outputs that no run wrote or that changed since (simulate.json)" \
+        in capsys.readouterr().err and (folder / "simulate.json").read_text() == "mine"
+    (folder / "simulate.json").unlink()
+    for _ in range(2):  # the second run replaces the first one's file: listed in the manifest
+        assert main([*sim, "--out", str(folder)]) == 0
+        assert manifest_problems(folder) == [] and set(read_manifest(folder)["files"]) == {"simulate.json"}
+    capsys.readouterr()
+    no_control(monkeypatch)
+    out = tmp_path / "out"
+    before = fake_previous_set(out)
+    assert main(["control", str(ROOT / "scenes" / "cube_fig6.usda"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out} holds a design run's set" in err and f"--out {out / 'control'}" in err
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "design.usda").write_text("my scene")
+    assert main(["export", str(out / "design.usda"), "--out", str(mine)]) == 2
+    assert "(design.usda)" in capsys.readouterr().err and (mine / "design.usda").read_text() == "my scene"
+    assert snapshot(out) == before

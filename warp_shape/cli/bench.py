@@ -140,7 +140,7 @@ def run(args) -> int:
     """Run the chosen benchmarks; print their tables; write ``bench_<name>.json`` for each."""
     from ..benchmarks.sim import format_rows
 
-    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
+    check_out(StagedFolder(args.out), replaced=False, kind="bench")  # files written one by one
     check_device(args.device)
     names = list(ABOUT) if args.which == "all" else [args.which]
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M:%S"), device=args.device, machine=os.uname().nodename,

@@ -70,7 +70,8 @@ def _print_table(design, settings, names, results, args, out: Path) -> None:
 
 def run(args) -> int:
     """Control the design to every chosen target; write figures and ``control_<target>.csv|json``."""
-    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
+    staged = StagedFolder(args.out, owned=lambda name: name.startswith("control_"))
+    check_out(staged, replaced=False, kind="control")  # files written one by one
     check_device(args.device)
     check_rerun(args)
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets, args.units)
@@ -87,7 +88,11 @@ def run(args) -> int:
                                progress=bar.update, recorder=rec, target_names=names,
                                **actuator_selection(args, scene_settings, names))
     out = Path(args.out)
-    written = write_figures_or_skip(results, out, names) + write_control_outputs(results, names, out)
+    written = write_figures_or_skip(results, out, names)
+    try:
+        written += write_control_outputs(results, names, out)
+    finally:  # what was written is listed in the folder's manifest, also when a later file failed
+        staged.record(written, "control")
     if args.json:
         print(json.dumps({name: res.summary() for name, res in zip(names, results)}, indent=2))
         return 0

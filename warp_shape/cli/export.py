@@ -9,7 +9,7 @@ from ..controller import control_many
 from ..designer.run_settings import RunSettings
 from ..errors import DesignError
 from ..io.atomic import StagedFolder
-from ..io.outputs import write_control_outputs, write_figures_or_skip, write_molds
+from ..io.outputs import is_run_output, write_control_outputs, write_figures_or_skip, write_molds
 from ..io.scene_read import load_scene
 from ..io.scene_write import save_scene
 from ..io.valve import write_valve_outputs
@@ -47,11 +47,11 @@ def register(subparsers) -> None:
     e.set_defaults(func=run)
 
 
-def _checked_inputs(args):
+def _checked_inputs(args, staged):
     """(scene, [(name, target)], ControlSettings) once every input is checked, before any work:
-    ``--out``, the device, the recording path, the scene (a design, its settings), the mold lengths
-    and the targets."""
-    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
+    ``--out`` (``staged``), the device, the recording path, the scene (a design, its settings), the
+    mold lengths and the targets."""
+    check_out(staged, replaced=False, kind="export")  # files written one by one
     check_device(args.device)
     check_rerun(args)
     scene = load_scene(args.scene)
@@ -67,10 +67,26 @@ def _checked_inputs(args):
 
 def run(args) -> int:
     """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
-    scene, named, settings = _checked_inputs(args)
+    staged = StagedFolder(args.out, owned=is_run_output)
+    scene, named, settings = _checked_inputs(args, staged)
     timing = timing_from_args(args)
     out = Path(args.out)
-    written = []
+    written: list = []
+    try:
+        _write(args, scene, named, settings, timing, out, written)
+    finally:  # what was written is listed in the folder's manifest, also when a later part failed
+        if written:
+            staged.record(written, "export")
+    if args.json:
+        print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))
+    else:
+        print(f"exported {len(written)} files to {out}/: " + ", ".join(Path(p).name for p in written))
+    return 0
+
+
+def _write(args, scene, named, settings, timing, out: Path, written: list) -> None:
+    """The molds, the scene and the control outputs ``--what`` asks for (control with ``settings``,
+    the lab sequences on ``timing``), each appended to ``written`` as it is written."""
     if "molds" in args.what:
         written += write_molds(scene.design, out, marker_height=args.marker_height,
                                layer_thickness=args.layer_thickness, units=args.units)
@@ -85,8 +101,3 @@ def run(args) -> int:
         written += write_control_outputs(results, names, out, usd="usd" in args.what, timing=timing)
         written += write_valve_outputs(results, names, out, timing, passive=args.passive)
         written += write_figures_or_skip(results, out, names, timing=timing)
-    if args.json:
-        print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))
-    else:
-        print(f"exported {len(written)} files to {out}/: " + ", ".join(Path(p).name for p in written))
-    return 0

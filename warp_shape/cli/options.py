@@ -198,10 +198,11 @@ def check_device(device: str) -> str:
             raise
 
 
-def check_out(staged, replaced: bool = True) -> None:
+def check_out(staged, replaced: bool = True, kind: str = "out") -> None:
     """``--out`` checked before any work (a file in its place, a folder that cannot be written; with
-    ``replaced``, a folder that is not the run's own)."""
-    staged.check(replaced)
+    ``replaced``, a folder that is not the run's own; without, a run's folder, where the error names
+    ``<out>/<kind>`` as the fix)."""
+    staged.check(replaced, kind)
 
 
 def check_rerun(args) -> None:

@@ -100,7 +100,8 @@ def _drive(sim, design, args, rec, bar) -> list[dict]:
 
 def run(args) -> int:
     """Run the Fig. 6 sequence; write ``simulate.json``; print a table (or the JSON)."""
-    check_out(StagedFolder(args.out), replaced=False)  # files written one by one
+    staged = StagedFolder(args.out, owned=lambda name: name == "simulate.json")
+    check_out(staged, replaced=False, kind="simulate")  # files written one by one
     check_device(args.device)
     check_rerun(args)
     steps = sum(_step_counts(args))
@@ -117,6 +118,7 @@ def run(args) -> int:
                   device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
                   substeps=sim.substeps, stable_dt=sim.stable_dt(), wall_seconds=wall, frames=rows)
     out = write_json(Path(args.out) / "simulate.json", result)
+    staged.record([out], "simulate")
     if args.json:
         print(json.dumps(result, indent=2))
     else:

@@ -69,6 +69,7 @@ def write_json(path, data) -> Path:
 MANIFEST = "manifest.json"
 #: the largest manifest read (one a run writes is a few kB)
 MAX_MANIFEST_BYTES = 16 * 2**20
+ONE_BY_ONE = ("control", "export", "simulate")  # commands writing files one by one (``StagedFolder.record``)
 MAX_FOREIGN_ENTRIES = 2000  # other files an output folder may hold (carried into each new set as hard links)
 RENAME_EXCHANGE = 2  # linux/fs.h
 AT_FDCWD = -100
@@ -244,9 +245,11 @@ class StagedFolder:
         """``<out>`` as messages name it: the link given and the folder it points to, where it is a link."""
         return f"{self.link} (a link to {self.out})" if self.link is not None else str(self.out)
 
-    def check(self, replaced: bool = True) -> None:
+    def check(self, replaced: bool = True, kind: str = "out") -> None:
         """A clear ``OutputError`` now, before any work, where the outputs could not be written (and,
-        with ``replaced``, where ``<out>`` is no folder of its own to be replaced as a whole)."""
+        with ``replaced``, where ``<out>`` is no folder of its own to be replaced as a whole; without,
+        where ``<out>`` holds a run's set, which files written one by one would change: the error names
+        ``<out>/<kind>`` instead)."""
         if self.link is not None and not self.out.exists():
             raise OutputError(f"--out {self.link} is a symbolic link to {self.out}, which does not exist; give --out "
                               f"a folder (new or holding earlier outputs)")
@@ -264,6 +267,8 @@ class StagedFolder:
             _probe_writable(self.out, "--out")
             if replaced:
                 self._check_own_folder()
+            else:
+                self._check_files_folder(kind)
         if replaced:
             self._check_partial()
 
@@ -297,6 +302,37 @@ class StagedFolder:
                 raise OutputError(f"--out {self.shown} holds more than {MAX_FOREIGN_ENTRIES} files that are not "
                                   f"outputs of a run; a run replaces its output folder as a whole (keeping such "
                                   f"files): give it a folder of its own, e.g. --out out")
+
+    def _check_files_folder(self, kind: str) -> None:
+        """For a command writing its files into ``<out>`` one by one: no run's whole set there (it would
+        change it), and no file under a name ``owned`` says it writes that no run wrote (it would
+        replace it). ``record`` lists what such a run wrote."""
+        manifest = read_manifest(self.out)
+        if manifest is not None and manifest.get("command") not in ONE_BY_ONE:
+            raise OutputError(f"--out {self.shown} holds a design run's set (its {MANIFEST} lists the files); "
+                              f"this command writes files into --out one by one and would change that set: "
+                              f"give it a folder of its own, e.g. --out {self.out / kind}")
+        listed = (manifest or {}).get("files", {})
+        foreign = [e.name for e in os.scandir(self.out) if manifest is None and e.name == MANIFEST
+                   or e.name != MANIFEST and self.owned(e.name)
+                   and (e.name not in listed or _differs(self.out / e.name, listed[e.name]))]
+        if foreign:
+            raise OutputError(f"--out {self.shown} holds files named as this command's outputs that no run wrote "
+                              f"or that changed since ({_listed(foreign)}); it would replace them: move them out of --out (or delete "
+                              f"them where an earlier version of warp-shape wrote them), or give --out an empty "
+                              f"or new folder")
+
+    def record(self, paths, command: str) -> Path:
+        """List the files a command wrote into ``<out>`` one by one (``paths``) in its ``manifest.json``
+        with sizes and SHA-256, beside those of earlier runs still as written: the next run's to replace."""
+        manifest = read_manifest(self.out) or {}
+        files = {name: info for name, info in manifest.get("files", {}).items()
+                 if (self.out / name).is_file() and not _differs(self.out / name, info)}
+        for name in sorted({Path(p).name for p in paths}):
+            if (self.out / name).is_file() and name != MANIFEST:
+                files[name] = dict(bytes=(self.out / name).stat().st_size, sha256=file_digest(self.out / name))
+        data = dict(format=1, command=command, written=time.strftime("%Y-%m-%dT%H:%M:%S%z"), files=files)
+        return atomic_write(self.out / MANIFEST, json.dumps(data, indent=1) + "\n")
 
     def _check_listed(self, manifest: dict) -> None:
         """In a folder of a run: no file the run did not write under a name a run writes (the new set
