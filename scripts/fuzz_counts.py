@@ -367,11 +367,12 @@ FOLDER_KINDS = ["absent", "empty", "subfolders", "user", "ours", "ours+extras", 
                 "ours+folder", "link:ours+extras", "link:user", "link:empty", "dangling", "partial:user",
                 "partial:link", "partial:leftover", "root"]
 #: (module, attribute) of each phase of a design run, in order; the k-th call of it is where the fault lands
-PHASES = [("warp_shape.io.scene_read", "load_scene"), ("replay", "round"),
-          ("warp_shape.io.outputs", "write_round_outputs"), ("warp_shape.io.atomic.StagedFolder", "seal"),
+#: (each named where its caller looks it up)
+PHASES = [("warp_shape.cli.design", "load_scene"), ("replay", "round"),
+          ("warp_shape.cli.design", "write_round_outputs"), ("warp_shape.io.atomic.StagedFolder", "seal"),
           ("warp_shape.io.scene_write", "export_layer"), ("warp_shape.io.outputs", "write_control_outputs"),
-          ("warp_shape.io.valve", "write_valve_outputs"), ("warp_shape.io.outputs", "write_molds"),
-          ("warp_shape.io.outputs", "write_figures_or_skip"), ("warp_shape.io.report", "design_markdown"),
+          ("warp_shape.io.outputs", "write_valve_outputs"), ("warp_shape.io.outputs", "write_molds"),
+          ("warp_shape.io.outputs", "write_figures_or_skip"), ("warp_shape.io.outputs", "design_markdown"),
           ("warp_shape.io.atomic.StagedFolder", "commit"), ("warp_shape.io.atomic", "_exchange"), ("os", "replace")]
 FAULTS = ["interrupt", "swallowed", "disk", "usd"]
 ABSURD_INTS = [10**12, -10**12, 2**63, -1]
@@ -592,7 +593,7 @@ def run_fault_case(rng, root: Path, replay: Replay, phase=None, fault=None) -> t
     import contextlib
     import io
 
-    import warp_shape.designer as designer
+    import warp_shape.cli.design as design_cli
     from warp_shape.cli import main
     from warp_shape.io.atomic import manifest_problems, read_manifest
 
@@ -606,7 +607,7 @@ def run_fault_case(rng, root: Path, replay: Replay, phase=None, fault=None) -> t
         (out / "notes.txt").write_text("mine")
     before = tree(out)
     hit: list = []
-    patches = [(designer, "design", replay)] + _patched(phase, k, fault, replay, hit)
+    patches = [(design_cli, "design", replay)] + _patched(phase, k, fault, replay, hit)
     saved = [(o, a, getattr(o, a)) for o, a, _ in patches]
     err = io.StringIO()
     try:
