@@ -268,18 +268,21 @@ def test_design_progress_counts_phases_by_the_time_they_take(monkeypatch):
     # 4 rounds in 10 s: the phases left weigh 46 rounds of 2.5 s
     assert bar.eta() == f"{int(2.5 * 46 // 60)}:{int(2.5 * 46 % 60):02d}"
     bar.update(4, 4, 24, 300, 2, 2)
-    assert "model-based refinement of the final control" in bar.compose(bar._text)
+    assert "final round: model-based control" in bar.compose(bar._text)
     clock[0] += 20.0  # half the final round's estimate: the bar creeps half way through it
     text = bar.compose(bar._text)
-    assert bar.tqdm.n == pytest.approx(4 + 0.5 * weights[4]) and "(20 s in this phase)" in text
-    clock[0] += 45.0  # 65 s: far past its 40 s estimate
-    assert bar.eta() == "?" and "phase 5/7" in bar.compose(bar._text)
+    assert bar.tqdm.n == pytest.approx(4 + 0.5 * weights[4]) and "(20 s)" in text
+    assert bar.eta() == "1:35"  # 20 s left of this phase's 40 s, then 70 + 5 s after it
+    clock[0] += 45.0  # 65 s: past its 40 s estimate: at least the phases after it
+    assert bar.eta() == "> 1:15" and " 5/7 final round" in bar.compose(bar._text)
     on_round(4, None, None)
     assert bar.tqdm.n == pytest.approx(20.0)
     bar.update(4, 4, 7, 300, 0, 9)  # the refinement: 9 worlds for 2 targets
-    assert "refinement: 9 worlds, step 7" in bar.compose(bar._text)
+    assert "refinement, 9 worlds: step 7" in bar.compose(bar._text)
     bar.writing_outputs()
-    assert bar.tqdm.n == pytest.approx(48.0) and "writing the molds" in bar.compose(bar._text)
+    assert bar.tqdm.n == pytest.approx(48.0) and "writing the outputs" in bar.compose(bar._text)
+    clock[0] += 6.0  # past the outputs' 5 s estimate, the last phase: no figure rather than 0:00 or less
+    assert bar.eta() == "?"
     bar.__exit__(None, None, None)
     assert bar.tqdm.n == bar.tqdm.total and bar.eta() == "0:00"
 

@@ -116,10 +116,11 @@ def test_control_figure_has_seconds_pressures_passive_and_named_inflation(tmp_pa
         assert len(passive) == 1 and passive[0].get_label() == "IPAM 1 (passive, held neutral)"
         assert passive[0].get_linestyle() == "--" and to_rgba(passive[0].get_color()) == to_rgba("0.55")
     assert not [ln for ln in axes["(b)"].get_lines() if "IPAM 0" in ln.get_label() and ln.get_linestyle() == "--"]
-    # the grey band is named: a labelled patch spanning the 5 inflation steps and a text inside it
+    # the grey band is named: a labelled patch spanning the 5 inflation steps (to the first row after
+    # them: the air dosed in that interval is inflation's) and a text inside it
     a = axes["(a)"]
     band = [p for p in a.patches if p.get_label() == INFLATION_LABEL]
-    assert len(band) == 1 and band[0].get_x() == pytest.approx(0.0) and band[0].get_width() == pytest.approx(lab[4])
+    assert len(band) == 1 and band[0].get_x() == pytest.approx(0.0) and band[0].get_width() == pytest.approx(lab[5])
     assert "inflation" in [tx.get_text() for tx in a.texts]
     assert "grey band: inflation" in fig._suptitle.get_text()
     _check_png(control_figure(res, tmp_path / "c.png"))

@@ -93,6 +93,10 @@ OUTPUTS_WEIGHT = 2.0
 STARTING = "compiling kernels (first run only; cached after)"
 
 
+def _clock(seconds: float) -> str:
+    return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
+
+
 class DesignProgress(Bar):
     """A design run, as phases weighted by the time they take (``FINAL_ROUND_WEIGHT`` etc.): the
     construction rounds, the final round (its model-based refinement included), the simulated
@@ -108,6 +112,7 @@ class DesignProgress(Bar):
         self.starts = [sum(self.weights[:k]) for k in range(len(self.weights))]
         super().__init__(total=sum(self.weights), desc="design", unit="round", stream=stream)
         self.tqdm.bar_format = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}{postfix}]"
+        self.tqdm.refresh()
         self.n_targets = max(1, int(n_targets))
         self.refine_last = refine_last
         self.phase = 0
@@ -141,43 +146,44 @@ class DesignProgress(Bar):
 
     def eta(self) -> str:
         """Time left: the construction rounds' pace times the weight of the phases left, less the time
-        the current phase has run; "?" before the first round is done or when a phase overruns."""
+        the current phase has run; "?" before the first round is done; once the current phase has run
+        past its estimate, "> m:ss" (at least the phases after it), or "?" in the last phase."""
         if self.tqdm.n >= self.tqdm.total:
             return "0:00"
         if self._pace is None:
             return "?"
         ran = time.monotonic() - self._phase_start
-        left = self._pace * (self.tqdm.total - self.starts[self.phase]) - ran
-        if ran > 1.5 * self._pace * self.weights[self.phase]:
-            return "?"  # this phase takes much longer than estimated: no honest figure
-        return f"{int(left // 60)}:{int(left % 60):02d}"
+        now = self._pace * self.weights[self.phase]
+        after = self._pace * (self.tqdm.total - self.starts[self.phase]) - now
+        if ran <= now:
+            return _clock(after + now - ran)
+        return f"> {_clock(after)}" if after >= 1.0 else "?"  # this phase overran its estimate
 
     def compose(self, text: str) -> str:
         if text == "done":
             return text
         self._creep()
         ran = time.monotonic() - self._phase_start
-        return f"ETA {self.eta()}, phase {self.phase + 1}/{len(self.weights)}: {text}" \
-            + (f" ({ran:.0f} s in this phase)" if ran >= 5 else "")
+        return f"ETA {self.eta()}, {self.phase + 1}/{len(self.weights)} {text}" + (f" ({ran:.0f} s)" if ran >= 5 else "")
 
     def update(self, i, n_rounds, step, max_steps, done, worlds) -> None:
         """The designer's ``progress`` callback."""
         refining = worlds > self.n_targets and i >= n_rounds
         self._enter(i + (1 if refining and len(self.weights) > self.n_rounds + 1 else 0))
         if refining:
-            text = f"refinement: {worlds} worlds, " + (f"step {step}" if done < worlds else "model-based refinement")
+            text = f"refinement, {worlds} worlds: " + (f"step {step}" if done < worlds else "model-based")
         elif worlds > self.n_targets:
             text = f"round {i}/{n_rounds}: {worlds // self.n_targets} candidate sets, step {step}"
         elif self.refine_last and i == n_rounds and done == worlds:
-            text = f"round {i}/{n_rounds}: model-based refinement of the final control (no step count)"
+            text = f"final round: model-based control"
         else:
-            text = f"round {i}/{n_rounds}: step {step}, {done}/{worlds} targets done"
+            text = f"round {i}/{n_rounds}: step {step}, {done}/{worlds} done"
         self.note(text)
 
     def writing_outputs(self) -> None:
         """The outputs are being written (the last phase)."""
         self._enter(len(self.weights) - 1)
-        self.note("writing the molds, USD, valve schedules, figures and reports")
+        self.note("writing the outputs")
 
     def wrap_round(self, on_round):
         """``on_round`` that also counts the last round as done."""

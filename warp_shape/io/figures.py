@@ -108,7 +108,8 @@ def _shade_inflation(ax, t, phase, *, name: bool = False):
     (where no legend goes: legends sit at the bottom right)."""
     if phase is None or not np.any(phase == 1):
         return
-    end = float(t[phase == 1].max())
+    last = int(np.flatnonzero(phase == 1).max())
+    end = float(t[min(last + 1, len(t) - 1)])  # the air dosed after the last inflation row is inflation's
     ax.axvspan(t[0], end, color="0.92", zorder=0, lw=0, label=INFLATION_LABEL if name else None)
     if name:
         narrow = end - t[0] < 0.15 * (t[-1] - t[0])
@@ -432,8 +433,8 @@ def build_rest_figure(design, title: str | None = None):
         for i, ip in enumerate(design.ipams):
             a, b = ends[ip.face_a], ends[ip.face_b]
             ax.plot(*np.stack([a, b]).T, color="k", lw=2.0, zorder=10)
-            mid = 0.5 * (a + b)
-            ax.text(*mid, f"IPAM {i}", fontsize=7, color="k", zorder=11)
+            # the label near end a: IPAMs tend to cross near the centre
+            ax.text(*(a + 0.2 * (b - a)), f"IPAM {i}", fontsize=7, color="k", zorder=11)
     fig.suptitle(f"{title or 'Rest shape'}: {design.n_ipams} IPAMs (black lines between their end faces), "
                  f"{design.n_cells} jamming cells (coloured), {rest.n_vertices} vertices", fontsize=10)
     return fig
