@@ -57,6 +57,10 @@ def test_tendon_force_is_minus_the_gradient_of_its_energy():
     others = np.delete(np.arange(design.rest.n_vertices), [a, b])
     assert np.all(force[others] == 0)
     assert np.allclose(force[a], -force[b])
+    sim.positions = x0
+    sim.set_actuator_mask("tendon", np.array([False]))  # masked out: no force, no energy
+    assert sim.actuator_mask("tendon").tolist() == [False]
+    assert np.all(sim.forces("tendon") == 0) and sim.energy()["tendon"] == 0
 
 
 def test_a_shortened_tendon_draws_its_vertices_together():

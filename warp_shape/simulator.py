@@ -255,15 +255,27 @@ class Simulator:
     def ipam_mask(self) -> np.ndarray:
         """(n_ipam,) bool, False where an IPAM is masked out of the world ((W, n_ipam) with several
         worlds): it exerts no force there. One model can so hold alternative actuator sets."""
-        return self._out(self.control.ipam_enabled.numpy()[:, : self.model.n_ipams].astype(bool))
+        return self.actuator_mask("ipam")
 
     @ipam_mask.setter
     def ipam_mask(self, value):
-        n = self.model.n_ipams
-        a = self._mask(value, n, "ipam_mask")
+        self.set_actuator_mask("ipam", value, "ipam_mask")
+
+    def actuator_mask(self, family: str) -> np.ndarray:
+        """(n,) bool, False where an element of actuator family ``family`` is masked out of the world
+        ((W, n) with several worlds); the IPAM's is ``ipam_mask``."""
+        self._family(family)
+        return self._out(self.control.enabled[family].numpy()[:, : self.model.host.count(family)].astype(bool))
+
+    def set_actuator_mask(self, family: str, value, name: str | None = None) -> None:
+        """Mask elements of actuator family ``family`` out of worlds (a bool (n,) or (W, n) array,
+        False: no force there); ``name`` names the value in errors."""
+        self._family(family)
+        n = self.model.host.count(family)
+        a = self._mask(value, n, name or f"{family} mask")
         full = np.ones((self.worlds, max(n, 1)), dtype=np.int32)
         full[:, :n] = a
-        self.control.ipam_enabled.assign(full)
+        self.control.enabled[family].assign(full)
 
     @property
     def cell_mask(self) -> np.ndarray:
