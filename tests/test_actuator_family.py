@@ -161,3 +161,23 @@ def test_tendon_values_that_do_not_fit_the_precision_are_refused():
     add_tendon(design, a, b, stiffness=1e300)
     with pytest.raises(DesignError, match=r"toy_family.add_tendon stiffness = 1e\+300 \(SI\) does not fit in float32"):
         ws.Simulator(design)
+
+
+def test_tendon_curves_follow_the_membrane_in_an_animation(tmp_path):
+    from pxr import Usd
+
+    design, a, b = tendon_design()
+    sim = ws.Simulator(design)
+    sim.set_actuator_controls("tendon", [0.02])
+    frames = [sim.positions]
+    for _ in range(2):
+        sim.step(5)
+        frames.append(sim.positions)
+    path = ws.export_animation(tmp_path / "tendon_anim.usda", design, np.stack(frames), [0.0, 0.005, 0.01])
+    stage = Usd.Stage.Open(str(path))
+    points = stage.GetPrimAtPath("/Scene/Tendons").GetAttribute("points")
+    samples = points.GetTimeSamples()
+    assert len(samples) == 3
+    last = np.array(points.Get(samples[-1]))
+    assert np.allclose(last, np.stack(frames)[-1][[a, b]], atol=1e-6)
+    assert not np.allclose(last, np.array(points.Get(samples[0])))

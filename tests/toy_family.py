@@ -125,7 +125,7 @@ class TendonFamily(ActuatorFamily):
 
     def curve_ends(self, design, positions):
         pairs = np.array([t.vertices for t in design.elements(self.name)], dtype=np.int64)
-        return np.asarray(positions)[pairs]
+        return np.asarray(positions)[..., pairs, :]  # (..., n, 2, 3)
 
     def check_scene_values(self, design, values):
         bad = np.flatnonzero(((values["vertices"] < 0) | (values["vertices"] >= design.rest.n_vertices)).any(axis=1))

@@ -149,7 +149,8 @@ class ActuatorFamily:
 
     # ------------------------------------------------------------------ scenes
     def curve_ends(self, design, positions: np.ndarray) -> np.ndarray:
-        """(n, 2, 3) the two ends each element is drawn between at positions (V, 3)."""
+        """(n, 2, 3) the two ends each element is drawn between at positions (V, 3); (..., n, 2, 3)
+        (or (..., 2 n, 3)) for stacked positions (..., V, 3), e.g. the frames of an animation."""
         raise NotImplementedError
 
     def curve_widths(self, design) -> np.ndarray:

@@ -5,7 +5,8 @@
 
 - ``/Scene/Membrane.points`` (and ``extent``): one sample per frame; the rest shape stays readable
   as the default value of ``points`` and, exactly, as ``warpShape:restPoints``;
-- ``/Scene/Ipams.points`` (end-face centroids, and ``extent``): one sample per frame;
+- ``/Scene/Ipams.points`` (end-face centroids, and ``extent``): one sample per frame, as for the
+  curves of every other actuator family on its prim (``ActuatorFamily.curve_ends``);
 - ``/Scene/Ipams.warpShape:pressure`` / ``warpShape:force`` (Pa / N, per IPAM): one sample per frame
   when given;
 - ``/Scene/Membrane.primvars:warpShape:jammed`` (uniform int per face, 1 = its cell is jammed) and
@@ -29,11 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..actuators import families
 from ..design import Design
 from ..errors import SceneError
 from .scene_schema import IPAMS, MEMBRANE, NS, ROOT_NAME, Scene
 from .scene_write import build_stage, write_stage_atomic
-from .usd_common import FRAME_RATE, check_extension, face_colors, ipam_endpoints, load_pxr
+from .usd_common import FRAME_RATE, check_extension, face_colors, load_pxr
 from .valve import row_times
 
 __all__ = ["export_animation", "playback_times", "PLAYBACKS"]
@@ -92,8 +94,11 @@ def export_animation(path, design: Design, frames, times, *, ipam_pressures=None
     layer.customLayerData = data
     tc = [load_pxr().Usd.TimeCode(float(c)) for c in codes]
     _animate_membrane(stage, x, tc)
+    for fam in families():  # every actuator family's curves follow the membrane
+        if fam.count(design):
+            _animate_curves(stage, design, fam, x, tc)
     if design.n_ipams:
-        _animate_ipams(stage, design, x, tc, pressures, forces)
+        _animate_ipams(stage, x, tc, pressures, forces)
     if jam is not None and design.n_cells:
         _animate_jamming(stage, design, jam, tc)
     return write_stage_atomic(stage, path)
@@ -158,18 +163,25 @@ def _animate_membrane(stage, x: np.ndarray, tc: list) -> None:
         extent.Set(from_np(ext[i]), tc[i])
 
 
-def _animate_ipams(stage, design: Design, x: np.ndarray, tc: list, pressures, forces) -> None:
-    """IPAM end points and extent per frame; pressures and forces per frame when given."""
+def _animate_curves(stage, design: Design, fam, x: np.ndarray, tc: list) -> None:
+    """An actuator family's curve end points (``fam.curve_ends``) and extent per frame."""
     pxr = load_pxr()
     Vt = pxr.Vt
-    curves = pxr.UsdGeom.BasisCurves.Get(stage, f"/{ROOT_NAME}/{IPAMS}")
-    ends = np.ascontiguousarray(ipam_endpoints(design, x), dtype=np.float32)  # (F, 2n, 3)
+    curves = pxr.UsdGeom.BasisCurves.Get(stage, f"/{ROOT_NAME}/{fam.scene_prim}")
+    ends = np.asarray(fam.curve_ends(design, x)).reshape(x.shape[0], -1, 3)
+    ends = np.ascontiguousarray(ends, dtype=np.float32)  # (F, 2n, 3)
     eext = np.ascontiguousarray(np.stack([ends.min(axis=1), ends.max(axis=1)], axis=1))
     cpts, cext = curves.GetPointsAttr(), curves.GetExtentAttr()
     for i in range(x.shape[0]):
         cpts.Set(Vt.Vec3fArray.FromNumpy(ends[i]), tc[i])
         cext.Set(Vt.Vec3fArray.FromNumpy(eext[i]), tc[i])
-    prim = curves.GetPrim()
+
+
+def _animate_ipams(stage, x: np.ndarray, tc: list, pressures, forces) -> None:
+    """IPAM pressures and forces per frame when given."""
+    pxr = load_pxr()
+    Vt = pxr.Vt
+    prim = stage.GetPrimAtPath(f"/{ROOT_NAME}/{IPAMS}")
     for name, values in (("pressure", pressures), ("force", forces)):
         if values is None:
             continue

@@ -13,11 +13,10 @@ import numpy as np
 from ..design import Design
 from ..errors import SceneError
 from ..interrupts import held_interrupts
-from ..physics.ipam import IPAM
 from .scene_schema import SCENE_EXTENSIONS
 
-__all__ = ["FRAME_RATE", "load_pxr", "check_extension", "extent", "face_colors", "ipam_endpoints", "author_mesh",
-           "author_attribute", "MEMBRANE_COLOR", "TARGET_COLOR", "TARGET_OPACITY", "IPAM_COLOR"]
+__all__ = ["FRAME_RATE", "load_pxr", "check_extension", "extent", "face_colors", "author_mesh",
+           "author_attribute", "MEMBRANE_COLOR", "TARGET_COLOR", "TARGET_OPACITY"]
 
 #: time codes per second and frames per second of every animated stage: the film rate content tools
 #: (Blender, usdview, Omniverse) play at, so a second of time codes is a second of playback
@@ -25,7 +24,6 @@ FRAME_RATE = 24.0
 MEMBRANE_COLOR = (0.86, 0.80, 0.74)  # unjammed silicone
 TARGET_COLOR = (0.35, 0.60, 0.90)
 TARGET_OPACITY = 0.35
-IPAM_COLOR = IPAM.color
 JAMMED_SHADE = 0.45  # a jammed cell's colour is its palette colour times this
 
 #: array value types -> (Vt array class name, numpy dtype) used to author them from numpy
@@ -83,12 +81,6 @@ def extent(points: np.ndarray) -> np.ndarray:
     """(2, 3) float32 bounding box (min, max) of (N, 3) points, as USD's ``extent`` holds it."""
     p = np.asarray(points, np.float32)
     return np.stack([p.min(axis=0), p.max(axis=0)])
-
-
-def ipam_endpoints(design: Design, positions) -> np.ndarray:
-    """End-face centroids of every IPAM, (2 n_ipam, 3) (or (..., 2 n_ipam, 3) for stacked frames):
-    face a, face b of IPAM 0, then of IPAM 1, ..."""
-    return IPAM.curve_ends(design, positions)
 
 
 def author_attribute(prim, name: str, usd_type: str, value):
