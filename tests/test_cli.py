@@ -265,23 +265,28 @@ def test_design_progress_counts_phases_by_the_time_they_take(monkeypatch):
         bar.update(i, 4, 3, 300, 0, 2)
         assert bar.tqdm.n == pytest.approx(sum(weights[:i]))
         clock[0] += 2.5 if i < 4 else 0.0
-    # 4 rounds in 10 s: the phases left weigh 46 rounds of 2.5 s
-    assert bar.eta() == f"{int(2.5 * 46 // 60)}:{int(2.5 * 46 % 60):02d}"
+    def clock_text(seconds):
+        return f"{int(seconds // 60)}:{int(seconds % 60):02d}"
+
+    # 4 rounds in 10 s: the phases left weigh sum(weights[4:]) rounds of 2.5 s
+    assert bar.eta() == clock_text(2.5 * sum(weights[4:]))
     bar.update(4, 4, 24, 300, 2, 2)
     assert "final round: model-based control" in bar.compose(bar._text)
-    clock[0] += 20.0  # half the final round's estimate: the bar creeps half way through it
+    final = 2.5 * weights[4]  # the final round's estimate, s
+    clock[0] += 0.5 * final  # half of it: the bar creeps half way through the phase
     text = bar.compose(bar._text)
-    assert bar.tqdm.n == pytest.approx(4 + 0.5 * weights[4]) and "(20 s)" in text
-    assert bar.eta() == "1:35"  # 20 s left of this phase's 40 s, then 70 + 5 s after it
-    clock[0] += 45.0  # 65 s: past its 40 s estimate: at least the phases after it
-    assert bar.eta() == "> 1:15" and " 5/7 final round" in bar.compose(bar._text)
+    assert bar.tqdm.n == pytest.approx(4 + 0.5 * weights[4]) and f"({0.5 * final:.0f} s)" in text
+    after = 2.5 * sum(weights[5:])
+    assert bar.eta() == clock_text(0.5 * final + after)
+    clock[0] += final  # past its estimate: at least the phases after it
+    assert bar.eta() == f"> {clock_text(after)}" and " 5/7 final round" in bar.compose(bar._text)
     on_round(4, None, None)
-    assert bar.tqdm.n == pytest.approx(20.0)
+    assert bar.tqdm.n == pytest.approx(sum(weights[:5]))
     bar.update(4, 4, 7, 300, 0, 9)  # the refinement: 9 worlds for 2 targets
     assert "refinement, 9 worlds: step 7" in bar.compose(bar._text)
     bar.writing_outputs()
-    assert bar.tqdm.n == pytest.approx(48.0) and "writing the outputs" in bar.compose(bar._text)
-    clock[0] += 6.0  # past the outputs' 5 s estimate, the last phase: no figure rather than 0:00 or less
+    assert bar.tqdm.n == pytest.approx(sum(weights[:6])) and "writing the outputs" in bar.compose(bar._text)
+    clock[0] += 2.5 * weights[6] + 1  # past the outputs' estimate, the last phase: "?", never 0:00 or less
     assert bar.eta() == "?"
     bar.__exit__(None, None, None)
     assert bar.tqdm.n == bar.tqdm.total and bar.eta() == "0:00"

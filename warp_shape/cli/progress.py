@@ -28,14 +28,15 @@ class Bar:
     """A tqdm bar on ``stream`` (stderr), disabled when it is not a terminal; a context manager. Its
     clock is redrawn every second, so a long step without news still shows time passing."""
 
-    def __init__(self, total=None, desc: str = "", unit: str = "it", stream=None, smoothing: float = 0.3):
+    def __init__(self, total=None, desc: str = "", unit: str = "it", stream=None, smoothing: float = 0.3,
+                 bar_format: str | None = None):
         from tqdm import tqdm  # here, not at the top: its ~20 ms stay out of start-up (warp-shape --help)
 
         stream = stream if stream is not None else sys.stderr
         size = shutil.get_terminal_size((100, 24))  # a terminal that reports no size gets 100 x 24
         self.tqdm = tqdm(total=total, desc=desc, unit=unit, file=stream, disable=not _on_terminal(stream),
                          ncols=size.columns, nrows=size.lines, leave=True, mininterval=0.2,
-                         smoothing=smoothing)
+                         smoothing=smoothing, bar_format=bar_format)
         self._drawn = 0.0
         self._text = ""
         self._stop = threading.Event()
@@ -81,14 +82,14 @@ class Bar:
 
 
 #: How long each phase of a design takes, in construction rounds (one construction round: every
-#: target controlled by the paper's law, then the next placement), measured on the default problem
-#: (oval + heart, 4 IPAMs, 2 CPU cores): rounds 0-3 about 2.5 s each; the final round with the
-#: model-based refinement of its control about 16 times as long; the simulated placement's
-#: refinement rounds (one batch of 9 worlds each, usually one round) about 28 times; the outputs
-#: (molds, USD, figures) about twice.
-FINAL_ROUND_WEIGHT = 16.0
-REFINE_WEIGHT = 28.0
-OUTPUTS_WEIGHT = 2.0
+#: target controlled by the paper's law, then the next placement), measured in two `make demo` runs
+#: (oval + heart, 4 IPAMs) on the busy 2-core machine: rounds 0-3 about 4.3 s each; the final round
+#: with the model-based refinement of its control 8.5 to 8.7 times as long; the simulated
+#: placement's refinement (one batch of 9 worlds, one round) 12.5 to 18 times; the outputs (molds,
+#: USD, figures) about 2.5 times.
+FINAL_ROUND_WEIGHT = 9.0
+REFINE_WEIGHT = 15.0
+OUTPUTS_WEIGHT = 2.5
 #: what the bar says before the first control step: Warp loads its kernels (compiles them on a first run)
 STARTING = "compiling kernels (first run only; cached after)"
 
@@ -110,9 +111,8 @@ class DesignProgress(Bar):
         self.weights = [1.0] * self.n_rounds + [FINAL_ROUND_WEIGHT if refine_last else 1.0] \
             + ([REFINE_WEIGHT] if refine_rounds else []) + ([OUTPUTS_WEIGHT] if outputs else [])
         self.starts = [sum(self.weights[:k]) for k in range(len(self.weights))]
-        super().__init__(total=sum(self.weights), desc="design", unit="round", stream=stream)
-        self.tqdm.bar_format = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}{postfix}]"
-        self.tqdm.refresh()
+        super().__init__(total=sum(self.weights), desc="design", unit="round", stream=stream,
+                         bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}{postfix}]")
         self.n_targets = max(1, int(n_targets))
         self.refine_last = refine_last
         self.phase = 0
