@@ -355,7 +355,7 @@ def _mesh_axes(fig, spec, title: str, extent: float, view: tuple):
     ax.set_title(title, fontsize=9)
     for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
         setter(-extent, extent)
-    ax.set_box_aspect((1, 1, 1))
+    ax.set_box_aspect((1, 1, 1), zoom=0.85)  # room for the z label
     ax.view_init(*view)
     ax.set_xlabel("x (mm)", fontsize=7)
     ax.set_ylabel("y (mm)", fontsize=7)
