@@ -76,9 +76,9 @@ def run_case(case: str, placement: str, candidates: int | None = None, device: s
                 for key, attr in (("objective", "objective"), ("pcc", "pcc"), ("mare_m", "mare"), ("mpre_pct", "mpre"))}
     corners = corner_ends(res.design, cell_radius)
     added = [dict(round=a["round"], placed_for=names[a["target"]], face_a=a["face_a"], face_b=a["face_b"],
-                  held_for=a.get("held_for", []),
+                  passive_for=a.get("passive_for", []),
                   rest_angle_deg=a.get("rest_angle_deg"), corner_ends=corners[k],
-                  left_out_for=a.get("left_out_for", [])) for k, a in enumerate(res.added)]
+                  passive_for=a.get("passive_for", [])) for k, a in enumerate(res.added)]
     return dict(case=case, placement=placement, candidates=K if placement != "paper" else None, device=device,
                 targets=names, actuators_requested=actuators, actuators=res.design.n_ipams, wall_s=wall,
                 vertices=res.design.rest.n_vertices, cell_radius=cell_radius, by_round=by_round,

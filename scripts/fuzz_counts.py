@@ -849,7 +849,7 @@ def _file_readers():
     """(name, file kind, reader) of every reader of a user's file."""
     import warp_shape as ws
     from warp_shape.cli.view import viewer_command
-    from warp_shape.sweep.results import ResultsTable
+    from warp_shape.sweeps.results import ResultsTable
     from warp_shape.targets import check_mesh_file, load_target
 
     return [("TriMesh.load", "stl", ws.TriMesh.load), ("TriMesh.load ply", "ply", ws.TriMesh.load),
@@ -863,7 +863,7 @@ def _file_readers():
 
 def _results_at(p: Path):
     """A sweep folder whose results.json is ``p`` (a link to it), loaded."""
-    from warp_shape.sweep.results import ResultsTable
+    from warp_shape.sweeps.results import ResultsTable
 
     folder = p.parent / f"sweep_{p.stem}"
     folder.mkdir(exist_ok=True)

@@ -30,7 +30,7 @@ LAYERS = [
     ("warp_shape.controller", 4),
     ("warp_shape.designer", 5), ("warp_shape.scenarios", 5), ("warp_shape.molds", 5),
     ("warp_shape.io", 6),
-    ("warp_shape.sweep", 7),
+    ("warp_shape.sweeps", 7),
     ("warp_shape.cli", 8), ("warp_shape.benchmarks", 8),
 ]
 TOP = 8  # the package's face, warp_shape/__init__.py

@@ -56,7 +56,7 @@ def test_paper_placement_uses_every_actuator_and_ends_far_below_no_actuators(cub
     assert objective.shape == pcc.shape == (6,)
     assert objective[-1] < 0.6 * objective[0] and pcc[-1] > pcc[0] + 0.5, (objective, pcc)
     assert all(r[0].passive_ipams.size == 0 and r[0].passive_cells.size == 0 for r in res.rounds)
-    assert not any(a.get("left_out_for") for a in res.added)
+    assert not any(a.get("passive_for") for a in res.added)
     assert res.placement["method"] == "paper" and res.placement["rounds"] == []
     c = res.design.rest.face_centroids()
     u = c / np.linalg.norm(c, axis=1, keepdims=True)
@@ -87,7 +87,7 @@ def test_default_problem_improves_both_targets(default_run):
     first = report["added"][0]["target"]
     other = 1 - first
     obj = np.array(report["objective_by_round"])
-    if report["targets"][other] in report["added"][0]["held_for"]:
+    if report["targets"][other] in report["added"][0]["passive_for"]:
         assert obj[1, other] == obj[0, other] and pcc[1, other] == pcc[0, other]
     else:
         assert pcc[1, other] != pcc[0, other]

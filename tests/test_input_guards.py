@@ -122,8 +122,8 @@ def test_a_mesh_file_naming_a_special_file_reads_without_it(kind, special, tmp_p
 
 def test_special_manifest_and_sweep_results_are_no_files_of_ours(special, tmp_path):
     from warp_shape.io.atomic import read_manifest
-    from warp_shape.sweep.params import SweepError
-    from warp_shape.sweep.results import ResultsTable
+    from warp_shape.sweeps.params import SweepError
+    from warp_shape.sweeps.results import ResultsTable
 
     out = tmp_path / "out"
     out.mkdir()

@@ -179,9 +179,10 @@ def test_designer_rounds_before_the_last_use_a_cheaper_control():
     from warp_shape.designer.settings import round_control_settings
 
     full = ControlSettings()
-    assert round_control_settings(full, "paper").method == "paper"
+    assert round_control_settings(full, "law").method == "paper"  # the warm-start law
+    assert DesignSettings(round_control="paper").round_control == "law"  # the former name still reads
     quick = round_control_settings(full, "quick")
-    assert quick.method == "inverse" and quick.inverse_plans == "paper" and quick.inverse_iterations == 2
+    assert quick.method == "inverse" and quick.inverse_plans == "warm" and quick.inverse_iterations == 2
     assert round_control_settings(full, "full") == full
     assert round_control_settings(full.replace(method="paper"), "quick").method == "paper"
     with pytest.raises(ws.DesignError, match="round_control"):

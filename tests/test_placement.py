@@ -146,7 +146,7 @@ def test_simulated_placement_single_generated_target(name):
     assert res.placement["method"] == "simulated" and res.placement["candidates"] == ws.DesignSettings().candidates
     assert res.placement["refinement_stopped"]
     for rnd in res.placement["refinement"]:
-        assert rnd["candidates"] and all(c["hold"] or c["cells"] for c in rnd["candidates"])
+        assert rnd["candidates"] and all(c["ipams"] or c["cells"] for c in rnd["candidates"])
         assert all(c["score"] == c["objective"] > 0 for c in rnd["candidates"])
 
 
@@ -170,7 +170,7 @@ def test_simulated_placement_is_never_worse_than_the_papers_on_any_target(names,
     assert np.all(final_sim <= final_paper * (1 + 1e-12)), (final_sim, final_paper)
     for t, n in enumerate(names):  # a held IPAM is out of that target's final sequence
         kept = [rnd["kept"][n] for rnd in sim.placement["refinement"] if n in rnd["kept"]]
-        assert {i for h in kept for i in h["hold"]} <= set(sim.passive_ipams[t])
+        assert {i for h in kept for i in h["ipams"]} <= set(sim.passive_ipams[t])
         assert {c for h in kept for c in h["cells"]} <= set(sim.passive_cells[t])
         if not kept:
             assert sim.results[t].objective == final_paper[t]
@@ -243,7 +243,7 @@ def test_greedy_placement_generated_pair():
             continue
         # a target the kept set does not help leaves it out: its objective is unchanged that round
         for t, n in enumerate(names):
-            if n in rnd["left_out_for"]:
+            if n in rnd["passive_for"]:
                 assert i in res.passive_ipams[t]
                 if i + 1 < len(obj) - 1:  # (the last round is controlled by the model-based controller)
                     assert obj[i + 1, t] == pytest.approx(obj[i, t], rel=1e-3)

@@ -15,9 +15,9 @@ import pytest
 
 import warp_shape as ws
 from warp_shape.cli import main
-from warp_shape.sweep import SweepError, execute, parse_param
-from warp_shape.sweep.backends import check_address
-from warp_shape.sweep.plan import grid_plan, load_problem, subsets_plan
+from warp_shape.sweeps import SweepError, execute, parse_param
+from warp_shape.sweeps.backends import check_address
+from warp_shape.sweeps.plan import grid_plan, load_problem, subsets_plan
 
 #: a tiny run: 162-vertex base mesh, one IPAM, the paper's law, short control
 TINY = {"subdivisions": 2, "method": "paper", "max_steps": 60}
@@ -146,7 +146,7 @@ def test_a_rerun_runs_again_a_finished_run_whose_outputs_were_deleted(serial_swe
 
 
 def test_a_second_sweep_into_a_busy_folder_is_refused(tmp_path):
-    from warp_shape.sweep.results import ResultsTable
+    from warp_shape.sweeps.results import ResultsTable
 
     busy = ResultsTable(tmp_path, [], {})
     busy.lock()  # as a sweep running in another process holds it

@@ -37,22 +37,8 @@ from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, m
 from .scan import ScanComparison, compare_scan, load_scan
 from .settings import SimulationSettings
 from .simulator import Simulator
+from .sweeps import sweep  # the package is warp_shape.sweeps; ws.sweep(...) is its function
 from .physics import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
 
 __version__ = "0.1.0"
-
-
-def __getattr__(name):
-    # ws.sweep(...) (Ray-backed sweeps, docs/sweeps.md) is imported on first use
-    if name == "sweep":
-        import importlib
-
-        return importlib.import_module(".sweep", __name__)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-import warp as _warp  # noqa: E402
-
-if _warp.config.log_level == _warp.LOG_INFO:  # Warp's default: a line per module loaded
-    _warp.config.log_level = _warp.LOG_WARNING

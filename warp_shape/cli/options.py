@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from ..designer import selection_from_settings
+from ..designer import passive_from_settings
 from ..errors import DesignError
 from ..interrupts import release_the_command
 from ..io.atomic import creation_refused
@@ -289,7 +289,7 @@ def actuator_selection(args, scene_settings, names) -> dict:
     ``control_many`` keyword arguments."""
     if getattr(args, "all_actuators", False):
         return {}
-    ipams, cells = selection_from_settings(scene_settings, names)
+    ipams, cells = passive_from_settings(scene_settings, names)
     return dict(passive_ipams=ipams, passive_cells=cells) if any(ipams) or any(cells) else {}
 
 

@@ -6,9 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from ..sweeps import SweepError, sweep
 from .options import MAX_ACTUATORS, add_bounded, check_device
-
-# warp_shape.sweep is imported where a sweep runs: ~20 ms kept out of every command's start-up
 
 __all__ = ["register", "run"]
 
@@ -57,8 +56,6 @@ def register(subparsers) -> None:
 
 
 def _fixed(specs) -> dict:
-    from ..sweep import SweepError
-
     out = {}
     for spec in specs:
         name, sep, value = spec.partition("=")
@@ -70,8 +67,6 @@ def _fixed(specs) -> dict:
 
 def run(args) -> int:
     """Run the sweep; print the summary table (or the rows as JSON) and where the results are."""
-    from ..sweep import sweep
-
     if args.address is None:  # runs on this machine: its device must be here (a cluster's workers have their own)
         check_device(args.device)
     res = sweep(args.kind, args.scene, targets=args.targets, actuators=args.actuators, params=args.param,

@@ -1,7 +1,7 @@
 """``method="inverse"``: model-based control of the air, the IPAM pressures and the jamming plan.
 
 1. Warm start: the paper's law (``method="paper"``), as it is.
-2. Jam plans (``controller.plans``, setting ``inverse_plans``): the paper's jam times, never jamming,
+2. Jam plans (``controller.plans``, setting ``inverse_plans``): the warm start's jam times, never jamming,
    over-inflating and jamming every cell; each plan's main trajectory runs in its own simulator
    (one world per target) and records every control step.
 3. Screening: every plan's state settled and measured (all plans and targets in one batch); the
@@ -147,7 +147,7 @@ def _finish_and_choose(trajs: list, names: list, refined: list, warm: list) -> l
     best = np.argmin(pred, axis=0)
     for p in sorted(set(best.tolist())):
         trajs[p].ramp(refined[p].air, refined[p].pressures)
-        trajs[p].hold()
+        trajs[p].settle()
     out = []
     for w, base in enumerate(warm):
         p = int(best[w])

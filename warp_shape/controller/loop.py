@@ -22,7 +22,7 @@ from .result import ControlResult
 from .settings import ControlSettings
 from .worlds import mask_passive
 
-__all__ = ["run_law", "HOLD_PHASE"]
+__all__ = ["run_law", "SETTLE_PHASE"]
 
 
 def _passive_mask(spec, W: int, n: int, what: str) -> np.ndarray:
@@ -45,17 +45,17 @@ def _simulator(design: Design, s: SimulationSettings, device: str, worlds: int):
     return Simulator(design, device=device, settings=s, worlds=worlds)
 
 
-RUNNING, HOLDING, DONE = 0, 1, 2
-HOLD_PHASE = 3  # the history's phase of a step at which the controls are held for the membrane to settle
+RUNNING, SETTLING, DONE = 0, 1, 2
+SETTLE_PHASE = 3  # the history's phase of a step at which the controls are held for the membrane to settle
 
 
 class _Ending:
-    """Per world: running (the law acts), holding (controls held until the membrane is at rest) or done.
+    """Per world: running (the law acts), settling (controls held until the membrane is at rest) or done.
 
-    A running world starts holding when it meets its deadbands in phase 2 (volume and every IPAM
+    A running world starts settling when it meets its deadbands in phase 2 (volume and every IPAM
     length; an IPAM pinned at a pressure limit while its target asks for more counts as met, since
     it cannot move further), when the mean edge stretch passes ``max_stretch``, or after
-    ``max_steps`` steps of the law. It holds until its largest vertex speed is below
+    ``max_steps`` steps of the law. It settles until its largest vertex speed is below
     ``settle_speed`` (at rest) or for ``max_settle_steps`` control steps. A world that held for its
     deadbands and left them while settling resumes control (within the step limit); otherwise it is
     done, and the observation at which it finished is what its result reports."""
@@ -66,7 +66,7 @@ class _Ending:
         self.state = np.full(W, RUNNING)
         self.cause = [""] * W  # why the world held: "deadbands", "stretch" or "step limit"
         self.stretch_note = [""] * W
-        self.hold_start = np.zeros(W, dtype=np.int64)
+        self.settle_start = np.zeros(W, dtype=np.int64)
         self.law_steps = np.zeros(W, dtype=np.int64)  # control steps at which the law acted
         self.settled = np.zeros(W, dtype=bool)
         self.final_met = np.zeros(W, dtype=bool)  # deadbands met at the final observation
@@ -105,18 +105,18 @@ class _Ending:
             cause = ("deadbands" if met[w] else "stretch" if obs.mean_stretch[w] > s.max_stretch
                      else "step limit" if self.law_steps[w] >= s.max_steps else "")
             if cause:
-                self.state[w], self.cause[w], self.hold_start[w] = HOLDING, cause, obs.step
+                self.state[w], self.cause[w], self.settle_start[w] = SETTLING, cause, obs.step
                 if cause == "stretch":
                     self.stretch_note[w] = (f"target unreachable: mean membrane stretch {obs.mean_stretch[w]:.2f} "
                                             f"exceeds max_stretch {s.max_stretch:g}")
-        for w in np.flatnonzero(self.state == HOLDING):
+        for w in np.flatnonzero(self.state == SETTLING):
             at_rest = obs.max_speed[w] < s.settle_speed
             if at_rest and self.cause[w] == "deadbands" and not met[w]:
                 if self.law_steps[w] < s.max_steps:
                     self.state[w] = RUNNING  # left the deadbands while settling: control on
                     continue
                 self.cause[w] = "step limit"
-            if at_rest or obs.step - self.hold_start[w] >= s.max_settle_steps:
+            if at_rest or obs.step - self.settle_start[w] >= s.max_settle_steps:
                 self.state[w], self.settled[w], self.final[w] = DONE, at_rest, (obs, controls)
                 self.final_met[w] = met[w]
 
@@ -139,7 +139,7 @@ class _Ending:
         s, obs = self.settings, self.final[w][0]
         speed = f"largest vertex speed {obs.max_speed[w] * 1e3:.2g} mm/s"
         rest = (f"at rest ({speed} < {s.settle_speed * 1e3:g} mm/s)" if self.settled[w] else
-                f"not at rest: {speed} after holding the controls {obs.step - self.hold_start[w]} control steps "
+                f"not at rest: {speed} after holding the controls {obs.step - self.settle_start[w]} control steps "
                 f"(max_settle_steps {s.max_settle_steps})")
         limits = ", ".join(saturated)
         if self.cause[w] == "deadbands" and not self.final_met[w]:
@@ -190,7 +190,7 @@ def _run(sim, observer: Observer, law: PaperLaw, ending: _Ending, history: Histo
         was_done = ending.done.copy()
         phase = law.update_phase(obs, ~ending.running)
         ending.update(obs, phase, controls)
-        history.record(obs, np.where(ending.running, phase, HOLD_PHASE), controls, was_done)
+        history.record(obs, np.where(ending.running, phase, SETTLE_PHASE), controls, was_done)
         if recorder is not None:
             recorder.log_control_step(step=step, time=obs.time, positions=obs.positions, sampled=obs.sampled,
                                       rows=history.rows, done=was_done)

@@ -23,14 +23,16 @@ from .trajectory import Trajectory
 
 __all__ = ["parse_plans", "start_plan", "PLAN_HELP"]
 
-PLAN_HELP = "'paper', 'never' or 'overinflate<f>' with f >= 1 (e.g. 'overinflate1.5')"
+PLAN_HELP = "'warm' (the warm start's jam times), 'never' or 'overinflate<f>' with f >= 1 (e.g. 'overinflate1.5')"
+PLAN_ALIASES = {"paper": "warm"}  # the former name of the warm start's jam times
 
 
 def parse_plans(text: str) -> list[tuple[str, float]]:
-    """``"paper never overinflate1.5"`` -> ``[("paper", 0), ("never", 0), ("overinflate", 1.5)]``."""
+    """``"warm never overinflate1.5"`` -> ``[("warm", 0), ("never", 0), ("overinflate", 1.5)]``."""
     out = []
     for token in str(text).split():
-        if token in ("paper", "never"):
+        token = PLAN_ALIASES.get(token, token)
+        if token in ("warm", "never"):
             out.append((token, 0.0))
             continue
         factor = None
@@ -68,7 +70,7 @@ def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
     air = np.array([r.air_moles for r in warm])
     press = np.stack([r.ipam_pressures for r in warm]) if dev.n_ipams else np.zeros((W, 0))
     observer = Observer(dev, ctx.sampler, W, [r.target.volume() for r in warm])
-    if name == "paper":
+    if name == "warm":
         sim = replay_simulator(ctx.design, warm, device=ctx.device)
         hist = _history_from_results(warm, dev)
         step = max(int(r.history["step"][-1]) for r in warm)
@@ -84,8 +86,8 @@ def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
     traj.observe()
     if name == "overinflate":
         traj.ramp(factor * air, press)
-        traj.hold()
+        traj.settle()
         traj.jam_all()
     traj.ramp(air, press)
-    traj.hold()
+    traj.settle()
     return traj

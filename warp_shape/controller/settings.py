@@ -43,7 +43,7 @@ class ControlSettings:
     inverse_iterations: int = 6  # Gauss-Newton iteration limit of the model-based refinement
     inverse_tolerance: float = 0.005  # refinement stops when an iteration lowers the objective by less (relative)
     inverse_settle_steps: int = 60  # simulation steps each explored world settles before it is measured
-    inverse_plans: str = "paper never overinflate1.3 overinflate1.5"  # jam plans tried (controller.plans)
+    inverse_plans: str = "warm never overinflate1.3 overinflate1.5"  # jam plans tried (controller.plans)
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
 
     def __post_init__(self):

@@ -82,7 +82,7 @@ class Trajectory:
             f = np.minimum(k / np.maximum(n, 1), 1.0)
             self._apply(a0 + f * (air - a0), p0 + f[:, None] * (pressures - p0))
 
-    def hold(self) -> None:
+    def settle(self) -> None:
         """Hold the commands until every world is at rest (or ``max_settle_steps`` control steps)."""
         if self.last is None:
             self.observe()

@@ -21,23 +21,22 @@
 
 Modules: ``settings`` (DesignSettings, the registry), ``initialize`` (checks, initial rest shape,
 design copies), ``placement`` (placements as strategies, the paper's rule, candidate ends),
-``holding`` (the default placement), ``refine`` (its refinement rounds), ``greedy`` (the greedy
-placement), ``selection`` (which actuators each target's sequence leaves out), ``rounds`` (a run's
+``per_target`` (the default placement and its refinement rounds), ``greedy`` (the greedy
+placement), ``passive_sets`` (which actuators each target's sequence leaves out), ``rounds`` (a run's
 shared state and its control rounds), ``loop`` (design), ``result`` (DesignResult, plain data).
 """
 
 from .initialize import copy_design, initial_rest_shape
 from .loop import design
 from .placement import PLACEMENTS, PaperPlacement, Placement, PlacementContext, paper_placement, register_placement
-from .holding import HoldingPlacement
+from .per_target import PerTargetPlacement, refine_passive
 from .greedy import GreedyPlacement, greedy_placement
 from .result import DesignResult
 from .rounds import DesignRun
-from .selection import Selection, selection_from_settings, selection_to_settings
+from .passive import PassiveSets, passive_from_settings, passive_to_settings
 from .settings import DesignSettings
-from .refine import refine_holds
 
-__all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "selection_to_settings",
-           "selection_from_settings", "PlacementContext", "paper_placement", "PLACEMENTS", "Selection",
-           "greedy_placement", "refine_holds", "Placement", "PaperPlacement", "HoldingPlacement", "GreedyPlacement",
+__all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "passive_to_settings",
+           "passive_from_settings", "PlacementContext", "paper_placement", "PLACEMENTS", "PassiveSets",
+           "greedy_placement", "refine_passive", "Placement", "PaperPlacement", "PerTargetPlacement", "GreedyPlacement",
            "register_placement", "DesignRun"]

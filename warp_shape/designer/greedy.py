@@ -1,19 +1,7 @@
-"""Greedy placement: each round, candidate actuator sets controlled to every target in one batch.
-
-Round i of ``placement="greedy"``:
-1. ``candidates`` (K) candidate sets (``placement.candidate_ends``): first ends from the largest-error
-   free faces of every target, the other end by the 120-degree rule on the rest shape, a cell of
-   ``cell_radius`` around each end.
-2. One union model: the current design plus every candidate's IPAM and cells (cells of different
-   candidates may share faces). K x targets worlds, world (k, j) candidate k on target j: every other
-   candidate's IPAMs and cells are masked out of it (no force, never jammed), and the actuators target
-   j already leaves out stay left out. One ``control_many`` call: one launch per kernel for all worlds.
-3. A candidate's score is the summed fit objective over the targets, each target counting the better
-   of its objective with the candidate and without it (the previous round's): a candidate that does
-   not help a target is held neutral for it (section V-C), so a round never makes a target worse.
-   The candidate with the lowest score is kept and left out of the targets it does not help; when no
-   candidate lowers the summed objective by more than ``min_gain`` (relative), the design stops early.
-"""
+"""``placement="greedy"``: each round, K candidate actuator sets controlled to every target in one
+batch of worlds of one union model (per-world masks); the set that lowers the summed fit objective
+most is kept and passive for the targets it does not help; the design stops early when none
+gains more than ``min_gain``. It trades targets off. docs/placement.md describes and measures it."""
 
 from __future__ import annotations
 
@@ -24,7 +12,7 @@ from ..design import Design
 from .initialize import copy_design
 from .placement import (Placement, PlacementContext, add_actuator_set, candidate_ends, end_angle_deg, free_faces,
                         register_placement, scaled_errors)
-from .selection import Selection
+from .passive import PassiveSets
 
 __all__ = ["candidate_worlds", "greedy_placement", "GreedyPlacement", "ESCALATED"]
 
@@ -41,17 +29,17 @@ def candidate_worlds(base: Design, ends: list, ctx: PlacementContext) -> tuple[D
     return union, ipams, cells
 
 
-def _passive(selection: Selection, k: int, j: int, ipams: list, cells: list) -> tuple[list, list]:
+def _passive(passive_sets: PassiveSets, k: int, j: int, ipams: list, cells: list) -> tuple[list, list]:
     """World (k, j): what target j leaves out plus every candidate but k."""
-    pi = set(selection.ipams[j]) | {ipams[m] for m in range(len(ipams)) if m != k}
-    pc = set(selection.cells[j]) | {c for m in range(len(cells)) if m != k for c in cells[m]}
+    pi = set(passive_sets.ipams[j]) | {ipams[m] for m in range(len(ipams)) if m != k}
+    pc = set(passive_sets.cells[j]) | {c for m in range(len(cells)) if m != k for c in cells[m]}
     return sorted(pi), sorted(pc)
 
 
-def greedy_placement(current: Design, results, ctx: PlacementContext, round_index: int, selection: Selection, *,
+def greedy_placement(current: Design, results, ctx: PlacementContext, round_index: int, passive_sets: PassiveSets, *,
                      targets, names, control_settings, device, progress=None, recorder=None) -> dict:
     """Round ``round_index`` of the greedy placement (module docstring). Adds the kept set to
-    ``current`` and leaves it out of the targets it does not help (``selection``); returns the
+    ``current`` and leaves it out of the targets it does not help (``passive_sets``); returns the
     round's record: every candidate's ends, per-target objectives and score, the one kept (``chosen``,
     None when the round stopped the design) and the targets that leave it out."""
     T = len(results)
@@ -59,7 +47,7 @@ def greedy_placement(current: Design, results, ctx: PlacementContext, round_inde
     ends = candidate_ends(errors, free_faces(current), ctx, ctx.settings.candidates, round_index + 1)
     union, ipams, cells = candidate_worlds(current, ends, ctx)
     K = len(ends)
-    passive = [_passive(selection, k, j, ipams, cells) for k in range(K) for j in range(T)]
+    passive = [_passive(passive_sets, k, j, ipams, cells) for k in range(K) for j in range(T)]
     runs = control_many(union, [targets[j] for _ in range(K) for j in range(T)], device=device,
                         settings=control_settings, progress=progress, recorder=recorder,
                         passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
@@ -85,11 +73,11 @@ def greedy_placement(current: Design, results, ctx: PlacementContext, round_inde
     new_cells = add_actuator_set(current, a, b, ctx)
     left_out = [t for t in range(T) if obj[best, t] >= prev[t]]
     for t in left_out:
-        selection.ipams[t].add(current.n_ipams - 1)
-        selection.cells[t].update(new_cells)
+        passive_sets.ipams[t].add(current.n_ipams - 1)
+        passive_sets.cells[t].update(new_cells)
     record.update(chosen=best, target=j, face_a=a, face_b=b, error=float(errors[j, a]),
                   error_b=float(errors[j, b]), rest_angle_deg=end_angle_deg(ctx, a, b), new_cells=new_cells,
-                  left_out_for=[names[t] for t in left_out])
+                  passive_for=[names[t] for t in left_out])
     return record
 
 
@@ -107,7 +95,7 @@ class GreedyPlacement(Placement):
     uses_candidates = True
 
     def place(self, run, results, i, round_settings):
-        record = greedy_placement(run.current, results, run.ctx, i, run.selection, targets=run.targets,
+        record = greedy_placement(run.current, results, run.ctx, i, run.passive_sets, targets=run.targets,
                                   names=run.names, control_settings=round_settings, device=run.device,
                                   progress=run.round_progress(i), recorder=run.recorder)
         run.info["rounds"].append(record)
@@ -116,7 +104,7 @@ class GreedyPlacement(Placement):
         if record["chosen"] is not None:
             return record
         run.designs.pop(), run.rounds.pop()  # nothing helps: this round again, by model-based control or as the last
-        if run.round_control == "paper" and CONTROL_METHODS[run.control_settings.method].refines:
+        if run.round_control == "law" and CONTROL_METHODS[run.control_settings.method].refines:
             run.round_control = "quick"
             record["escalated"] = ESCALATED
             run.info["escalated_at"] = i

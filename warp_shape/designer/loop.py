@@ -16,7 +16,7 @@ from .initialize import check_cell_room, check_request, check_targets, copy_desi
 from .placement import PlacementContext, check_record
 from .result import DesignResult
 from .rounds import DesignRun
-from .selection import Selection
+from .passive import PassiveSets
 from .settings import PLACEMENTS, DesignSettings, round_control_settings
 
 __all__ = ["design"]
@@ -36,17 +36,17 @@ def _placement_info(settings: DesignSettings, names, start_pcc: np.ndarray) -> d
                 start_pcc=start_pcc.tolist(), bad_start=bad, rounds=[], stopped=None)
 
 
-def control_round(run: DesignRun, i: int, round_settings: ControlSettings, hold=None) -> list:
+def control_round(run: DesignRun, i: int, round_settings: ControlSettings, choose=None) -> list:
     """Round ``i``: the current design controlled to every target (one batch of worlds), the actuators
-    each target leaves out held neutral; recorded, appended to ``run.designs`` and ``run.rounds``.
-    ``hold``: what the round records instead of the results (``Placement.hold``); the results are
+    each target leaves out passive; recorded, appended to ``run.designs`` and ``run.rounds``.
+    ``choose``: what the round records instead of the results (``Placement.before_round``); the results are
     returned."""
     run.designs.append(copy_design(run.current))
     results = control_many(run.current, run.targets, device=run.device, settings=round_settings,
-                           progress=run.round_progress(i), passive_ipams=run.selection.passive_ipams(),
-                           passive_cells=run.selection.passive_cells(), recorder=run.recorder,
+                           progress=run.round_progress(i), passive_ipams=run.passive_sets.passive_ipams(),
+                           passive_cells=run.passive_sets.passive_cells(), recorder=run.recorder,
                            recorder_prefix=f"design/round_{i}", target_names=run.names)
-    run.rounds.append(results if hold is None else hold(results))
+    run.rounds.append(results if choose is None else choose(results))
     if run.recorder is not None:
         run.recorder.log_design_round(i, np.array([r.pcc for r in run.rounds[-1]]), run.names, run.designs[-1])
     if run.on_round is not None:
@@ -83,7 +83,7 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
                            rest_centroids=rest.face_centroids(), settings=settings, actuators=int(actuators))
     run = DesignRun(current=Design(rest, material), targets=targets, names=names, ctx=ctx, settings=settings,
                     control_settings=control_settings, device=device, progress=progress, recorder=recorder,
-                    on_round=on_round, selection=Selection(len(targets)), round_control=settings.round_control,
+                    on_round=on_round, passive_sets=PassiveSets(len(targets)), round_control=settings.round_control,
                     info=_placement_info(settings, names, _start_pcc(rest, sampler, len(targets))))
     placement = PLACEMENTS[settings.placement]()
     i = 0
@@ -91,8 +91,8 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
         run.final = run.final or i == actuators
         round_settings = (control_settings if run.final
                           else round_control_settings(control_settings, run.round_control))
-        hold = None if run.final else placement.hold(run, i, round_settings)
-        results = control_round(run, i, round_settings, hold)
+        choose = None if run.final else placement.before_round(run, i, round_settings)
+        results = control_round(run, i, round_settings, choose)
         if run.final:
             break
         record = placement.place(run, results, i, round_settings)
@@ -104,5 +104,5 @@ def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", t
     pcc_rows = np.array([[r.pcc for r in rs] for rs in run.rounds])
     return DesignResult(design=run.current, designs=run.designs, rounds=run.rounds, pcc_by_round=pcc_rows,
                         target_names=names, targets=targets, added=run.added, settings=settings,
-                        control_settings=control_settings, passive_ipams=run.selection.passive_ipams(),
-                        passive_cells=run.selection.passive_cells(), placement=run.info)
+                        control_settings=control_settings, passive_ipams=run.passive_sets.passive_ipams(),
+                        passive_cells=run.passive_sets.passive_cells(), placement=run.info)

@@ -2,7 +2,7 @@
 
 A placement (a class in ``PLACEMENTS``, built once per design run) decides where each round's
 actuator set goes. The design loop (``designer.loop``) calls, for every round ``i``:
-- ``hold(run, i, round_settings)`` before a round that is not the last: None, or a function of the
+- ``before_round(run, i, round_settings)`` before a round that is not the last: None, or a function of the
   round's results returning what the round records instead (e.g. the better of two runs per target);
 - ``place(run, results, i, round_settings)`` after a round that is not the last: the record of the set
   it added to ``run.current`` (a JSON-ready dict with at least ``RECORD_KEYS``: the round, the target
@@ -12,7 +12,7 @@ actuator set goes. The design loop (``designer.loop``) calls, for every round ``
 and the report calls ``describe(info)`` for its sentence on the method. ``summary`` is the one-line
 help of ``--placement``; ``uses_candidates`` says whether ``DesignSettings.candidates`` means
 anything to it. ``run`` is a ``designer.rounds.DesignRun``. Built in: ``PaperPlacement`` (here),
-``HoldingPlacement`` (``designer.holding``), ``GreedyPlacement`` (``designer.greedy``);
+``PerTargetPlacement`` (``designer.per_target``), ``GreedyPlacement`` (``designer.greedy``);
 ``register_placement`` adds one.
 
 ``paper_placement`` is the paper's rule (Algorithm 1: the largest scaled error, the other end by the
@@ -187,7 +187,7 @@ class Placement:
     summary = ""
     uses_candidates = False
 
-    def hold(self, run: DesignRun, i: int, round_settings: ControlSettings):
+    def before_round(self, run: DesignRun, i: int, round_settings: ControlSettings):
         return None
 
     def place(self, run: DesignRun, results: list, i: int, round_settings: ControlSettings) -> dict | None:

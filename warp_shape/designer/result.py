@@ -8,7 +8,7 @@ import numpy as np
 
 from ..controller import ControlResult, ControlSettings
 from ..design import Design
-from .selection import selection_to_settings
+from .passive import passive_to_settings
 from .settings import DesignSettings
 
 __all__ = ["DesignResult"]
@@ -41,10 +41,10 @@ class DesignResult:
         """One control result per target for the final design."""
         return self.rounds[-1]
 
-    def selection_settings(self) -> dict:
+    def passive_settings(self) -> dict:
         """Controller settings recording which actuators each target's sequence leaves out (flat
         string entries, as scene settings require): ``passive_ipams_<target>`` = "2 3"."""
-        return selection_to_settings(self.target_names, self.passive_ipams, self.passive_cells)
+        return passive_to_settings(self.target_names, self.passive_ipams, self.passive_cells)
 
     def report(self) -> dict:
         """The design outcome as a JSON-ready dict: PCC by round, actuators added, final fit, settings."""

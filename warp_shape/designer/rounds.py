@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from ..controller import ControlSettings
 from ..design import Design
 from .placement import PlacementContext
-from .selection import Selection
+from .passive import PassiveSets
 from .settings import DesignSettings
 
 __all__ = ["DesignRun", "round_progress"]
@@ -28,12 +28,12 @@ class DesignRun:
     progress: object = None  # progress(round, n_rounds, step, max_steps, done, worlds)
     recorder: object = None
     on_round: object = None  # on_round(i, design_i, results_i)
-    selection: Selection = None  # what each target's final sequence leaves out
+    passive_sets: PassiveSets = None  # what each target's final sequence leaves out
     designs: list = field(default_factory=list)  # the design of each recorded round
     rounds: list = field(default_factory=list)  # the control results of each recorded round
     added: list = field(default_factory=list)  # the record of each actuator set placed
     info: dict = field(default_factory=dict)  # the placement report (DesignResult.placement)
-    round_control: str = "paper"  # how the rounds before the last are controlled (DesignSettings.round_control)
+    round_control: str = "law"  # how the rounds before the last are controlled (DesignSettings.round_control)
     final: bool = False  # the next round is the last
 
     @property

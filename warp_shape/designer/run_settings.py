@@ -4,8 +4,8 @@ Every command (``design``, ``control``, ``export``, ``sweep``) builds one ``RunS
 scene's settings groups and its flags (``RunSettings.from_groups``) and passes it down whole; a
 design's ``design.usda`` stores it (``groups``), so re-controlling a saved design runs with the
 settings it was designed with. The groups are those of docs/scene_format.md: ``simulation``
-(``SimulationSettings``), ``controller`` (``ControlSettings``; the per-target actuator selection a
-design stores there is read by ``selection_from_settings``) and ``designer`` (``DesignSettings`` and
+(``SimulationSettings``), ``controller`` (``ControlSettings``; the per-target actuator passive_sets a
+design stores there is read by ``passive_from_settings``) and ``designer`` (``DesignSettings`` and
 ``actuators``). The material is the design's own (``Design.material``); ``material`` here is the one
 a design run gives its new design.
 """
@@ -19,7 +19,7 @@ from ..controller import ControlSettings
 from ..errors import DesignError
 from ..material import Material
 from ..settings import SimulationSettings
-from .selection import SELECTION_PREFIXES
+from .passive import PASSIVE_PREFIXES
 from .settings import DesignSettings
 
 __all__ = ["RunSettings", "DEFAULT_ACTUATORS", "designer_fields"]
@@ -82,7 +82,7 @@ class RunSettings:
         groups = groups or {}
         pick = lambda over: {k: v for k, v in (over or {}).items() if v is not None}  # noqa: E731
         sim = SimulationSettings.from_dict(groups.get("simulation")).replace(**pick(simulation))
-        ctl = {k: v for k, v in groups.get("controller", {}).items() if not k.startswith(SELECTION_PREFIXES)}
+        ctl = {k: v for k, v in groups.get("controller", {}).items() if not k.startswith(PASSIVE_PREFIXES)}
         ctl.update(pick(controller))
         control = ControlSettings().replace(simulation=sim, **ctl)
         des = dict(groups.get("designer", {}))

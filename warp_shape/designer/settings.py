@@ -19,18 +19,20 @@ PLACEMENTS = Registry("placement")
 
 #: How the designer controls the rounds before the last (the last round always uses the control
 #: settings as given, so that re-controlling the saved design reproduces its sequences):
-#: "paper": the paper's law (Algorithm 1 as published; the placement sees its errors; fastest);
-#: "quick": model-based control with the paper's jam times only and at most two refinement steps;
+#: "law": the law that warm-starts the design's controller alone (``ControlSettings.warm_start``, the
+#: paper's by default: Algorithm 1 as published; the placement sees its errors; fastest);
+#: "quick": model-based control with the warm start's jam times only and at most two refinement steps;
 #: "full": the control settings as given, in every round.
-ROUND_CONTROLS = ("paper", "quick", "full")
+ROUND_CONTROLS = ("law", "quick", "full")
+ROUND_CONTROL_ALIASES = {"paper": "law"}  # the former name of "law"
 
 
 def round_control_settings(control_settings, round_control: str):
     """The controller settings of a round before the last (see ``ROUND_CONTROLS``)."""
-    if round_control == "paper":  # the law that starts the design's controller (the paper's, by default)
+    if round_control == "law":  # the law that starts the design's controller (the paper's, by default)
         return control_settings.replace(method=control_settings.warm_start)
     if round_control == "quick" and control_settings.method == "inverse":
-        return control_settings.replace(inverse_plans="paper",
+        return control_settings.replace(inverse_plans="warm",
                                         inverse_iterations=min(2, control_settings.inverse_iterations))
     return control_settings
 
@@ -51,7 +53,7 @@ class DesignSettings:
     ipam_area: float = DEFAULT_IPAM_AREA  # m^2
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
     ipam_pressure_limits: tuple = DEFAULT_IPAM_PRESSURE_LIMITS  # Pa gauge
-    round_control: str = "paper"  # control of the rounds before the last: "paper", "quick" or "full" (ROUND_CONTROLS)
+    round_control: str = "law"  # control of the rounds before the last: "law", "quick" or "full" (ROUND_CONTROLS)
 
     def __post_init__(self):
         check_field_types(self, "DesignSettings")
@@ -59,6 +61,7 @@ class DesignSettings:
             raise DesignError(f"cell_radius must be a positive length in m, got {self.cell_radius}")
         if not 0 < self.volume_scale <= 1:
             raise DesignError(f"volume_scale must be in (0, 1], got {self.volume_scale}")
+        object.__setattr__(self, "round_control", ROUND_CONTROL_ALIASES.get(self.round_control, self.round_control))
         if self.round_control not in ROUND_CONTROLS:
             raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
         PLACEMENTS.check(self.placement, "DesignSettings.placement")

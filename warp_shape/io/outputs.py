@@ -168,7 +168,7 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     names = result.target_names
     settings = RunSettings(control=result.control_settings, designer=result.settings,
                            actuators=max(result.design.n_ipams, 1)).groups()
-    settings["controller"].update(result.selection_settings())
+    settings["controller"].update(result.passive_settings())
     written = [save_scene(Scene(design=result.design, targets=result.targets, target_names=names,
                                 settings=settings), out / "design.usda")]
     written += write_control_outputs(result.results, names, out, usd=True, timing=timing)

@@ -29,7 +29,7 @@ def _added_table(result) -> list[str]:
         first = result.added[0]["target"]
         others = [j for j in range(len(names)) if j != first]
         gains = {names[j]: float(result.pcc_by_round[1, j] - result.pcc_by_round[0, j]) for j in others}
-        held = result.added[0].get("held_for") or []
+        held = result.added[0].get("passive_for") or []
         lines += ["", f"The first IPAM was placed for {names[first]}; its effect on the other target(s): "
                   + ", ".join(f"{n} PCC {g:+.4f}" + (" (held neutral: it raised the objective)" if n in held else "")
                               for n, g in gains.items()) + "."]
@@ -111,8 +111,8 @@ def _placement_section(result) -> list[str]:
                          + f" | {c['score']:.4f} | {100 * c['gain']:+.2f} % |")
         if rnd.get("escalated"):
             lines.append(f"\nNo gain: {rnd['escalated']}.")
-        if rnd.get("left_out_for"):
-            lines.append(f"\nThe kept set is held neutral for {', '.join(rnd['left_out_for'])} "
+        if rnd.get("passive_for"):
+            lines.append(f"\nThe kept set is held neutral for {', '.join(rnd['passive_for'])} "
                          "(it does not help there).")
     if info.get("stopped"):
         lines += ["", f"Stopped early: {info['stopped']}."]
@@ -121,7 +121,7 @@ def _placement_section(result) -> list[str]:
 
 def _held(hold: dict) -> str:
     """"IPAM 2 with cells 4 5" / "cells 4 5" (the IPAM acting): a refinement candidate's hold."""
-    ipams = " ".join(map(str, hold.get("hold", [])))
+    ipams = " ".join(map(str, hold.get("ipams", [])))
     cells = " ".join(map(str, hold.get("cells", [])))
     if ipams:
         return f"IPAM {ipams}" + (f" with cells {cells}" if cells else "")
@@ -133,8 +133,8 @@ def _holds_lines(result, info: dict) -> list[str]:
     names = result.target_names
     lines = []
     for k, a in enumerate(result.added):
-        if a.get("held_for"):
-            lines += ["", f"Round {k + 1}: IPAM {k} was held neutral for {', '.join(a['held_for'])} in that round "
+        if a.get("passive_for"):
+            lines += ["", f"Round {k + 1}: IPAM {k} was held neutral for {', '.join(a['passive_for'])} in that round "
                       "(with it their objective was higher; the last round uses every actuator again)."]
     for rnd in info.get("refinement", []):
         lines += ["", f"Refinement round {rnd['round']}: {rnd['worlds']} worlds.", "",

@@ -1,9 +1,9 @@
-"""Which actuators each target's control sequence leaves out (held neutral, section V-C).
+"""Which actuators each target's control sequence leaves out (passive: held neutral, section V-C).
 
 The simulated placement holds a set neutral for a target when that fits it better (in the rounds and
-in its refinement rounds, ``designer.refine``); the greedy placement (``designer.greedy``) leaves a
+in its refinement rounds, ``designer.per_target``); the greedy placement (``designer.greedy``) leaves a
 kept candidate set out of the sequence of every target it does not help; the paper's placement
-leaves nothing out. The selection is stored in
+leaves nothing out. The passive_sets is stored in
 scene settings as flat strings.
 """
 
@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Selection", "selection_to_settings", "selection_from_settings", "SELECTION_PREFIXES"]
+__all__ = ["PassiveSets", "passive_to_settings", "passive_from_settings", "PASSIVE_PREFIXES"]
 
-#: the scene ``controller`` keys that store a selection: ``passive_ipams_<target>``, ``passive_cells_<target>``
-SELECTION_PREFIXES = ("passive_ipams_", "passive_cells_")
+#: the scene ``controller`` keys that store a passive_sets: ``passive_ipams_<target>``, ``passive_cells_<target>``
+PASSIVE_PREFIXES = ("passive_ipams_", "passive_cells_")
 
 
-class Selection:
+class PassiveSets:
     """Per target: the IPAMs and cells left out of its control sequence."""
 
     def __init__(self, n_targets: int):
@@ -37,7 +37,7 @@ def _setting_key(name: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in name)
 
 
-def selection_to_settings(names, passive_ipams, passive_cells) -> dict:
+def passive_to_settings(names, passive_ipams, passive_cells) -> dict:
     """Scene controller settings recording each target's passive IPAMs and cells (flat strings)."""
     out = {}
     for name, pi, pc in zip(names, passive_ipams, passive_cells):
@@ -48,8 +48,8 @@ def selection_to_settings(names, passive_ipams, passive_cells) -> dict:
     return out
 
 
-def selection_from_settings(settings: dict | None, names) -> tuple[list, list]:
-    """Per-target passive IPAM and cell lists stored by ``selection_to_settings`` (empty if none)."""
+def passive_from_settings(settings: dict | None, names) -> tuple[list, list]:
+    """Per-target passive IPAM and cell lists stored by ``passive_to_settings`` (empty if none)."""
     ctl = (settings or {}).get("controller", {})
     ipams = [[int(v) for v in str(ctl.get(f"passive_ipams_{_setting_key(n)}", "")).split()] for n in names]
     cells = [[int(v) for v in str(ctl.get(f"passive_cells_{_setting_key(n)}", "")).split()] for n in names]

@@ -12,9 +12,6 @@ per run), ``run`` (one run: design and outputs), ``results`` (the streamed table
 (serial and Ray), ``summary`` (Markdown table and figure), ``api`` (``sweep``).
 """
 
-import sys
-import types
-
 from .api import KINDS, SweepResult, sweep
 from .backends import BACKENDS
 from .params import SweepError, known_params, parse_param
@@ -23,14 +20,3 @@ from .run import execute
 
 __all__ = ["sweep", "SweepResult", "SweepError", "KINDS", "BACKENDS", "RunTask", "execute", "known_params",
            "parse_param"]
-
-
-class _CallableModule(types.ModuleType):
-    """``warp_shape.sweep`` is both this package and the function: ``ws.sweep(...)`` runs ``api.sweep``
-    whichever of the two an attribute look-up finds first (importing the package rebinds the name)."""
-
-    def __call__(self, *args, **kwargs):
-        return sweep(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule
