@@ -228,7 +228,7 @@ def test_a_killed_worker_is_retried_within_the_sweep(ray_local, tmp_path):
 
 def test_grid_summary_ticks_counts_at_the_swept_values_only(tmp_path):
     pytest.importorskip("matplotlib")
-    from warp_shape.sweep.summary import build_summary_figure, write_summary
+    from warp_shape.sweeps.summary import build_summary_figure, write_summary
 
     rows = [dict(status="ok", targets="oval", actuators=a, pcc_oval=p) for a, p in ((1, 0.91), (2, 0.95))]
     ax = build_summary_figure(rows, ["oval"], ["actuators"], "grid").axes[0]

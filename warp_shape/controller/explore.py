@@ -39,10 +39,10 @@ class Explorer:
     """Settles batches of worlds of one design. ``target_volume``: (T,) volume of every target;
     ``passive``: (T, n_ipam) bool, the IPAMs each target holds neutral."""
 
-    def __init__(self, design, sim_settings, device: str, sampler: RadialSampler, dev: HostModel,
+    def __init__(self, design, sim_settings, device: str, sampler: RadialSampler, host: HostModel,
                  target_volume: np.ndarray, passive: np.ndarray, settle_steps: int, control_period: int):
         self.design, self.sim_settings, self.device = design, sim_settings, device
-        self.sampler, self.dev = sampler, dev
+        self.sampler, self.host = sampler, host
         self.target_volume, self.passive = np.asarray(target_volume, float), passive
         self.settle_steps, self.period = int(settle_steps), int(control_period)
         self._sims: dict[int, object] = {}
@@ -60,15 +60,15 @@ class Explorer:
         sim = self._sim(B)
         sim.load_worlds(states)
         sim.air_moles = np.asarray(air, dtype=np.float64)
-        passive = self.passive[np.asarray(targets)] if self.dev.n_ipams else np.zeros((B, 0), bool)
+        passive = self.passive[np.asarray(targets)] if self.host.n_ipams else np.zeros((B, 0), bool)
         mask_passive(sim, passive)
-        p = np.array(pressures, dtype=np.float64).reshape(B, self.dev.n_ipams)
+        p = np.array(pressures, dtype=np.float64).reshape(B, self.host.n_ipams)
         done = 0
         while done < self.settle_steps:
             if passive.any():
                 lengths = np.asarray(sim.ipam_lengths()).reshape(B, -1)
-                p = np.where(passive, ipam_neutral_pressures(lengths, self.dev), p)
-            if self.dev.n_ipams:
+                p = np.where(passive, ipam_neutral_pressures(lengths, self.host), p)
+            if self.host.n_ipams:
                 sim.ipam_pressures = p
             n = min(self.period, self.settle_steps - done)
             sim.step(n)
@@ -81,6 +81,6 @@ class Explorer:
         x = np.asarray(sim.positions, dtype=np.float64).reshape(sim.worlds, -1, 3)
         sampled = self.sampler.sample_worlds(x, targets)
         r, R = np.linalg.norm(x, axis=2), np.linalg.norm(sampled, axis=2)
-        fit = fit_of(x, sampled, self.dev.faces, self.target_volume[targets])
-        return Settled(r=r, R=R, weights=vertex_area_shares(sampled, self.dev.faces), objective=fit["objective"],
+        fit = fit_of(x, sampled, self.host.faces, self.target_volume[targets])
+        return Settled(r=r, R=R, weights=vertex_area_shares(sampled, self.host.faces), objective=fit["objective"],
                        mare=fit["mare"], speed=max_speeds(sim), states=sim.snapshot())

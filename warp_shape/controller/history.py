@@ -26,15 +26,15 @@ HISTORY_COLUMNS = ("step", "time", "phase", "air_mol", "pressure_pa", "volume_m3
                    "max_speed_m_s", "objective", "pcc", "mare_m", "mpre_pct")
 
 
-def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: HostModel) -> dict:
+def history_row(obs: Observation, w: int, phase: int, controls: Controls, host: HostModel) -> dict:
     """World ``w``'s row of the record at this observation (columns in the module docstring)."""
     row = dict(step=obs.step, time=obs.time, phase=int(phase), air_mol=controls.air[w],
-               pressure_pa=obs.pressure_abs[w] - dev.atmospheric_pressure, volume_m3=obs.volume[w],
+               pressure_pa=obs.pressure_abs[w] - host.atmospheric_pressure, volume_m3=obs.volume[w],
                target_volume_m3=obs.target_volume[w])
-    for fam in dev.families:  # the IPAM's columns, then every other actuator family's
+    for fam in host.families:  # the IPAM's columns, then every other actuator family's
         part = obs.actuators[fam.name]
-        row.update(fam.history_row(part, part["controls"], w, dev.actuators[fam.name]))
-    for j in range(dev.n_cells):
+        row.update(fam.history_row(part, part["controls"], w, host.actuators[fam.name]))
+    for j in range(host.n_cells):
         row[f"cell{j}_kappa_m"] = obs.kappa[w, j]
         row[f"cell{j}_kappa_target_m"] = obs.kappa_target[w, j]
         row[f"cell{j}_jammed"] = int(obs.jammed[w, j])
@@ -49,8 +49,8 @@ def history_row(obs: Observation, w: int, phase: int, controls: Controls, dev: H
 class History:
     """Rows and float32 membrane frames of every world, recorded while the world runs."""
 
-    def __init__(self, worlds: int, dev: HostModel):
-        self.dev = dev
+    def __init__(self, worlds: int, host: HostModel):
+        self.host = host
         self.rows: list[list[dict]] = [[] for _ in range(worlds)]
         self.frames: list[list[np.ndarray]] = [[] for _ in range(worlds)]
 
@@ -59,7 +59,7 @@ class History:
         for w in range(len(self.rows)):
             if done[w]:
                 continue
-            self.rows[w].append(history_row(obs, w, phase[w], controls, self.dev))
+            self.rows[w].append(history_row(obs, w, phase[w], controls, self.host))
             self.frames[w].append(obs.positions[w].astype(np.float32))
 
     def columns(self, w: int) -> dict:

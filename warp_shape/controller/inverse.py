@@ -48,7 +48,7 @@ class _Run:
     settings: ControlSettings
     device: str
     sampler: RadialSampler
-    dev: HostModel
+    host: HostModel
     passive_ipams: np.ndarray  # (W, n_ipam) bool
     passive_cells: np.ndarray  # (W, n_cell) bool
 
@@ -73,9 +73,9 @@ def _refine_all(ctx: _Run, trajs: list, warm) -> tuple[list[Refined], int]:
     """Screen every (plan, target) pair in one batch (its start settled and measured), then refine the
     ``PLANS_REFINED`` best plans of every target in one set of batches; one ``Refined`` per plan, and
     the world-steps simulated for it."""
-    W, P, s, n = len(warm), len(trajs), ctx.settings, ctx.dev.n_ipams
+    W, P, s, n = len(warm), len(trajs), ctx.settings, ctx.host.n_ipams
     volumes = np.array([r.target.volume() for r in warm])
-    ex = Explorer(ctx.design, s.simulation, ctx.device, ctx.sampler, ctx.dev, volumes, ctx.passive_ipams,
+    ex = Explorer(ctx.design, s.simulation, ctx.device, ctx.sampler, ctx.host, volumes, ctx.passive_ipams,
                   s.inverse_settle_steps, s.control_period)
     air = np.concatenate([t.controls.air for t in trajs])
     press = np.concatenate([t.controls.pressures for t in trajs]).reshape(P * W, n)
@@ -195,9 +195,9 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     warm = warm_start
     sampler = RadialSampler([r.target for r in warm], device=device)
     probe = _Run(design, settings, device, sampler, None, None, None)
-    dev = host_model(design)
-    pi, pc = passive_masks(warm, dev.n_ipams, dev.n_cells)
-    ctx = dataclasses.replace(probe, dev=dev, passive_ipams=pi, passive_cells=pc)
+    host = host_model(design)
+    pi, pc = passive_masks(warm, host.n_ipams, host.n_cells)
+    ctx = dataclasses.replace(probe, host=host, passive_ipams=pi, passive_cells=pc)
     if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
         plans = [p for p in plans if p[0] != "overinflate"] or plans
     trajs = [start_plan(p, ctx, warm) for p in plans]

@@ -50,21 +50,21 @@ class PaperLaw:
     summary = "the paper's law (eqs. 11-15)"
     families = ("ipam",)  # the actuator families it controls; hold_neutral holds the others
 
-    def __init__(self, settings: ControlSettings, dev: HostModel, passive_ipams: np.ndarray,
+    def __init__(self, settings: ControlSettings, host: HostModel, passive_ipams: np.ndarray,
                  passive_cells: np.ndarray):
         W = passive_ipams.shape[0]
         self.settings = settings
-        self.dev = dev
+        self.host = host
         self.passive_ipams = passive_ipams  # (W, n_ipam) bool
         self.passive_cells = passive_cells  # (W, n_cell) bool
         self.phase = np.ones(W, dtype=np.int64)
         self.gain_air = np.full(W, settings.air_gain)  # backed off per world when the volume oscillates
-        self.gain_p = np.full((W, dev.n_ipams), settings.pressure_gain)  # per world and IPAM
+        self.gain_p = np.full((W, host.n_ipams), settings.pressure_gain)  # per world and IPAM
         self.err_v_prev = np.zeros(W)
-        self.err_l_prev = np.zeros((W, dev.n_ipams))
+        self.err_l_prev = np.zeros((W, host.n_ipams))
         # eqs. (14)-(15)'s last curvature and the IPAM back-off's last length error start at a world's
         # first shape-control step: not carried over from the inflation phase, when neither is controlled
-        self.kappa_prev = np.zeros((W, dev.n_cells))
+        self.kappa_prev = np.zeros((W, host.n_cells))
         self.shaped = np.zeros(W, dtype=bool)  # (W,) the world has had a shape-control step
 
     def update_phase(self, obs: Observation, done: np.ndarray) -> np.ndarray:
@@ -94,7 +94,7 @@ class PaperLaw:
         self.gain_air = np.where(flip & active, np.maximum(self.gain_air * s.gain_backoff,
                                                            s.min_gain * s.air_gain), self.gain_air)
         self.err_v_prev = err_v
-        if self.dev.n_ipams:
+        if self.host.n_ipams:
             err_l = obs.ipam_target_lengths - obs.ipam_lengths
             flip_l = (err_l * self.err_l_prev < 0) & (np.abs(err_l) > 0.5 * np.abs(self.err_l_prev)) \
                 & (np.abs(err_l) > s.length_deadband) & self.shaped[:, None]
@@ -104,23 +104,23 @@ class PaperLaw:
 
     def _air(self, obs: Observation, air: np.ndarray, active: np.ndarray) -> np.ndarray:
         """Eq. (11), rate limited: dn = (V_t - V) p_abs / (R T)."""
-        dn = self.gain_air * (obs.target_volume - obs.volume) * obs.pressure_abs / self.dev.gas_rt
-        lim = self.settings.air_rate * self.dev.rest_air
+        dn = self.gain_air * (obs.target_volume - obs.volume) * obs.pressure_abs / self.host.gas_rt
+        lim = self.settings.air_rate * self.host.rest_air
         return np.where(active, np.maximum(air + np.clip(dn, -lim, lim), 0.0), air)
 
     def _pressures(self, obs: Observation, pressures: np.ndarray, active: np.ndarray,
                    shaping: np.ndarray) -> np.ndarray:
         """Eq. (12), rate limited and within limits: dP = (k / A) (L_t - L); passive IPAMs neutral."""
-        dev = self.dev
-        if not dev.n_ipams:
+        host = self.host
+        if not host.n_ipams:
             return pressures
         rate = self.settings.pressure_rate
-        dP = self.gain_p * (obs.ipam_target_lengths - obs.ipam_lengths) / dev.ipam_area_over_k
+        dP = self.gain_p * (obs.ipam_target_lengths - obs.ipam_lengths) / host.ipam_area_over_k
         dP = np.clip(dP, -rate, rate)
-        newP = np.clip(pressures + dP, dev.ipam_limits[:, 0], dev.ipam_limits[:, 1])
+        newP = np.clip(pressures + dP, host.ipam_limits[:, 0], host.ipam_limits[:, 1])
         pressures = np.where(shaping[:, None], newP, pressures)
         if self.passive_ipams.any():  # natural length follows the length: no force, in every phase
-            neutral = ipam_neutral_pressures(obs.ipam_lengths, dev)
+            neutral = ipam_neutral_pressures(obs.ipam_lengths, host)
             pressures = np.where(active[:, None] & self.passive_ipams, neutral, pressures)
         return pressures
 
@@ -128,7 +128,7 @@ class PaperLaw:
         """Eqs. (13)-(15): a cell jams when its curvature is no longer between its previous value (that of
         the law's last shape-control step) and its target (beyond ``curvature_tolerance``). No cell jams
         at a world's first shape-control step: it has no previous curvature yet."""
-        if not (self.dev.n_cells and self.settings.jamming):
+        if not (self.host.n_cells and self.settings.jamming):
             return []
         tol = self.settings.curvature_tolerance
         lo = np.minimum(obs.kappa_target, self.kappa_prev) - tol
@@ -141,13 +141,13 @@ class PaperLaw:
 LAWS.register(PaperLaw)
 
 
-def hold_neutral(sim, law, dev: HostModel, obs: Observation, active: np.ndarray) -> None:
+def hold_neutral(sim, law, host: HostModel, obs: Observation, active: np.ndarray) -> None:
     """Set every actuator family of ``sim`` that ``law`` does not control (its ``families``; the IPAM
     when it names none) to its neutral controls in the ``active`` (W,) worlds (the others keep theirs)."""
     known = getattr(law, "families", ("ipam",))
-    for fam in dev.families:
-        if fam.name in known or not dev.count(fam.name):
+    for fam in host.families:
+        if fam.name in known or not host.count(fam.name):
             continue
         part = obs.actuators[fam.name]
-        neutral = fam.neutral_controls(dev.actuators[fam.name], part, part["controls"])
+        neutral = fam.neutral_controls(host.actuators[fam.name], part, part["controls"])
         sim.set_actuator_controls(fam.name, np.where(active[:, None], neutral, part["controls"]))

@@ -60,9 +60,9 @@ class _Ending:
     deadbands and left them while settling resumes control (within the step limit); otherwise it is
     done, and the observation at which it finished is what its result reports."""
 
-    def __init__(self, settings: ControlSettings, dev: HostModel, passive_ipams: np.ndarray):
+    def __init__(self, settings: ControlSettings, host: HostModel, passive_ipams: np.ndarray):
         W = passive_ipams.shape[0]
-        self.settings, self.dev, self.passive_ipams = settings, dev, passive_ipams
+        self.settings, self.host, self.passive_ipams = settings, host, passive_ipams
         self.state = np.full(W, RUNNING)
         self.cause = [""] * W  # why the world held: "deadbands", "stretch" or "step limit"
         self.stretch_note = [""] * W
@@ -83,7 +83,7 @@ class _Ending:
     def pinned(self, obs: Observation, controls: Controls) -> np.ndarray:
         """(W, n_ipam) bool: active IPAMs at a pressure limit whose target length asks, beyond the
         length deadband, for more in that direction."""
-        lim = self.dev.ipam_limits
+        lim = self.host.ipam_limits
         p = controls.pressures
         want = obs.ipam_target_lengths - obs.ipam_lengths
         far = np.abs(want) >= self.settings.length_deadband
@@ -92,7 +92,7 @@ class _Ending:
     def deadbands_met(self, obs: Observation, controls: Controls) -> np.ndarray:
         """(W,) bool: volume and every IPAM length within their deadbands (pinned or passive IPAMs aside)."""
         vol_ok = obs.volume_within(self.settings.volume_deadband)
-        if not self.dev.n_ipams:
+        if not self.host.n_ipams:
             return vol_ok
         near = np.abs(obs.ipam_target_lengths - obs.ipam_lengths) < self.settings.length_deadband
         return vol_ok & np.all(near | self.pinned(obs, controls) | self.passive_ipams, axis=1)
@@ -125,8 +125,8 @@ class _Ending:
         more, e.g. "ipam 3 at P_max 300 kPa"."""
         obs, controls = self.final[w]
         out = []
-        if self.dev.n_ipams:
-            lim = self.dev.ipam_limits
+        if self.host.n_ipams:
+            lim = self.host.ipam_limits
             for i in np.flatnonzero(self.pinned(obs, controls)[w]):
                 top = controls.pressures[w, i] >= lim[i, 1]
                 out.append(f"ipam {i} at P_{'max' if top else 'min'} {lim[i, 1 if top else 0] / 1e3:g} kPa")
@@ -170,9 +170,9 @@ def _apply(sim, observer: Observer, law, ending: _Ending, obs: Observation, cont
         controls = out.controls
         ending.law_steps += active
     sim.air_moles = controls.air
-    if observer.dev.n_ipams:
+    if observer.host.n_ipams:
         sim.ipam_pressures = controls.pressures
-    hold_neutral(sim, law, observer.dev, obs, active)
+    hold_neutral(sim, law, observer.host, obs, active)
     return controls
 
 
@@ -180,10 +180,10 @@ def _run(sim, observer: Observer, law: PaperLaw, ending: _Ending, history: Histo
          recorder=None) -> np.ndarray:
     """Observe, move on, record, then apply the law's controls, every control period until every world
     is done; returns (W, n_cell) the control step at which each cell jammed (-1: never)."""
-    dev, s = observer.dev, ending.settings
+    host, s = observer.host, ending.settings
     W = len(ending.state)
-    controls = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipams)))
-    jam_steps = np.full((W, dev.n_cells), -1, dtype=np.int64)
+    controls = Controls(air=np.full(W, host.rest_air), pressures=np.zeros((W, host.n_ipams)))
+    jam_steps = np.full((W, host.n_cells), -1, dtype=np.int64)
     step = 0
     while True:
         obs = observer.observe(sim, step, controls.air, controls.pressures)
@@ -232,16 +232,16 @@ def run_law(design: Design, targets: list[TriMesh], law, *, device: str, setting
     sampler = RadialSampler(targets, device=device, names=names)  # checks star-shape, naming the directions
     check_targets_against_rest(design.rest, targets, sampler, names, max_stretch=settings.max_stretch)
     sim = _simulator(design, settings.simulation, device, W)
-    dev = sim.model.host
-    passive_i = _passive_mask(passive_ipams, W, dev.n_ipams, "passive_ipams")  # (W, n_ipam)
-    passive_c = _passive_mask(passive_cells, W, dev.n_cells, "passive_cells")  # (W, n_cell)
+    host = sim.model.host
+    passive_i = _passive_mask(passive_ipams, W, host.n_ipams, "passive_ipams")  # (W, n_ipam)
+    passive_c = _passive_mask(passive_cells, W, host.n_cells, "passive_cells")  # (W, n_cell)
     mask_passive(sim, passive_i, passive_c)
     if recorder is not None:
         recorder.begin_run(design=design, targets=targets, target_names=names, prefix=recorder_prefix,
                            settings=settings)
-    ending, history = _Ending(settings, dev, passive_i), History(W, dev)
-    observer = Observer(dev, sampler, W, [t.volume() for t in targets])
-    jam_steps = _run(sim, observer, law(settings, dev, passive_i, passive_c), ending, history, progress=progress,
+    ending, history = _Ending(settings, host, passive_i), History(W, host)
+    observer = Observer(host, sampler, W, [t.volume() for t in targets])
+    jam_steps = _run(sim, observer, law(settings, host, passive_i, passive_c), ending, history, progress=progress,
                      recorder=recorder)
     results = [_result(w, ending, history, jam_steps, design, targets[w], passive_i, passive_c) for w in range(W)]
     if recorder is not None:

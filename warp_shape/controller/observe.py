@@ -23,18 +23,18 @@ __all__ = ["Observation", "Observer", "ipam_lengths_and_forces",
            "ipam_neutral_pressures", "vertex_area_shares", "fit_of"]
 
 
-def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray, dev: HostModel,
+def ipam_lengths_and_forces(centroids: np.ndarray, target_centroids: np.ndarray, host: HostModel,
                             pressures: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The IPAM law on the host: (W, n_ipam) length L (distance between the end-face centroids),
     target length L_t (the same on the sampled target) and axial force k (L - L_n), L_n = L0 + (A/k) P
     (N, + = tension). ``centroids``: (W, F, 3) face centroids; ``pressures``: (W, n_ipam) gauge Pa."""
-    return IPAM.lengths_and_forces(dev.actuators[IPAM.name], centroids, target_centroids, pressures)
+    return IPAM.lengths_and_forces(host.actuators[IPAM.name], centroids, target_centroids, pressures)
 
 
-def ipam_neutral_pressures(lengths: np.ndarray, dev: HostModel) -> np.ndarray:
+def ipam_neutral_pressures(lengths: np.ndarray, host: HostModel) -> np.ndarray:
     """(W, n_ipam) the gauge pressures (within limits) whose natural length is the current length:
     an IPAM held at such a pressure exerts no force."""
-    return IPAM.neutral_pressures(dev.actuators[IPAM.name], lengths)
+    return IPAM.neutral_pressures(host.actuators[IPAM.name], lengths)
 
 
 @dataclass
@@ -69,12 +69,12 @@ class Observation:
         return np.abs(self.volume - self.target_volume) / self.target_volume < deadband
 
 
-def _curvatures(radii: np.ndarray, dev: HostModel) -> np.ndarray:
+def _curvatures(radii: np.ndarray, host: HostModel) -> np.ndarray:
     """(W, n_cell) kappa = r_anchor - mean r over the cell's faces (eq. 13), from (W, F) face radii."""
-    if not dev.n_cells:
+    if not host.n_cells:
         return np.zeros((radii.shape[0], 0))
-    return np.stack([radii[:, dev.cell_anchors[j]] - radii[:, dev.cell_faces[j]].mean(axis=1)
-                     for j in range(dev.n_cells)], 1)
+    return np.stack([radii[:, host.cell_anchors[j]] - radii[:, host.cell_faces[j]].mean(axis=1)
+                     for j in range(host.n_cells)], 1)
 
 
 def vertex_area_shares(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -105,8 +105,8 @@ class Observer:
     """Takes one observation of every world of a simulator (one target per world; ``target_volumes``:
     (W,) each world's target mesh volume, m^3, the scale of the objective)."""
 
-    def __init__(self, dev: HostModel, sampler: RadialSampler, worlds: int, target_volumes):
-        self.dev = dev
+    def __init__(self, host: HostModel, sampler: RadialSampler, worlds: int, target_volumes):
+        self.host = host
         self.sampler = sampler
         self.world_index = np.arange(worlds)
         self.target_volumes = np.asarray(target_volumes, dtype=np.float64).reshape(worlds)  # m^3, per world
@@ -114,27 +114,27 @@ class Observer:
     def observe(self, sim, step: int, air: np.ndarray, pressures: np.ndarray) -> Observation:
         """The state of every world of ``sim`` now; ``air`` (W,) mol and ``pressures`` (W, n_ipam) Pa
         are the controls in force (the other actuator families' are read from ``sim``)."""
-        dev, W = self.dev, len(self.world_index)
+        host, W = self.host, len(self.world_index)
         x = np.asarray(sim.positions, dtype=np.float64).reshape(W, -1, 3)
         sampled = self.sampler.sample_worlds(x, self.world_index)
-        vol = volumes_np(x, dev.faces)
-        vol_t = volumes_np(sampled, dev.faces)
-        cen = x[:, dev.faces].mean(axis=2)  # (W, F, 3)
-        cen_t = sampled[:, dev.faces].mean(axis=2)
+        vol = volumes_np(x, host.faces)
+        vol_t = volumes_np(sampled, host.faces)
+        cen = x[:, host.faces].mean(axis=2)  # (W, F, 3)
+        cen_t = sampled[:, host.faces].mean(axis=2)
         parts = {}
-        for fam in dev.families:
+        for fam in host.families:
             controls = pressures if fam is IPAM else \
-                np.asarray(sim.actuator_controls(fam.name)).reshape(W, dev.count(fam.name))
-            parts[fam.name] = dict(fam.observe(dev, x, sampled, cen, cen_t, controls), controls=controls)
+                np.asarray(sim.actuator_controls(fam.name)).reshape(W, host.count(fam.name))
+            parts[fam.name] = dict(fam.observe(host, x, sampled, cen, cen_t, controls), controls=controls)
         ipam = parts[IPAM.name]
-        stretch = np.linalg.norm(x[:, dev.hinges[:, 1]] - x[:, dev.hinges[:, 0]], axis=2) / dev.rest_length
+        stretch = np.linalg.norm(x[:, host.hinges[:, 1]] - x[:, host.hinges[:, 0]], axis=2) / host.rest_length
         v = np.asarray(sim.velocities, dtype=np.float64).reshape(W, -1, 3)
-        fit = fit_of(x, sampled, dev.faces, self.target_volumes)
+        fit = fit_of(x, sampled, host.faces, self.target_volumes)
         return Observation(
             step=step, time=sim.time, positions=x, sampled=sampled, volume=vol, target_volume=vol_t,
-            pressure_abs=air * dev.gas_rt / vol, ipam_lengths=ipam["lengths"],
-            ipam_target_lengths=ipam["target_lengths"], ipam_forces=ipam["forces"], kappa=_curvatures(np.linalg.norm(cen, axis=2), dev),
-            kappa_target=_curvatures(np.linalg.norm(cen_t, axis=2), dev),
-            jammed=np.asarray(sim.jammed).reshape(W, dev.n_cells),
+            pressure_abs=air * host.gas_rt / vol, ipam_lengths=ipam["lengths"],
+            ipam_target_lengths=ipam["target_lengths"], ipam_forces=ipam["forces"], kappa=_curvatures(np.linalg.norm(cen, axis=2), host),
+            kappa_target=_curvatures(np.linalg.norm(cen_t, axis=2), host),
+            jammed=np.asarray(sim.jammed).reshape(W, host.n_cells),
             mean_stretch=np.array([s.mean() for s in stretch]), max_speed=np.linalg.norm(v, axis=2).max(axis=1),
             actuators=parts, **fit)

@@ -49,9 +49,9 @@ def parse_plans(text: str) -> list[tuple[str, float]]:
     return out
 
 
-def _history_from_results(results, dev) -> History:
+def _history_from_results(results, host) -> History:
     """A History holding the warm start's rows and frames, to be continued."""
-    hist = History(len(results), dev)
+    hist = History(len(results), host)
     for w, res in enumerate(results):
         cols = list(res.history)
         n = len(res.history[cols[0]])
@@ -66,22 +66,22 @@ def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
     results (one per target)."""
     name, factor = plan
     W = len(warm)
-    dev = ctx.dev
+    host = ctx.host
     air = np.array([r.air_moles for r in warm])
-    press = np.stack([r.ipam_pressures for r in warm]) if dev.n_ipams else np.zeros((W, 0))
-    observer = Observer(dev, ctx.sampler, W, [r.target.volume() for r in warm])
+    press = np.stack([r.ipam_pressures for r in warm]) if host.n_ipams else np.zeros((W, 0))
+    observer = Observer(host, ctx.sampler, W, [r.target.volume() for r in warm])
     if name == "warm":
         sim = replay_simulator(ctx.design, warm, device=ctx.device)
-        hist = _history_from_results(warm, dev)
+        hist = _history_from_results(warm, host)
         step = max(int(r.history["step"][-1]) for r in warm)
-        jam_steps = np.stack([r.jam_steps for r in warm]).astype(np.int64).reshape(W, dev.n_cells)
+        jam_steps = np.stack([r.jam_steps for r in warm]).astype(np.int64).reshape(W, host.n_cells)
         traj = Trajectory(sim, observer, ctx.settings, hist, step, Controls(air.copy(), press.copy()), jam_steps,
                           ctx.passive_ipams, ctx.passive_cells)
         traj.observe()
         return traj
     sim = ctx.new_simulator(W)
-    rest = Controls(air=np.full(W, dev.rest_air), pressures=np.zeros((W, dev.n_ipams)))
-    traj = Trajectory(sim, observer, ctx.settings, History(W, dev), 0, rest, np.full((W, dev.n_cells), -1, np.int64),
+    rest = Controls(air=np.full(W, host.rest_air), pressures=np.zeros((W, host.n_ipams)))
+    traj = Trajectory(sim, observer, ctx.settings, History(W, host), 0, rest, np.full((W, host.n_cells), -1, np.int64),
                       ctx.passive_ipams, ctx.passive_cells)
     traj.observe()
     if name == "overinflate":

@@ -60,15 +60,15 @@ class Refined:
 class _World:
     """One target's refinement state (scaled controls u, bounds, damping, its current world state)."""
 
-    def __init__(self, w, state, air, pressures, active, dev):
-        self.w, self.state, self.dev = w, state, dev
-        self.rest_air = dev.rest_air
-        self.u = np.concatenate([[air / dev.rest_air], np.asarray(pressures) / PRESSURE_SCALE])
+    def __init__(self, w, state, air, pressures, active, host):
+        self.w, self.state, self.host = w, state, host
+        self.rest_air = host.rest_air
+        self.u = np.concatenate([[air / host.rest_air], np.asarray(pressures) / PRESSURE_SCALE])
         self.active = np.concatenate([[True], active])  # air always; IPAMs unless passive
-        lim = dev.ipam_limits / PRESSURE_SCALE
+        lim = host.ipam_limits / PRESSURE_SCALE
         self.lo = np.concatenate([[0.0], lim[:, 0]])
         self.hi = np.concatenate([[np.inf], lim[:, 1]])
-        self.trust = np.concatenate([[AIR_TRUST], np.full(dev.n_ipams, PRESSURE_TRUST / PRESSURE_SCALE)])
+        self.trust = np.concatenate([[AIR_TRUST], np.full(host.n_ipams, PRESSURE_TRUST / PRESSURE_SCALE)])
         self.mu, self.objective, self.start, self.iterations = DAMPING, None, None, 0
         self.mare, self.start_mare = np.nan, np.nan
         self.stop, self.running, self.trace, self.J, self.e = STOP_LIMIT, True, [], None, None
@@ -104,7 +104,7 @@ class _World:
             return []
         g = self.J.T @ self.e
         out = []
-        for i in range(self.dev.n_ipams):
+        for i in range(self.host.n_ipams):
             k = i + 1
             if not self.active[k]:
                 continue
@@ -204,8 +204,8 @@ def refine(explorer: Explorer, states: list, air: np.ndarray, pressures: np.ndar
            active: np.ndarray, iterations: int, tolerance: float) -> Refined:
     """Refine every world's controls from its ``states`` entry (W,) and its controls ``air`` (W,),
     ``pressures`` (W, n_ipam); world w fits target ``targets[w]`` and refines the IPAMs ``active[w]``."""
-    dev = explorer.dev
-    worlds = [_World(w, states[w], air[w], pressures[w], active[w], dev) for w in range(len(states))]
+    host = explorer.host
+    worlds = [_World(w, states[w], air[w], pressures[w], active[w], host) for w in range(len(states))]
     for it in range(iterations):
         running = [wd for wd in worlds if wd.running]
         if not running:
@@ -219,7 +219,7 @@ def refine(explorer: Explorer, states: list, air: np.ndarray, pressures: np.ndar
             wd.stop = STOP_NOTHING
     out_air, out_p = zip(*[wd.controls(wd.u) for wd in worlds]) if worlds else ((), ())
     nan = float("nan")
-    return Refined(air=np.array(out_air), pressures=np.array(out_p).reshape(len(worlds), dev.n_ipams),
+    return Refined(air=np.array(out_air), pressures=np.array(out_p).reshape(len(worlds), host.n_ipams),
                    start_objective=np.array([wd.start if wd.start is not None else nan for wd in worlds]),
                    objective=np.array([wd.objective if wd.objective is not None else nan for wd in worlds]),
                    start_mare=np.array([wd.start_mare for wd in worlds]), mare=np.array([wd.mare for wd in worlds]),

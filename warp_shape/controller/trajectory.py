@@ -34,7 +34,7 @@ class Trajectory:
     def __init__(self, sim, observer: Observer, settings: ControlSettings, history: History, step: int,
                  controls: Controls, jam_steps: np.ndarray, passive_ipams: np.ndarray, passive_cells: np.ndarray):
         self.sim, self.observer, self.settings = sim, observer, settings
-        self.dev: HostModel = observer.dev
+        self.host: HostModel = observer.host
         self.history, self.step, self.controls, self.jam_steps = history, int(step), controls, jam_steps
         self.passive_ipams, self.passive_cells = passive_ipams, passive_cells
         self.W = len(controls.air)
@@ -53,13 +53,13 @@ class Trajectory:
 
     def _apply(self, air: np.ndarray, pressures: np.ndarray) -> None:
         """Set the commands for the next control period (passive IPAMs neutral) and step it."""
-        if self.dev.n_ipams and self.passive_ipams.any():
-            neutral = ipam_neutral_pressures(self.last.ipam_lengths, self.dev)
+        if self.host.n_ipams and self.passive_ipams.any():
+            neutral = ipam_neutral_pressures(self.last.ipam_lengths, self.host)
             pressures = np.where(self.passive_ipams, neutral, pressures)
         self.controls = Controls(air=np.asarray(air, dtype=np.float64).copy(),
                                  pressures=np.asarray(pressures, dtype=np.float64).reshape(self.W, -1).copy())
         self.sim.air_moles = self.controls.air
-        if self.dev.n_ipams:
+        if self.host.n_ipams:
             self.sim.ipam_pressures = self.controls.pressures
         self.sim.step(self.settings.control_period)
         self.step += 1
@@ -70,13 +70,13 @@ class Trajectory:
         control steps within the rate limits (all of a world's commands arrive together)."""
         if self.last is None:
             self.observe()
-        s, dev = self.settings, self.dev
+        s, host = self.settings, self.host
         a0, p0 = self.controls.air.copy(), self.controls.pressures.copy()
         air = np.asarray(air, dtype=np.float64)
         pressures = np.clip(np.asarray(pressures, dtype=np.float64).reshape(self.W, -1),
-                            dev.ipam_limits[:, 0], dev.ipam_limits[:, 1]) if dev.n_ipams else p0
-        n_air = np.abs(air - a0) / (s.air_rate * dev.rest_air)
-        n_p = np.abs(pressures - p0).max(axis=1) / s.pressure_rate if dev.n_ipams else np.zeros(self.W)
+                            host.ipam_limits[:, 0], host.ipam_limits[:, 1]) if host.n_ipams else p0
+        n_air = np.abs(air - a0) / (s.air_rate * host.rest_air)
+        n_p = np.abs(pressures - p0).max(axis=1) / s.pressure_rate if host.n_ipams else np.zeros(self.W)
         n = np.ceil(np.maximum(n_air, n_p) - 1e-9).astype(int)
         for k in range(1, int(n.max(initial=0)) + 1):
             f = np.minimum(k / np.maximum(n, 1), 1.0)
