@@ -121,3 +121,34 @@ def test_cli_takes_registered_strategies_as_choices(tmp_path):
     r = subprocess.run([sys.executable, "-m", "warp_shape.cli", "control", "--help"], capture_output=True,
                        text=True, env=env)
     assert r.returncode == 2 and "no_such_module_here" in r.stderr and "WARP_SHAPE_PLUGINS" in r.stderr
+
+
+def test_a_placement_record_without_its_keys_is_an_error_naming_it():
+    class Careless(ws.Placement):
+        name, summary = "careless", "forgets its record (a test strategy)"
+
+        def place(self, run, results, i, round_settings):
+            return {"round": i}
+
+    ws.register_placement(Careless, replace=True)
+    try:
+        with pytest.raises(ws.DesignError, match=r"placement 'careless' returned a record without \['target'"):
+            ws.design(ws.icosphere(1, 0.035), [ws.target("oval")], actuators=1, placement="careless",
+                      control_settings=ControlSettings(method="paper", max_steps=20))
+    finally:
+        ws.PLACEMENTS.unregister("careless")
+
+
+def test_one_name_per_idea():
+    import types
+
+    from warp_shape.controller.plans import parse_plans
+
+    assert parse_plans("paper never") == [("warm", 0.0), ("never", 0.0)]  # the former name still reads
+    assert ControlSettings().inverse_plans.split()[0] == "warm"
+    assert ws.DesignSettings(round_control="paper").round_control == "law"
+    assert isinstance(ws.sweep, types.FunctionType)
+    import warp_shape.sweeps as sweeps
+    assert ws.sweep is sweeps.sweep and isinstance(sweeps, types.ModuleType)
+    from warp_shape.controller import loop
+    assert loop.SETTLE_PHASE == 3 and not hasattr(loop, "HOLD_PHASE")

@@ -42,3 +42,9 @@ from .physics import FORCE_TERMS
 from .targets import DEFAULT_VOLUME, TARGET_NAMES, target
 
 __version__ = "0.1.0"
+
+
+import warp as _warp  # noqa: E402
+
+if _warp.config.log_level == _warp.LOG_INFO:  # Warp's default: a line per module loaded
+    _warp.config.log_level = _warp.LOG_WARNING
