@@ -33,12 +33,15 @@ from .stability import (check_chamber, check_fixed_step, check_stable_dt, check_
                         stable_dt_estimate, substeps_error, substeps_for, worlds_identical)
 from .step_plan import Checkpoint, StepPlan
 
-__all__ = ["Simulator", "FROM_SETTINGS", "MAX_REFINE", "TANGLE_EVERY"]
+__all__ = ["Simulator", "FROM_SETTINGS", "MAX_REFINE", "TANGLE_EVERY", "TANGLE_MIN_INTERNAL"]
 
 #: most automatic-substep refinement after blow-ups within the estimate (see Simulator._retry)
 MAX_REFINE = 8
 #: output steps between two checks that the membrane does not pass through itself (see check_tangle)
 TANGLE_EVERY = 10
+#: and at least this many internal steps apart, so that a check's host work (about 0.1 ms at 642
+#: vertices) stays a few per cent of the stepping even at one internal step per output step
+TANGLE_MIN_INTERNAL = 50
 #: faces facing the membrane's centre (fraction) beyond which a world is tested exactly for a self-crossing
 INWARD_FACES = 0.01
 
@@ -121,6 +124,8 @@ class Simulator:
         self._checkpoint = Checkpoint(self.state.xv)
         self._broken: SimulationError | None = None
         self._tangled_at = np.full(self.worlds, -1, dtype=np.int64)  # output step each world was found tangled
+        self._tangle_checked_at = 0  # internal step of the last tangle check
+        self._face_corners = tuple(np.ascontiguousarray(self.design.rest.faces[:, k]) for k in range(3))
         self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
         self._volume_cmds = [None, None]  # per state: the recorded volume launch of the chamber check
         self._update_plan()
@@ -537,14 +542,15 @@ class Simulator:
         can miss; the model has no self-contact, and a crumple that untangles within ``TANGLE_EVERY``
         output steps, like a 100-atmosphere recoil, is let through). Cheap first: only a world with more
         than ``INWARD_FACES`` of its faces facing its centre is tested exactly (``crossing.self_crossing``).
-        ``step`` calls it every ``TANGLE_EVERY`` output steps where it checks the volume."""
+        ``step`` calls it every ``TANGLE_EVERY`` output steps, at least ``TANGLE_MIN_INTERNAL`` internal
+        steps apart, where it checks the volume."""
         rest = self.design.rest
-        x = self.state.x.numpy().astype(np.float64).reshape(self.worlds, -1, 3)
-        f = rest.faces
-        normal = np.cross(x[:, f[:, 1]] - x[:, f[:, 0]], x[:, f[:, 2]] - x[:, f[:, 0]])
-        out = x[:, f].mean(axis=2) - x.mean(axis=1, keepdims=True)
-        suspect = np.flatnonzero(np.mean(np.einsum("wij,wij->wi", normal, out) < 0, axis=1) > INWARD_FACES)
-        hits = self_crossing(x[suspect], rest, device="cpu") if suspect.size else []
+        x = self.state.x.numpy().reshape(self.worlds, -1, 3)
+        a, b, c = (x[:, k] for k in self._face_corners)
+        out = a + b + c - 3.0 * x.mean(axis=1, keepdims=True)  # 3 x (face centroid - world centroid)
+        suspect = np.flatnonzero(np.mean((np.cross(b - a, c - a) * out).sum(axis=2) < 0, axis=1) > INWARD_FACES)
+        x = x[suspect].astype(np.float64)
+        hits = self_crossing(x, rest, device="cpu") if suspect.size else []
         found = {int(suspect[w]): (e, face, n) for w, e, face, n in hits}
         before = self._tangled_at.copy()
         self._tangled_at[:] = -1
@@ -566,7 +572,7 @@ class Simulator:
             step=self.step_count, quantity="tangle", safe_dt=safe, world=w)
 
     # ------------------------------------------------------------------ last good state
-    _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at")
+    _KEPT = ("step_count", "time", "_internal_steps", "_estimated_at", "_tangle_checked_at")
 
     def _save(self) -> None:
         self._checkpoint.save(self.state.xv, {"parity": self.plan.parity, **{k: getattr(self, k) for k in self._KEPT}})
@@ -662,7 +668,9 @@ class Simulator:
             self._report(watch.after_step(self.step_count))
             if not watch.deferred:  # each whole output step with a chamber left is the new last good state
                 self.check_volume()
-                if self.step_count % TANGLE_EVERY == 0:
+                if self.step_count % TANGLE_EVERY == 0 and \
+                        self._internal_steps - self._tangle_checked_at >= TANGLE_MIN_INTERNAL:
+                    self._tangle_checked_at = self._internal_steps
                     self.check_tangle()
                 self._save()
         self._report(watch.poll())
