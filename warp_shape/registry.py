@@ -67,11 +67,10 @@ class Registry:
 
     def check(self, name, setting: str) -> None:
         """Raise if ``name`` (the value of ``setting``) is not registered."""
-        if not isinstance(name, str) or name not in self._entries:
-            try:
-                self.get(name)
-            except DesignError as exc:
-                raise DesignError(f"{setting}: {exc}") from None
+        try:
+            self.get(name)
+        except DesignError as exc:
+            raise DesignError(f"{setting}: {exc}") from None
 
     def help(self) -> str:
         """'name: summary; ...' for a command-line help text."""

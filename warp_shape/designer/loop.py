@@ -17,7 +17,7 @@ from .placement import PlacementContext, check_record
 from .result import DesignResult
 from .rounds import DesignRun
 from .passive import PassiveSets
-from .settings import PLACEMENTS, DesignSettings, round_control_settings
+from .settings import DEFAULT_ACTUATORS, PLACEMENTS, DesignSettings, round_control_settings
 
 __all__ = ["design"]
 
@@ -54,7 +54,7 @@ def control_round(run: DesignRun, i: int, round_settings: ControlSettings, choos
     return results
 
 
-def design(base: TriMesh, targets, actuators: int = 4, *, device: str = "cpu", target_names=None,
+def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device: str = "cpu", target_names=None,
            settings: DesignSettings | None = None, control_settings: ControlSettings | None = None,
            material: Material | None = None, progress=None, on_round=None, recorder=None,
            **overrides) -> DesignResult:

@@ -11,7 +11,7 @@ from .placement import PlacementContext
 from .passive import PassiveSets
 from .settings import DesignSettings
 
-__all__ = ["DesignRun", "round_progress"]
+__all__ = ["DesignRun"]
 
 
 @dataclass
@@ -41,12 +41,8 @@ class DesignRun:
         return self.ctx.actuators
 
     def round_progress(self, i: int):
-        """The control progress callback of round ``i``."""
-        return round_progress(self.progress, i, self.actuators)
-
-
-def round_progress(progress, i: int, rounds_total: int):
-    def ctl_progress(step, total, done, worlds):
-        if progress is not None:
-            progress(i, rounds_total, step, total, done, worlds)
-    return ctl_progress
+        """The control progress callback of round ``i``: ``progress(i, actuators, step, total, done, worlds)``."""
+        def ctl_progress(step, total, done, worlds):
+            if self.progress is not None:
+                self.progress(i, self.actuators, step, total, done, worlds)
+        return ctl_progress

@@ -20,11 +20,9 @@ from ..errors import DesignError
 from ..material import Material
 from ..settings import SimulationSettings
 from .passive import PASSIVE_PREFIXES
-from .settings import DesignSettings
+from .settings import DEFAULT_ACTUATORS, DesignSettings
 
-__all__ = ["RunSettings", "DEFAULT_ACTUATORS", "designer_fields"]
-
-DEFAULT_ACTUATORS = 4  # the IPAMs a design places unless the scene or a flag says otherwise
+__all__ = ["RunSettings", "designer_fields"]
 _PAIR_FIELDS = ("ipam_pressure_limits",)  # tuples, stored as "lo hi" strings (scene settings are scalars)
 
 
@@ -90,13 +88,6 @@ class RunSettings:
         actuators = des.pop("actuators", DEFAULT_ACTUATORS)
         return cls(control=control, designer=DesignSettings().replace(**designer_fields(des)),
                    actuators=actuators, material=material)
-
-    def replace(self, **changes) -> "RunSettings":
-        """A copy with some fields changed (``control``, ``designer``, ``actuators``, ``material``)."""
-        unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)})
-        if unknown:
-            raise DesignError(f"unknown RunSettings field(s) {unknown}; known: control, designer, actuators, material")
-        return dataclasses.replace(self, **changes)
 
     def groups(self) -> dict:
         """The settings as scene groups (``{group: {key: value}}``), as ``from_groups`` reads them."""

@@ -11,7 +11,9 @@ from ..errors import DesignError
 from ..registry import Registry
 from ..settings import check_field_types, replace_settings
 
-__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENTS"]
+__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENTS", "DEFAULT_ACTUATORS"]
+
+DEFAULT_ACTUATORS = 4  # the IPAMs a design places unless the scene or a flag says otherwise
 
 #: placements by name (``DesignSettings.placement``; built in: "simulated", "paper", "greedy";
 #: ``designer.placement``; docs/placement.md compares them)
