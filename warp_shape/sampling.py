@@ -27,7 +27,7 @@ from .mesh import TriMesh
 
 __all__ = [
     "RadialSampler", "radial_sample", "check_star_shaped", "fibonacci_directions",
-    "pcc", "mare", "mpre", "shape_metrics", "fit_objective", "radial_metrics",
+    "pcc", "mare", "mpre", "shape_metrics", "fit_objective", "radial_metrics", "vertex_area_shares",
 ]
 
 # Tilt (rad) of the retry rays cast when a ray slips between faces at a vertex or edge.
@@ -231,6 +231,13 @@ class RadialSampler:
 
     def sample_worlds(self, points, world_targets=None) -> np.ndarray:
         """Hits (W, N, 3) float64 for query points (W, N, 3); world w samples ``world_targets[w]``."""
+        return self.sample_worlds_with_faces(points, world_targets)[0]
+
+    def sample_worlds_with_faces(self, points, world_targets=None):
+        """``(hits, faces, on_plane)`` for query points (W, N, 3): the float64 hits (W, N, 3) of
+        ``sample_worlds``, the target face each ray hit (W, N) int64, and (W, N) bool, True where the
+        hit lies on that face's plane (float64 refinement; False: the float32 hit is kept, for a ray
+        nearly parallel to the face or a plane answer far from the float32 one)."""
         p = np.asarray(points, dtype=np.float64)
         if p.ndim != 3 or p.shape[2] != 3:
             raise ShapeError(f"points must have shape (W, N, 3), got {p.shape}")
@@ -243,7 +250,8 @@ class RadialSampler:
         pw = wp.array(p.astype(np.float32), dtype=wp.vec3, device=self.device)
         _, radii, faces = self.launch(pw, ids)
         radii = radii.numpy().astype(np.float64)
-        faces = faces.numpy()
+        faces = faces.numpy().astype(np.int64)
+        on_plane = np.zeros(faces.shape, dtype=bool)
         # Refine in float64: intersect the exact ray with the plane of the face hit (float32 only
         # chose the face). Keeps hits on the original ray and exact at the target's own vertices.
         d = p / np.linalg.norm(p, axis=2, keepdims=True)
@@ -254,9 +262,16 @@ class RadialSampler:
             ok = np.abs(dn) > 1e-3
             t64 = np.where(ok, of / np.where(ok, dn, 1.0), radii[w])
             # keep float32 where the plane answer is far off (a retry hit on a neighbouring face)
-            good = ok & (np.abs(t64 - radii[w]) < 1e-3 * self.max_t)
-            radii[w] = np.where(good, t64, radii[w])
-        return d * radii[..., None]
+            on_plane[w] = ok & (np.abs(t64 - radii[w]) < 1e-3 * self.max_t)
+            radii[w] = np.where(on_plane[w], t64, radii[w])
+        return d * radii[..., None], faces, on_plane
+
+    def face_planes(self, target: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """``(normals, offsets)`` of target ``target``'s faces in float64: (F, 3) unit outward normals
+        n_f and (F,) offsets n_f . (a vertex of f), so that face f lies on the plane n_f . y = offset_f."""
+        if not 0 <= int(target) < self.n_targets:
+            raise ShapeError(f"target {target} is not one of the sampler's {self.n_targets} target(s)")
+        return self._planes[int(target)]
 
     def sample(self, points, target: int = 0) -> np.ndarray:
         """Hits (N, 3) float64 on target ``target`` of the rays from the origin through ``points``."""
@@ -281,6 +296,16 @@ def radial_sample(target: TriMesh, points, *, device=None) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------- metrics
+def vertex_area_shares(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(W, V) the area each vertex stands for (a third of each adjacent face) of the (W, V, 3) ``points``
+    triangulated by ``faces``: the weights of the fit objective (``fit_objective``)."""
+    W, V = points.shape[:2]
+    p = points[:, faces]  # (W, F, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0]), axis=2)  # (W, F)
+    idx = (np.arange(W)[:, None, None] * V + faces[None]).reshape(-1)
+    return np.bincount(idx, weights=np.repeat(area / 3.0, 3, axis=1).reshape(-1), minlength=W * V).reshape(W, V)
+
+
 def _pair(r, R, what: str):
     r = numeric_array(r, f"{what}: r (radii, m)", ShapeError).reshape(-1)
     R = numeric_array(R, f"{what}: R (radii, m)", ShapeError).reshape(-1)

@@ -17,7 +17,7 @@ import numpy as np
 from ..model import HostModel
 from ..physics.ipam import IPAM
 from ..physics.pressure import volumes_np
-from ..sampling import RadialSampler, fit_objective, mare, mpre, pcc
+from ..sampling import RadialSampler, fit_objective, mare, mpre, pcc, vertex_area_shares
 
 __all__ = ["Observation", "Observer", "ipam_lengths_and_forces",
            "ipam_neutral_pressures", "vertex_area_shares", "fit_of"]
@@ -75,16 +75,6 @@ def _curvatures(radii: np.ndarray, host: HostModel) -> np.ndarray:
         return np.zeros((radii.shape[0], 0))
     return np.stack([radii[:, host.cell_anchors[j]] - radii[:, host.cell_faces[j]].mean(axis=1)
                      for j in range(host.n_cells)], 1)
-
-
-def vertex_area_shares(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(W, V) the area each vertex stands for (a third of each adjacent face) of the (W, V, 3) ``points``
-    triangulated by ``faces``."""
-    W, V = points.shape[:2]
-    p = points[:, faces]  # (W, F, 3, 3)
-    area = 0.5 * np.linalg.norm(np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0]), axis=2)  # (W, F)
-    idx = (np.arange(W)[:, None, None] * V + faces[None]).reshape(-1)
-    return np.bincount(idx, weights=np.repeat(area / 3.0, 3, axis=1).reshape(-1), minlength=W * V).reshape(W, V)
 
 
 def fit_of(positions: np.ndarray, sampled: np.ndarray, faces: np.ndarray, target_volumes: np.ndarray) -> dict:
