@@ -18,9 +18,11 @@ from .pressure import add_face_volume
 from .springs import edge_frame, spring_stretch_force
 
 
-def make_hinge_kernel(name: str, with_bending: bool):
+def make_hinge_kernel(name: str, with_bending: bool, module: str | None = None):
     """The fused per-hinge kernel, specialised at compile time with or without bending (k_t = 0
-    designs launch the kernel whose name carries no 'bending' and that holds no bending code)."""
+    designs launch the kernel whose name carries no 'bending' and that holds no bending code).
+    ``module`` given: a backward-enabled build in that Warp module (the differentiable replay's),
+    so the step's own module keeps its forward-only build."""
 
     def kernel(
         # Model:
@@ -70,7 +72,9 @@ def make_hinge_kernel(name: str, with_bending: bool):
             add_face_volume(n_b, x1, h[0], h[1], h[3], w, vslot, fg_out, volume_out)
 
     kernel.__name__ = kernel.__qualname__ = name
-    return wp.kernel(kernel, enable_backward=False)
+    if module is None:
+        return wp.kernel(kernel, enable_backward=False)
+    return wp.kernel(kernel, enable_backward=True, module=module)
 
 
 #: fused pass without bending (k_t = 0): spring + damper, volume and dV/dx

@@ -23,10 +23,10 @@ from ..simulator import Simulator
 from .result import ControlResult
 from .worlds import mask_passive, passive_masks
 
-__all__ = ["replay", "replay_simulator"]
+__all__ = ["replay", "replay_simulator", "control_schedule"]
 
 
-def _schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def control_schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(steps (n,), air (n,), pressures (n, n_ipam), jammed (n, n_cell)) of a result's rows: the
     simulation steps from rest to each row and the controls and jam state at it."""
     h = result.history
@@ -55,7 +55,7 @@ def replay_simulator(design: Design, results, *, device: str = "cpu"):
         raise DesignError("replay needs at least one control result")
     sim_settings = results[0].settings.simulation
     sim = Simulator(design, device=device, settings=sim_settings, worlds=len(results))
-    sched = [_schedule(r, sim.dt) for r in results]
+    sched = [control_schedule(r, sim.dt) for r in results]
     if any(s[3].shape[1] != design.n_cells or s[2].shape[1] != design.n_ipams for s in sched):
         raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
     # actuators a sequence left out are masked out, as when it was recorded

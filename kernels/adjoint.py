@@ -1,0 +1,306 @@
+"""Backward-enabled kernels of the differentiable replay (docs/gradients.md).
+
+The step's own kernels (hinge, integrate, ipam, jamming) are forward-only and update scratch in
+place, which an adjoint cannot run through. These kernels compute the same physics from the same
+``@wp.func`` laws, each writing fresh output arrays (a kernel only accumulates into or overwrites
+arrays it does not read), so Warp's generated adjoints give exact vector-Jacobian products. They
+live in their own Warp module: the forward step's module and its build are unchanged.
+
+One world (W = 1) per replay; arrays keep the world axis of the step's layout so the fused hinge
+pass is shared. The model's parameters are built here too (edge rest values and stiffness, masses,
+IPAM sub-spring offsets) from the rest positions, so the adjoint reaches the rest shape.
+"""
+
+from typing import Any
+
+import warp as wp
+
+from .bending import dihedral_angle
+from .hinge import make_hinge_kernel
+from .ipam import ipam_natural_length
+from .pressure import gauge_pressure
+from .springs import spring_damper_force
+
+MODULE = "warp_shape.kernels.adjoint"
+
+#: the fused hinge pass (spring + damper, bending, volume and dV/dx), backward-enabled
+hinge_grad_kernel = make_hinge_kernel("hinge_grad_kernel", True, module=MODULE)
+
+
+@wp.kernel(module=MODULE)
+def build_edges_kernel(
+    # Model:
+    hinges: wp.array(dtype=wp.vec4i),  # (E,) v0, v1 (edge), v2, v3 (wings)
+    stretch_modulus: wp.array(dtype=Any),  # (1,) E t, N/m
+    bending_stiffness: wp.array(dtype=Any),  # (1,) k_t, N m/rad
+    # State in:
+    rest_in: wp.array(dtype=Any),  # (V,) rest positions, m
+    # Out:
+    edge_out: wp.array3d(dtype=Any),  # (4, 1, E) rest length, rest angle, stretch and bending stiffness
+):
+    """Each edge's rest length and angle, stretch stiffness E t (A_a + A_b) / L^2 and k_t at rest."""
+    e = wp.tid()
+    h = hinges[e]
+    x0 = rest_in[h[0]]
+    x1 = rest_in[h[1]]
+    x2 = rest_in[h[2]]
+    x3 = rest_in[h[3]]
+    length = wp.length(x1 - x0)
+    half = type(length)(0.5)
+    area = half * (wp.length(wp.cross(x1 - x0, x2 - x0)) + wp.length(wp.cross(x0 - x1, x3 - x1)))
+    edge_out[0, 0, e] = length
+    edge_out[1, 0, e] = dihedral_angle(x0, x1, x2, x3)
+    edge_out[2, 0, e] = stretch_modulus[0] * area / (length * length)
+    edge_out[3, 0, e] = bending_stiffness[0]
+
+
+@wp.kernel(module=MODULE)
+def build_mass_kernel(
+    # Model:
+    faces: wp.array(dtype=wp.vec3i),  # (F,)
+    areal_density: Any,  # kg/m^2
+    # State in:
+    rest_in: wp.array(dtype=Any),  # (V,) rest positions, m
+    # Out:
+    mass_out: wp.array(dtype=Any),  # (V,) kg, accumulated (zeroed first)
+):
+    """Lumped mass: a third of each adjacent face's area times the areal density."""
+    f = wp.tid()
+    t = faces[f]
+    x0 = rest_in[t[0]]
+    m = wp.length(wp.cross(rest_in[t[1]] - x0, rest_in[t[2]] - x0)) * areal_density / type(areal_density)(6.0)
+    wp.atomic_add(mass_out, t[0], m)
+    wp.atomic_add(mass_out, t[1], m)
+    wp.atomic_add(mass_out, t[2], m)
+
+
+@wp.kernel(module=MODULE)
+def invert_kernel(
+    # State in:
+    a_in: wp.array(dtype=Any),  # (n,)
+    # Out:
+    inv_out: wp.array(dtype=Any),  # (n,) 1 / a
+):
+    """Element-wise reciprocal (masses into inverse masses)."""
+    i = wp.tid()
+    inv_out[i] = type(a_in[i])(1.0) / a_in[i]
+
+
+@wp.kernel(module=MODULE)
+def build_ipams_kernel(
+    # Model:
+    faces: wp.array(dtype=wp.vec3i),  # (F,)
+    ipam_faces: wp.array(dtype=wp.vec2i),  # (n,) end faces a, b
+    sub_pairs: wp.array(dtype=wp.vec2i),  # (3 n,) vertex of face a, vertex of face b
+    free_fixed: wp.array(dtype=Any),  # (n,) L0 given, m; used where derived is 0
+    derived: wp.array(dtype=wp.int32),  # (n,) 1 where L0 is the rest centroid distance
+    stiffness: wp.array(dtype=Any),  # (n,) k, N/m
+    area: wp.array(dtype=Any),  # (n,) A, m^2
+    # State in:
+    rest_in: wp.array(dtype=Any),  # (V,) rest positions, m
+    # Out:
+    offsets_out: wp.array(dtype=Any),  # (3 n,) sub-spring rest length minus the rest centroid distance, m
+    free_out: wp.array(dtype=Any),  # (n,) L0, m
+    area_over_k_out: wp.array(dtype=Any),  # (n,) A / k, m/Pa
+):
+    """The IPAM arrays that follow the rest shape and the sizes (Design.add_ipam's rule)."""
+    s = wp.tid()
+    i = s // 3
+    fa = faces[ipam_faces[i][0]]
+    fb = faces[ipam_faces[i][1]]
+    third = type(area[i])(1.0) / type(area[i])(3.0)
+    ca = (rest_in[fa[0]] + rest_in[fa[1]] + rest_in[fa[2]]) * third
+    cb = (rest_in[fb[0]] + rest_in[fb[1]] + rest_in[fb[2]]) * third
+    centre = wp.length(cb - ca)
+    pair = sub_pairs[s]
+    offsets_out[s] = wp.length(rest_in[pair[1]] - rest_in[pair[0]]) - centre
+    if s - i * 3 == 0:
+        if derived[i] != 0:
+            free_out[i] = centre
+        else:
+            free_out[i] = free_fixed[i]
+        area_over_k_out[i] = area[i] / stiffness[i]
+
+
+@wp.kernel(module=MODULE)
+def start_state_kernel(
+    # State in:
+    rest_in: wp.array(dtype=Any),  # (V,) rest positions, m
+    # Out:
+    xv_out: wp.array3d(dtype=Any),  # (2, 1, V) positions (the rest positions), velocities (zero)
+):
+    """The replay's first state: at rest."""
+    i = wp.tid()
+    x = rest_in[i]
+    xv_out[0, 0, i] = x
+    xv_out[1, 0, i] = x * type(x[0])(0.0)
+
+
+@wp.kernel(module=MODULE)
+def start_forces_kernel(
+    # Model:
+    viscous_damping: Any,  # c_v, N s/m
+    # State in:
+    xv_in: wp.array3d(dtype=Any),  # (2, 1, V) the evaluation point
+    # Out:
+    fg_out: wp.array3d(dtype=Any),  # (2, 1, V) forces overwritten with -c_v v (N); dV/dx zeroed (m^2)
+    volume_out: wp.array2d(dtype=wp.float64),  # (1, 1) m^3, zeroed
+):
+    """Start one force evaluation."""
+    i = wp.tid()
+    v = xv_in[1, 0, i]
+    fg_out[0, 0, i] = v * (-viscous_damping)
+    fg_out[1, 0, i] = v * type(viscous_damping)(0.0)
+    if i == 0:
+        volume_out[0, 0] = wp.float64(0.0)
+
+
+@wp.kernel(module=MODULE)
+def ipam_grad_kernel(
+    # Model:
+    sub_pairs: wp.array(dtype=wp.vec2i),  # (3 n,) vertex of face a, vertex of face b
+    sub_offsets: wp.array(dtype=Any),  # (3 n,) m
+    stiffness: wp.array(dtype=Any),  # (n,) k, N/m
+    area_over_k: wp.array(dtype=Any),  # (n,) A / k, m/Pa
+    free_length: wp.array(dtype=Any),  # (n,) L0, m
+    damping: wp.array(dtype=Any),  # (n,) N s/m per sub-spring
+    # State in:
+    xv_in: wp.array3d(dtype=Any),  # (2, 1, V) the evaluation point
+    # Control:
+    pressure_in: wp.array(dtype=Any),  # (n,) gauge Pa
+    enabled: wp.array(dtype=wp.int32),  # (n,) 0 where the IPAM is masked out
+    # Out:
+    fg_out: wp.array3d(dtype=Any),  # (2, 1, V) row 0 += sub-spring forces, N
+):
+    """IPAM sub-springs as in kernels/ipam.eval_ipam_kernel."""
+    s = wp.tid()
+    i = s // 3
+    if enabled[i] == 0:
+        return
+    pair = sub_pairs[s]
+    k = stiffness[i]
+    natural = ipam_natural_length(free_length[i], area_over_k[i], pressure_in[i]) + sub_offsets[s]
+    f = spring_damper_force(xv_in[0, 0, pair[0]], xv_in[0, 0, pair[1]], xv_in[1, 0, pair[0]], xv_in[1, 0, pair[1]],
+                            k / type(k)(3.0), natural, damping[i])
+    wp.atomic_add(fg_out, 0, 0, pair[0], f)
+    wp.atomic_sub(fg_out, 0, 0, pair[1], f)
+
+
+@wp.func
+def acceleration(fg: wp.array3d(dtype=Any), volume: wp.array2d(dtype=wp.float64), air: wp.array(dtype=wp.float64),
+                 gas_rt: wp.float64, p_atm: wp.float64, inv_mass: Any, i: int):
+    """(f + p dV/dx) / m of vertex i, p the gauge pressure of the evaluation's volume."""
+    g = fg[1, 0, i]
+    p = gauge_pressure(air[0], volume[0, 0], gas_rt, p_atm)
+    return (fg[0, 0, i] + g * type(g[0])(p)) * inv_mass
+
+
+@wp.kernel(module=MODULE)
+def rk4_point_kernel(
+    # Model:
+    inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
+    gas_rt: wp.float64,  # R T, J/mol
+    p_atm: wp.float64,  # Pa absolute
+    c: Any,  # the step to the next stage point, s (h/2, h/2, h)
+    # Control:
+    air_in: wp.array(dtype=wp.float64),  # (1,) mol
+    # State in:
+    xv_start: wp.array3d(dtype=Any),  # (2, 1, V) the step's first state
+    xv_stage: wp.array3d(dtype=Any),  # (2, 1, V) this stage's point
+    fg_in: wp.array3d(dtype=Any),  # (2, 1, V) this stage's forces without pressure, dV/dx
+    volume_in: wp.array2d(dtype=wp.float64),  # (1, 1) this stage's volume, m^3
+    # Out:
+    accel_out: wp.array2d(dtype=Any),  # (1, V) this stage's acceleration, m/s^2
+    xv_next: wp.array3d(dtype=Any),  # (2, 1, V) the next stage point
+):
+    """One RK4 stage: its slope (v, a) and the next point start + c (v, a)."""
+    i = wp.tid()
+    a = acceleration(fg_in, volume_in, air_in, gas_rt, p_atm, inv_mass[i], i)
+    accel_out[0, i] = a
+    xv_next[0, 0, i] = xv_start[0, 0, i] + xv_stage[1, 0, i] * c
+    xv_next[1, 0, i] = xv_start[1, 0, i] + a * c
+
+
+@wp.kernel(module=MODULE)
+def rk4_combine_kernel(
+    # Model:
+    inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
+    gas_rt: wp.float64,  # R T, J/mol
+    p_atm: wp.float64,  # Pa absolute
+    h: Any,  # internal step, s
+    # Control:
+    air_in: wp.array(dtype=wp.float64),  # (1,) mol
+    # State in:
+    xv_start: wp.array3d(dtype=Any),  # (2, 1, V) the step's first state
+    xv_1: wp.array3d(dtype=Any),  # (2, 1, V) stage points 1-3
+    xv_2: wp.array3d(dtype=Any),
+    xv_3: wp.array3d(dtype=Any),
+    a_0: wp.array2d(dtype=Any),  # (1, V) accelerations of stages 0-2, m/s^2
+    a_1: wp.array2d(dtype=Any),
+    a_2: wp.array2d(dtype=Any),
+    fg_3: wp.array3d(dtype=Any),  # (2, 1, V) the last stage's forces without pressure, dV/dx
+    volume_3: wp.array2d(dtype=wp.float64),  # (1, 1) the last stage's volume, m^3
+    # Out:
+    xv_out: wp.array3d(dtype=Any),  # (2, 1, V) the state after the step
+):
+    """The RK4 step: start + h/6 (k0 + 2 k1 + 2 k2 + k3)."""
+    i = wp.tid()
+    a3 = acceleration(fg_3, volume_3, air_in, gas_rt, p_atm, inv_mass[i], i)
+    two = type(h)(2.0)
+    sixth = h / type(h)(6.0)
+    dx = xv_start[1, 0, i] + (xv_1[1, 0, i] + xv_2[1, 0, i]) * two + xv_3[1, 0, i]
+    dv = a_0[0, i] + (a_1[0, i] + a_2[0, i]) * two + a3
+    xv_out[0, 0, i] = xv_start[0, 0, i] + dx * sixth
+    xv_out[1, 0, i] = xv_start[1, 0, i] + dv * sixth
+
+
+@wp.kernel(module=MODULE)
+def semi_implicit_grad_kernel(
+    # Model:
+    inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
+    gas_rt: wp.float64,  # R T, J/mol
+    p_atm: wp.float64,  # Pa absolute
+    h: Any,  # internal step, s
+    # Control:
+    air_in: wp.array(dtype=wp.float64),  # (1,) mol
+    # State in:
+    xv_in: wp.array3d(dtype=Any),  # (2, 1, V) the step's first state
+    fg_in: wp.array3d(dtype=Any),  # (2, 1, V) forces without pressure, dV/dx
+    volume_in: wp.array2d(dtype=wp.float64),  # (1, 1) m^3
+    # Out:
+    xv_out: wp.array3d(dtype=Any),  # (2, 1, V) the state after the step
+):
+    """Semi-implicit Euler as kernels/integrate.integrate_semi_implicit_fused."""
+    i = wp.tid()
+    v_new = xv_in[1, 0, i] + acceleration(fg_in, volume_in, air_in, gas_rt, p_atm, inv_mass[i], i) * h
+    xv_out[1, 0, i] = v_new
+    xv_out[0, 0, i] = xv_in[0, 0, i] + v_new * h
+
+
+@wp.kernel(module=MODULE)
+def jam_grad_kernel(
+    # Model:
+    hinges: wp.array(dtype=wp.vec4i),  # (E,) v0, v1 (edge), v2, v3 (wings)
+    jam_now: wp.array(dtype=wp.int32),  # (E,) 1 for the edges that jam at this event
+    jam_stretch: Any,  # stretch stiffness multiplier
+    jam_bend: Any,  # bending stiffness multiplier
+    # State in:
+    xv_in: wp.array3d(dtype=Any),  # (2, 1, V) the state the cells jam at
+    edge_in: wp.array3d(dtype=Any),  # (4, 1, E) the edges before the event
+    # Out:
+    edge_out: wp.array3d(dtype=Any),  # (4, 1, E) after it
+):
+    """A jam event: the jamming edges freeze at their current length and angle and stiffen (as
+    kernels/jamming.jam_edges_kernel); the other edges keep their values."""
+    e = wp.tid()
+    if jam_now[e] == 0:
+        for r in range(4):
+            edge_out[r, 0, e] = edge_in[r, 0, e]
+        return
+    h = hinges[e]
+    x0 = xv_in[0, 0, h[0]]
+    x1 = xv_in[0, 0, h[1]]
+    edge_out[0, 0, e] = wp.length(x1 - x0)
+    edge_out[1, 0, e] = dihedral_angle(x0, x1, xv_in[0, 0, h[2]], xv_in[0, 0, h[3]])
+    edge_out[2, 0, e] = edge_in[2, 0, e] * jam_stretch
+    edge_out[3, 0, e] = edge_in[3, 0, e] * jam_bend

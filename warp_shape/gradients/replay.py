@@ -1,0 +1,465 @@
+"""The differentiable replay: a control result's sequence replayed open loop, and its adjoint.
+
+The forward replay is ``controller.replay``'s, on the simulator's own fused step; it fixes the
+schedule (the internal step of every output step, the jam events) and keeps checkpoints every
+``segment`` output steps. The adjoint runs backwards over segments: each is recomputed from its
+checkpoint with the backward-enabled kernels (``kernels/adjoint.py``), then every internal step's
+vector-Jacobian product is taken in reverse, through the jam events (the frozen rest lengths and
+angles depend on the state they froze at) down to the model's parameters and the rest shape.
+docs/gradients.md gives the algorithm and its cost.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from warp_shape.kernels import adjoint as ka
+
+from ..controller.replay import control_schedule
+from ..controller.worlds import mask_passive, passive_masks
+from ..design import Design
+from ..errors import DesignError
+from ..model import PRECISIONS, host_model
+from ..simulator import Simulator
+
+__all__ = ["ReplayPlan", "DifferentiableReplay", "ReplayGradient"]
+
+
+@dataclass
+class ReplayPlan:
+    """What the forward replay fixed (N output steps, R history rows, J jam events).
+
+    ``h`` (N,) internal step of each output step (s) and ``substeps`` (N,) their count; ``row`` (N,)
+    the history row whose controls hold during each output step; ``air`` (R,) mol and ``pressures``
+    (R, n_ipam) Pa the rows' controls; ``jam_steps`` (J,) the output steps before which cells jam and
+    ``jam_edges`` J x (edges newly jammed there); ``checkpoints`` {output step: (2, V, 3) float64
+    state}, ``edges`` J + 1 x (4, E) the edge fields of each jam phase; ``final`` (V, 3) positions at
+    the end."""
+
+    h: np.ndarray
+    substeps: np.ndarray
+    row: np.ndarray
+    air: np.ndarray
+    pressures: np.ndarray
+    enabled: np.ndarray
+    jam_steps: list
+    jam_edges: list
+    checkpoints: dict
+    edges: list
+    jam_states: list
+    final: np.ndarray
+    segment: int
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.h)
+
+    @property
+    def internal_steps(self) -> int:
+        return int(self.substeps.sum())
+
+
+def plan_replay(design: Design, result, *, precision: str = "float64", device: str = "cpu",
+                segment: int | None = None) -> ReplayPlan:
+    """Replay ``result``'s sequence on ``design`` with the simulator (as ``ws.replay``) and record
+    the plan the adjoint needs (see ``ReplayPlan``); ``segment`` output steps between checkpoints
+    (None: the square root of the number of output steps)."""
+    settings = result.settings.simulation.replace(precision=precision)
+    sim = Simulator(design, device=device, settings=settings, worlds=1)
+    steps, air, pressures, jam = control_schedule(result, sim.dt)
+    pi, pc = passive_masks([result], design.n_ipams, design.n_cells)
+    mask_passive(sim, pi, pc)
+    n = int(steps[-1])
+    seg = max(1, int(math.ceil(math.sqrt(max(n, 1))))) if segment is None else int(segment)
+    host = sim.model.host
+    h, sub, row = np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    checkpoints, jam_steps, jam_edges, jam_states = {}, [], [], []
+    edges = [sim.state.edge.numpy()[:, 0].astype(np.float64)]
+    marks = np.unique(steps)
+    for a, b in zip(marks[:-1], marks[1:]):
+        k = min(int(np.searchsorted(steps, b)), len(steps) - 1)
+        new = [int(j) for j in np.flatnonzero(jam[k] & ~np.asarray(sim.jammed).reshape(-1) & ~pc[0])]
+        if new:
+            before = sim.state.jammed.numpy()[0].astype(bool)
+            jam_states.append(_state_of(sim))
+            for j in new:
+                sim.jam(j)
+            jam_steps.append(int(a))
+            jam_edges.append(np.flatnonzero(sim.state.jammed.numpy()[0].astype(bool) & ~before))
+            edges.append(sim.state.edge.numpy()[:, 0].astype(np.float64))
+        sim.air_moles = float(air[k])
+        if design.n_ipams:
+            sim.ipam_pressures = pressures[k]
+        for s in range(int(a), int(b)):
+            if s % seg == 0:
+                checkpoints[s] = _state_of(sim)
+            sim.step(1)
+            h[s], sub[s], row[s] = sim.internal_dt, sim.substeps, k
+    return ReplayPlan(h=h, substeps=sub, row=row, air=air, pressures=pressures,
+                      enabled=(~pi[0]).astype(np.int32), jam_steps=jam_steps, jam_edges=jam_edges,
+                      checkpoints=checkpoints, edges=edges, jam_states=jam_states,
+                      final=np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3), segment=seg)
+
+
+def _state_of(sim) -> np.ndarray:
+    return np.stack([np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3),
+                     np.asarray(sim.velocities, dtype=np.float64).reshape(-1, 3)])
+
+
+@dataclass
+class ReplayGradient:
+    """d(loss)/d(parameter) of a replay, SI: ``rest_positions`` (V, 3) per m, ``youngs_modulus``
+    per Pa and ``stretch_modulus`` per (N/m), ``bending_stiffness`` per (N m/rad), ``ipam_stiffness``
+    (n,) per (N/m), ``ipam_area`` (n,) per m^2, ``air`` (R,) per mol and ``ipam_pressures`` (R, n) per
+    Pa (one per history row: the controls in force up to that row; row 0's hold no step)."""
+
+    loss: float
+    values: dict
+
+
+class DifferentiableReplay:
+    """The replay of ``result`` on ``design`` and its adjoint, in ``precision`` on ``device``.
+
+    ``forward()`` replays (``plan``); ``backward(dloss_dx)`` takes d(loss)/d(final positions) (V, 3)
+    and returns every parameter's gradient (``ReplayGradient.values``). ``positions(params)``
+    replays with changed parameters on the same schedule (for finite-difference checks)."""
+
+    def __init__(self, design: Design, result, *, precision: str = "float64", device: str = "cpu",
+                 segment: int | None = None):
+        if not isinstance(design, Design):
+            raise DesignError(f"a differentiable replay needs a ws.Design, got {type(design).__name__}")
+        if precision not in PRECISIONS:
+            raise DesignError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+        self.design, self.result, self.precision, self.device = design, result, precision, str(device)
+        self.segment = segment
+        self.scalar, self.vec3, self.np_dtype = PRECISIONS[precision]
+        self.host = host_model(design)
+        self.integrator = result.settings.simulation.integrator
+        self.paper_bending = int(result.settings.simulation.bending == "paper")
+        self.plan: ReplayPlan | None = None
+        self._graphs: dict = {}
+        self._build_arrays()
+
+    # ------------------------------------------------------------------ arrays
+    def _arr(self, a, dtype=None, grad=True):
+        dtype = dtype or self.scalar
+        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device, requires_grad=grad)
+
+    def _build_arrays(self) -> None:
+        d, h = self.design, self.host
+        V, E, n = len(h.rest_vertices), len(h.hinges), h.n_ipams
+        mat = d.material
+        vec = lambda shape: wp.zeros(shape, dtype=self.vec3, device=self.device, requires_grad=True)  # noqa: E731
+        sc = lambda shape: wp.zeros(shape, dtype=self.scalar, device=self.device, requires_grad=True)  # noqa: E731
+        self.hinges = wp.array(h.hinges.astype(np.int32), dtype=wp.vec4i, device=self.device)
+        self.owns = wp.array(h.hinge_owns, dtype=wp.int32, device=self.device)
+        self.faces = wp.array(h.faces.astype(np.int32), dtype=wp.vec3i, device=self.device)
+        # parameters
+        self.rest = self._arr(h.rest_vertices.astype(self.np_dtype), self.vec3)
+        self.stretch_modulus = self._arr(np.array([mat.stretch_modulus]))
+        self.bending_stiffness = self._arr(np.array([mat.bending_stiffness]))
+        ip = h.actuators["ipam"]
+        self.ipam_stiffness = self._arr(ip["stiffness"] if n else np.ones(1))
+        self.ipam_area = self._arr(np.array([i.area for i in d.ipams]) if n else np.ones(1))
+        # derived model arrays (outputs of the build, inputs of every step)
+        self.edge0 = sc((4, 1, E))
+        self.mass, self.inv_mass = sc(V), sc(V)
+        self.offsets, self.free_length, self.area_over_k = sc(max(3 * n, 3)), sc(max(n, 1)), sc(max(n, 1))
+        self.sub_pairs = wp.array(ip["sub_pairs"].astype(np.int32).reshape(-1, 2) if n else np.zeros((3, 2), np.int32),
+                                  dtype=wp.vec2i, device=self.device)
+        self.ipam_faces = wp.array(ip["faces"].astype(np.int32).reshape(-1, 2) if n else np.zeros((1, 2), np.int32),
+                                   dtype=wp.vec2i, device=self.device)
+        derived = np.array([abs(i.free_length - i.rest_length) <= 1e-12 * i.rest_length for i in d.ipams], np.int32)
+        self.derived = wp.array(derived if n else np.zeros(1, np.int32), dtype=wp.int32, device=self.device)
+        self.free_fixed = self._arr(ip["free_length"] if n else np.ones(1), grad=False)
+        self.ipam_damping = self._arr(ip["damping"] if n else np.zeros(1), grad=False)
+        self.xv0 = vec((2, 1, V))
+        # step buffers: the state in and out, the edge fields and controls in force
+        self.xv_a, self.xv_b = vec((2, 1, V)), vec((2, 1, V))
+        self.edge = sc((4, 1, E))
+        self.air = wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True)
+        self.pressure = sc(max(n, 1))
+        self.enabled = wp.ones(max(n, 1), dtype=wp.int32, device=self.device)
+        stages = 4 if self.integrator == "rk4" else 1
+        self.fg = [vec((2, 1, V)) for _ in range(stages)]
+        self.volume = [wp.zeros((1, 1), dtype=wp.float64, device=self.device, requires_grad=True)
+                       for _ in range(stages)]
+        self.points = [vec((2, 1, V)) for _ in range(stages - 1)]  # RK4 stage points 1..3
+        self.accel = [vec((1, V)) for _ in range(stages - 1)]  # RK4 accelerations of stages 0..2
+        # jam event buffers
+        self.jam_now = wp.zeros(E, dtype=wp.int32, device=self.device)
+        self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
+        self.xv_jam = vec((2, 1, V))
+        self.params = dict(rest_positions=self.rest, stretch_modulus=self.stretch_modulus,
+                           bending_stiffness=self.bending_stiffness, ipam_stiffness=self.ipam_stiffness,
+                           ipam_area=self.ipam_area)
+
+    # ------------------------------------------------------------------ launches
+    def _build(self, launch) -> None:
+        """The model arrays from the parameters (recorded on the build tape)."""
+        h, V, E, n = self.host, len(self.host.rest_vertices), len(self.host.hinges), self.host.n_ipams
+        self.mass.zero_()
+        launch(ka.build_edges_kernel, E, [self.hinges, self.stretch_modulus, self.bending_stiffness, self.rest,
+                                          self.edge0])
+        launch(ka.build_mass_kernel, len(h.faces), [self.faces, self.scalar(self.design.material.areal_density),
+                                                    self.rest, self.mass])
+        launch(ka.invert_kernel, V, [self.mass, self.inv_mass])
+        if n:
+            launch(ka.build_ipams_kernel, 3 * n, [self.faces, self.ipam_faces, self.sub_pairs, self.free_fixed,
+                                                  self.derived, self.ipam_stiffness, self.ipam_area, self.rest,
+                                                  self.offsets, self.free_length, self.area_over_k])
+        launch(ka.start_state_kernel, V, [self.rest, self.xv0])
+
+    def _forces(self, xv, fg, volume, launch) -> None:
+        m, V, E = self.design.material, len(self.host.rest_vertices), len(self.host.hinges)
+        launch(ka.start_forces_kernel, V, [self.scalar(m.viscous_damping), xv, fg, volume])
+        launch(ka.hinge_grad_kernel, E, [self.hinges, self.owns, self.scalar(m.spring_damping), self.paper_bending,
+                                         1, E, self.edge, xv, 0, fg, volume])
+        if self.host.n_ipams:
+            launch(ka.ipam_grad_kernel, 3 * self.host.n_ipams,
+                   [self.sub_pairs, self.offsets, self.ipam_stiffness, self.area_over_k, self.free_length,
+                    self.ipam_damping, xv, self.pressure, self.enabled, fg])
+
+    def _step(self, h: float, launch) -> None:
+        """One internal step h from xv_a into xv_b."""
+        V = len(self.host.rest_vertices)
+        gas = (wp.float64(self.host.gas_rt), wp.float64(self.host.atmospheric_pressure))
+        if self.integrator != "rk4":
+            self._forces(self.xv_a, self.fg[0], self.volume[0], launch)
+            launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, self.xv_a,
+                                                      self.fg[0], self.volume[0], self.xv_b])
+            return
+        points = [self.xv_a] + self.points
+        for s, c in enumerate((0.5 * h, 0.5 * h, h)):
+            self._forces(points[s], self.fg[s], self.volume[s], launch)
+            launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, self.scalar(c), self.air, self.xv_a, points[s],
+                                             self.fg[s], self.volume[s], self.accel[s], points[s + 1]])
+        self._forces(points[3], self.fg[3], self.volume[3], launch)
+        launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, self.xv_a, *self.points,
+                                           *self.accel, self.fg[3], self.volume[3], self.xv_b])
+
+    # ------------------------------------------------------------------ recorded launches and graphs
+    def _record(self, fill) -> list:
+        """The launches ``fill(launch)`` makes, as (kernel, dim, inputs)."""
+        out = []
+        fill(lambda kernel, dim, inputs: out.append((kernel, dim, list(inputs))))
+        return out
+
+    def _run(self, launches, adjoint: bool = False) -> None:
+        """Launch recorded launches forward, or their adjoints in reverse order."""
+        if not adjoint:
+            for kernel, dim, inputs in launches:
+                wp.launch(kernel, dim, inputs, device=self.device, record_tape=False)
+            return
+        for kernel, dim, inputs in reversed(launches):
+            wp.launch(kernel, dim, inputs, adj_inputs=[_adjoint(a) for a in inputs], device=self.device,
+                      adjoint=True, record_tape=False)
+
+    def _graphs_for(self, h: float):
+        """(forward, vector-Jacobian product) graphs of one internal step h: the forward from xv_a into
+        xv_b; the product zeroes the adjoints of xv_a and of the intermediates, recomputes the step and
+        runs its adjoints (xv_b.grad in, xv_a.grad out; the parameters' and controls' adjoints add up)."""
+        if h in self._graphs:
+            return self._graphs[h]
+        launches = self._record(lambda launch: self._step(h, launch))
+        scratch = [self.xv_a, *self.fg, *self.volume, *self.points, *self.accel]
+        with wp.ScopedCapture(device=self.device, force_module_load=False) as fwd:
+            self._run(launches)
+        with wp.ScopedCapture(device=self.device, force_module_load=False) as vjp:
+            for a in scratch:
+                a.grad.zero_()
+            self._run(launches)
+            self._run(launches, adjoint=True)
+        self._graphs[h] = (fwd.graph, vjp.graph)
+        return self._graphs[h]
+
+    # ------------------------------------------------------------------ forward and backward
+    def forward(self) -> ReplayPlan:
+        """Replay on the simulator and keep the plan (schedule, checkpoints, jam phases)."""
+        self.plan = plan_replay(self.design, self.result, precision=self.precision, device=self.device,
+                                segment=self.segment)
+        return self.plan
+
+    def _set(self, arr: wp.array, value) -> None:
+        arr.assign(np.asarray(value, dtype=arr.numpy().dtype).reshape(arr.numpy().shape))
+
+    def _controls(self, row: int) -> None:
+        p = self.plan
+        self.air.assign(np.array([p.air[row]]))
+        if self.host.n_ipams:
+            self._set(self.pressure, p.pressures[row])
+            self._set(self.enabled, p.enabled)
+
+    def _segment_states(self, start: int, stop: int) -> list:
+        """Every internal state of output steps start..stop-1 recomputed from the checkpoint at start:
+        per output step the list of its substeps' first states, (2, 1, V) arrays."""
+        p = self.plan
+        self._set(self.xv_b, p.checkpoints[start].reshape(2, 1, -1, 3))
+        out = []
+        for k in range(start, stop):
+            self._load_edges(self._phase_of(k))
+            self._controls(int(p.row[k]))
+            fwd, _ = self._graphs_for(float(p.h[k]))
+            firsts = []
+            for _ in range(int(p.substeps[k])):
+                wp.copy(self.xv_a, self.xv_b)
+                firsts.append(wp.clone(self.xv_a, requires_grad=False))
+                wp.capture_launch(fwd)
+            out.append(firsts)
+        return out
+
+    def _phase_of(self, k: int) -> int:
+        """The jam phase of output step k (0 before the first jam event)."""
+        return int(np.searchsorted(self.plan.jam_steps, k, side="right"))
+
+    def _load_edges(self, phase: int) -> None:
+        if getattr(self, "_loaded_phase", None) != phase:
+            self._set(self.edge, self.plan.edges[phase].reshape(4, 1, -1))
+            self._loaded_phase = phase
+
+    def _jam_launch(self):
+        E = len(self.host.hinges)
+        m = self.design.material
+        return (ka.jam_grad_kernel, E, [self.hinges, self.jam_now, self.scalar(m.jam_stretch_factor),
+                                        self.scalar(m.jam_bend_factor), self.xv_jam, self.edge_before,
+                                        self.edge_after])
+
+    def _jam_mask(self, event: int) -> None:
+        mask = np.zeros(len(self.host.hinges), dtype=np.int32)
+        mask[self.plan.jam_edges[event]] = 1
+        self.jam_now.assign(mask)
+
+    def _jam_adjoint(self, event: int, lam: wp.array) -> None:
+        """Back through jam event ``event``: edge.grad (the adjoint of the edges after it) becomes the
+        adjoint of the edges before it, and the state it froze at gains its share in ``lam``."""
+        p = self.plan
+        self._jam_mask(event)
+        self._set(self.edge_before, p.edges[event].reshape(4, 1, -1))
+        self._set(self.xv_jam, p.jam_states[event].reshape(2, 1, -1, 3))
+        launch = [self._jam_launch()]
+        self._run(launch)
+        wp.copy(self.edge_after.grad, self.edge.grad)
+        self.edge_before.grad.zero_()
+        self.xv_jam.grad.zero_()
+        self._run(launch, adjoint=True)
+        _add(lam, self.xv_jam.grad)
+        wp.copy(self.edge.grad, self.edge_before.grad)
+        self._load_edges(event)
+
+    def _zero_grads(self) -> None:
+        for a in (self.rest, self.stretch_modulus, self.bending_stiffness, self.ipam_stiffness, self.ipam_area,
+                  self.edge0, self.mass, self.inv_mass, self.offsets, self.free_length, self.area_over_k, self.xv0,
+                  self.edge, self.air, self.pressure):
+            a.grad.zero_()
+
+    def backward(self, dloss_dx, loss: float = 0.0) -> ReplayGradient:
+        """Every parameter's gradient from d(loss)/d(final positions) ``dloss_dx`` (V, 3)."""
+        if self.plan is None:
+            self.forward()
+        p, n = self.plan, self.host.n_ipams
+        build = self._record(self._build)
+        self._run(build)
+        self._zero_grads()
+        lam = wp.zeros((2, 1, len(self.host.rest_vertices)), dtype=self.vec3, device=self.device)
+        lam_np = np.zeros((2, 1, len(self.host.rest_vertices), 3))
+        lam_np[0, 0] = np.asarray(dloss_dx, dtype=np.float64).reshape(-1, 3)
+        self._set(lam, lam_np)
+        adj_air, adj_p = np.zeros(len(p.air)), np.zeros(p.pressures.shape)
+        starts = list(range(0, p.n_steps, p.segment))
+        events = {s: j for j, s in enumerate(p.jam_steps)}
+        for start in reversed(starts):
+            stop = min(start + p.segment, p.n_steps)
+            states = self._segment_states(start, stop)
+            for k in reversed(range(start, stop)):
+                self._load_edges(self._phase_of(k))
+                self._controls(int(p.row[k]))
+                _, vjp = self._graphs_for(float(p.h[k]))
+                for first in reversed(states[k - start]):
+                    wp.copy(self.xv_a, first)
+                    wp.copy(self.xv_b.grad, lam)
+                    wp.capture_launch(vjp)
+                    wp.copy(lam, self.xv_a.grad)
+                adj_air[p.row[k]] += float(self.air.grad.numpy()[0])
+                self.air.grad.zero_()
+                if n:
+                    adj_p[p.row[k]] += self.pressure.grad.numpy()[:n].astype(np.float64)
+                    self.pressure.grad.zero_()
+                if k in events:
+                    self._jam_adjoint(events[k], lam)
+        wp.copy(self.edge0.grad, self.edge.grad)
+        wp.copy(self.xv0.grad, lam)
+        self._run(build, adjoint=True)
+        return ReplayGradient(loss=float(loss), values=self._values(adj_air, adj_p))
+
+    def _values(self, adj_air: np.ndarray, adj_p: np.ndarray) -> dict:
+        n, mat = self.host.n_ipams, self.design.material
+        g = lambda a: a.grad.numpy().astype(np.float64)  # noqa: E731
+        stretch = float(g(self.stretch_modulus)[0])
+        return dict(rest_positions=g(self.rest).reshape(-1, 3), stretch_modulus=stretch,
+                    youngs_modulus=stretch * mat.thickness, bending_stiffness=float(g(self.bending_stiffness)[0]),
+                    ipam_stiffness=g(self.ipam_stiffness)[:n], ipam_area=g(self.ipam_area)[:n],
+                    air=adj_air, ipam_pressures=adj_p[:, :n])
+
+    # ------------------------------------------------------------------ forward on the kernels alone
+    def positions(self, rest=None, stretch_modulus=None, bending_stiffness=None, ipam_stiffness=None,
+                  ipam_area=None, air=None, ipam_pressures=None) -> np.ndarray:
+        """(V, 3) final positions of the replay on the plan's schedule with the backward-enabled kernels,
+        parameters replaced where given (rest (V, 3) m, stretch modulus N/m, bending N m/rad, IPAM
+        stiffness (n,) N/m and area (n,) m^2, air (R,) mol and IPAM pressures (R, n) Pa per row): the
+        function ``backward`` differentiates, jams included (frozen at the state reached)."""
+        if self.plan is None:
+            self.forward()
+        p, h, n = self.plan, self.host, self.host.n_ipams
+        given = dict(rest=rest, stretch_modulus=stretch_modulus, bending_stiffness=bending_stiffness,
+                     ipam_stiffness=ipam_stiffness, ipam_area=ipam_area)
+        base = dict(rest=h.rest_vertices, stretch_modulus=[self.design.material.stretch_modulus],
+                    bending_stiffness=[self.design.material.bending_stiffness],
+                    ipam_stiffness=h.actuators["ipam"]["stiffness"] if n else [1.0],
+                    ipam_area=[i.area for i in self.design.ipams] if n else [1.0])
+        for key, arr in (("rest", self.rest), ("stretch_modulus", self.stretch_modulus),
+                         ("bending_stiffness", self.bending_stiffness), ("ipam_stiffness", self.ipam_stiffness),
+                         ("ipam_area", self.ipam_area)):
+            self._set(arr, base[key] if given[key] is None else given[key])
+        rows_air = p.air if air is None else np.asarray(air, dtype=np.float64)
+        rows_p = p.pressures if ipam_pressures is None else np.asarray(ipam_pressures, dtype=np.float64)
+        self._run(self._record(self._build))
+        wp.copy(self.xv_b, self.xv0)
+        wp.copy(self.edge, self.edge0)
+        self._loaded_phase = None
+        events = {s: j for j, s in enumerate(p.jam_steps)}
+        for k in range(p.n_steps):
+            if k in events:
+                self._jam_mask(events[k])
+                wp.copy(self.xv_jam, self.xv_b)
+                wp.copy(self.edge_before, self.edge)
+                self._run([self._jam_launch()])
+                wp.copy(self.edge, self.edge_after)
+            row = int(p.row[k])
+            self.air.assign(np.array([rows_air[row]]))
+            if n:
+                self._set(self.pressure, rows_p[row])
+                self._set(self.enabled, p.enabled)
+            fwd, _ = self._graphs_for(float(p.h[k]))
+            for _ in range(int(p.substeps[k])):
+                wp.copy(self.xv_a, self.xv_b)
+                wp.capture_launch(fwd)
+        self._loaded_phase = None
+        return self.xv_b.numpy()[0, 0].astype(np.float64)
+
+
+def _adjoint(a):
+    """The adjoint argument of a recorded launch input (as wp.Tape does)."""
+    if isinstance(a, wp.array):
+        return a.grad
+    if wp.types.is_value(a) and not isinstance(a, (int, float, bool)):
+        return type(a)()
+    return None
+
+
+def _add(dst: wp.array, src: wp.array) -> None:
+    """dst += src (same shape and type)."""
+    dst.assign(dst.numpy() + src.numpy())
