@@ -21,6 +21,7 @@ from .controller import (CONTROL_METHODS, LAWS, ControlResult, ControlSettings, 
                          register_control_method, register_law, replay)
 from .design import Cell, Design, Ipam
 from .designer import PLACEMENTS, DesignResult, DesignSettings, Placement, design, register_placement
+from .gradients import GRADIENT_PARAMETERS, Gradient, gradient
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError
 from .io.figures import control_figure, pcc_by_round_figure, write_figures
 from .io.recorder import Recorder

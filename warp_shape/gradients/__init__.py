@@ -1,5 +1,7 @@
-"""Gradients in the design space: the differentiable replay of a control sequence (docs/gradients.md)."""
+"""Gradients in the design space: the differentiable replay of a control sequence and ``ws.gradient``
+(docs/gradients.md)."""
 
+from .api import GRADIENT_PARAMETERS, Gradient, gradient
 from .replay import DifferentiableReplay, ReplayGradient, ReplayPlan
 
-__all__ = ["DifferentiableReplay", "ReplayGradient", "ReplayPlan"]
+__all__ = ["gradient", "Gradient", "GRADIENT_PARAMETERS", "DifferentiableReplay", "ReplayGradient", "ReplayPlan"]

@@ -1,0 +1,90 @@
+"""``ws.gradient``: d(fit objective)/d(design parameters and controls) of a replayed control sequence."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..controller.result import ControlResult
+from ..design import Design
+from ..errors import DesignError
+from ..mesh import TriMesh
+from ..model import PRECISIONS
+from ..objective_grad import fit_objective_and_gradient
+from ..sampling import RadialSampler
+from .replay import DifferentiableReplay
+
+__all__ = ["gradient", "Gradient", "GRADIENT_PARAMETERS"]
+
+#: the parameters ``gradient`` differentiates by, with their units (d objective / d parameter is in 1 / unit)
+GRADIENT_PARAMETERS = {
+    "rest_positions": "m, (V, 3): the rest shape's vertices",
+    "youngs_modulus": "Pa: the silicone's Young's modulus (thickness held)",
+    "bending_stiffness": "N m/rad: the hinge bending stiffness k_t",
+    "ipam_stiffness": "N/m, (n_ipam,): each IPAM's stiffness k",
+    "ipam_area": "m^2, (n_ipam,): each IPAM's area A",
+    "air": "mol, (rows,): the chamber air of each history row (in force up to that row)",
+    "ipam_pressures": "Pa, (rows, n_ipam): each row's IPAM gauge pressures",
+}
+
+
+@dataclass
+class Gradient:
+    """The fit objective of a replayed sequence and its derivatives (SI, see ``GRADIENT_PARAMETERS``).
+
+    ``objective``: the fit objective of the replay's final shape against the target; ``values``:
+    {name: d objective / d parameter} for the names asked for; ``positions``: (V, 3) the final shape (m);
+    ``internal_steps``: the replay's internal steps; ``precision``."""
+
+    objective: float
+    values: dict
+    positions: np.ndarray = field(repr=False)
+    internal_steps: int = 0
+    precision: str = "float64"
+
+
+def check_wrt(wrt) -> tuple:
+    """The parameter names asked for, checked against ``GRADIENT_PARAMETERS`` (a clear error naming the
+    choices for an unknown one)."""
+    names = (wrt,) if isinstance(wrt, str) else tuple(wrt)
+    bad = [n for n in names if n not in GRADIENT_PARAMETERS]
+    choices = ", ".join(GRADIENT_PARAMETERS)
+    if not names:
+        raise DesignError(f"gradient wrt: no parameter given; choose from {choices}")
+    if bad:
+        raise DesignError(f"gradient wrt: unknown parameter {bad[0]!r}; choose from {choices}")
+    return names
+
+
+def gradient(design: Design, result: ControlResult, target: TriMesh | None = None, wrt=tuple(GRADIENT_PARAMETERS), *,
+             precision: str = "float64", device: str = "cpu", segment: int | None = None) -> Gradient:
+    """Replay ``result``'s control sequence open loop on ``design`` (as ``ws.replay``) and return the fit
+    objective of its final shape against ``target`` (centred on its volume centroid; None: the result's
+    own target) with its gradient with respect to ``wrt`` (names of ``GRADIENT_PARAMETERS``).
+
+    The adjoint runs back through every internal step, the jam events included (a jammed cell's rest
+    lengths and angles are those of the state it jammed at, so they depend on everything before),
+    with checkpoints every ``segment`` output steps (None: the square root of their number), so memory
+    grows with the square root of the sequence's length. ``precision`` "float64" (the default, for
+    checks) or "float32". docs/gradients.md gives the algorithm, its checks and its cost."""
+    if not isinstance(design, Design):
+        raise DesignError(f"gradient needs a ws.Design, got {type(design).__name__}")
+    if not isinstance(result, ControlResult):
+        raise DesignError(f"gradient needs a control result (ws.control returns one), got {type(result).__name__}")
+    names = check_wrt(wrt)
+    if precision not in PRECISIONS:
+        raise DesignError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    target = result.target if target is None else target
+    if not isinstance(target, TriMesh):
+        raise DesignError(f"gradient needs the target as a ws.TriMesh, got {type(target).__name__}")
+    if len(result.ipam_pressures) != design.n_ipams or len(result.jammed) != design.n_cells:
+        raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
+    target = target.centered()
+    replay = DifferentiableReplay(design, result, precision=precision, device=device, segment=segment)
+    plan = replay.forward()
+    sampler = RadialSampler(target, device=device)
+    objective, dj_dx = fit_objective_and_gradient(plan.final, sampler, 0, design.rest.faces, target.volume())
+    values = replay.backward(dj_dx, objective).values
+    return Gradient(objective=objective, values={n: values[n] for n in names}, positions=plan.final,
+                    internal_steps=plan.internal_steps, precision=precision)
