@@ -27,7 +27,7 @@ def register(subparsers) -> None:
     b = subparsers.add_parser("bench", help="speed benchmarks (tables + JSON)",
                               description="Speed benchmarks: a table on stdout and bench_<name>.json in --out per bench.")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
-                                                                    "rays", "all"],
+                                                                    "rays", "gradient", "all"],
                    help="; ".join(f"{k}: {v}" for k, v in ABOUT.items()) + "; all: every one")
     b.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
     add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
@@ -97,6 +97,7 @@ ABOUT = {
     "control": "the paper's control law against model-based control, wall time and objective",
     "peer": "the same membrane in Newton's semi-implicit solver",
     "rays": "radial sampling throughput",
+    "gradient": "the adjoint of a replayed Fig. 6 sequence beside the forward replay: wall time and memory",
 }
 
 
@@ -134,6 +135,15 @@ def _run_one(name: str, args, format_rows, results: dict) -> None:
         results["peer"] = _peer(args, format_rows)
     elif name == "rays":
         _rays(args, results)
+    elif name == "gradient":
+        from ..benchmarks.gradient import GRADIENT_COLUMNS, bench_gradient
+
+        rows = bench_gradient(device=args.device, subdivisions=[s for s in args.subdivisions if s <= 4] or [2, 3],
+                              repeats=args.repeats)
+        results["gradient"] = rows
+        print("gradient: ws.gradient (float64, every parameter) beside ws.replay of the same sequence; ratio = "
+              "gradient / float64 replay; peak_extra_mb = the gradient's peak resident memory above the process's")
+        print(format_rows(rows, GRADIENT_COLUMNS))
 
 
 def run(args) -> int:

@@ -35,13 +35,14 @@ class Gradient:
 
     ``objective``: the fit objective of the replay's final shape against the target; ``values``:
     {name: d objective / d parameter} for the names asked for; ``positions``: (V, 3) the final shape (m);
-    ``internal_steps``: the replay's internal steps; ``precision``."""
+    ``internal_steps``: the replay's internal steps; ``precision``; ``segment``."""
 
     objective: float
     values: dict
     positions: np.ndarray = field(repr=False)
     internal_steps: int = 0
     precision: str = "float64"
+    segment: int = 0  # output steps between the adjoint's checkpoints
 
 
 def check_wrt(wrt) -> tuple:
@@ -87,4 +88,4 @@ def gradient(design: Design, result: ControlResult, target: TriMesh | None = Non
     objective, dj_dx = fit_objective_and_gradient(plan.final, sampler, 0, design.rest.faces, target.volume())
     values = replay.backward(dj_dx, objective).values
     return Gradient(objective=objective, values={n: values[n] for n in names}, positions=plan.final,
-                    internal_steps=plan.internal_steps, precision=precision)
+                    internal_steps=plan.internal_steps, precision=precision, segment=plan.segment)
