@@ -15,6 +15,7 @@ import sys
 import time
 
 from ..designer import PLACEMENTS, design
+from ..designer.settings import CODESIGN_MODES
 from ..designer.run_settings import RunSettings
 from ..errors import DesignError
 from ..interrupts import held_interrupts
@@ -53,6 +54,9 @@ def register(subparsers) -> None:
                    help="K: simulated: holds tried per target per refinement round; greedy: candidate sets per round")
     add_bounded(d, "--refine-rounds", 0, MAX_REFINE_ROUNDS, type=int, default=None,
                    help="simulated placement: refinement rounds at most after the last round (default 5; 0: none)")
+    d.add_argument("--codesign", choices=list(CODESIGN_MODES), default=None,
+                   help="after placement, optimise by exact gradients: the rest shape ('rest') and the IPAM sizes "
+                        "('rest+ipams'), never worse on any target (default: the scene's, else off; docs/gradients.md)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
@@ -68,7 +72,7 @@ def run_settings(scene, args) -> RunSettings:
     """The run's settings: the scene's groups (simulation, controller, designer) and its design's
     material, then the flags; unknown setting names and bad values are errors."""
     designer = dict(actuators=args.actuators, cell_radius=args.cell_radius, placement=args.placement,
-                    candidates=args.candidates, refine_rounds=args.refine_rounds,
+                    candidates=args.candidates, refine_rounds=args.refine_rounds, codesign=args.codesign,
                     initialize=False if args.keep_rest else None)
     material = scene.design.material if scene.design is not None else None
     return RunSettings.from_groups(scene.settings, designer=designer, material=material)

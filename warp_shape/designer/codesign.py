@@ -24,11 +24,11 @@ from ..gradients import gradient
 from ..mesh import TriMesh
 from ..objective_grad import fit_objective_and_gradient
 from ..sampling import RadialSampler
+from .settings import CODESIGN_MODES
 
-__all__ = ["CODESIGN_MODES", "CodesignSettings", "codesign", "radial_modes", "min_norm_direction"]
+__all__ = ["CODESIGN_MODES", "CodesignSettings", "CodesignProblem", "codesign", "radial_modes", "min_norm_direction",
+           "replayed_objectives"]
 
-#: what co-design optimises: "off", "rest" (the rest shape) or "rest+ipams" (and the IPAM sizes)
-CODESIGN_MODES = ("off", "rest", "rest+ipams")
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,7 @@ class CodesignSettings:
     max_size_step: float = 0.3
     size_bounds: tuple = (0.5, 2.0)
     halvings: int = 3
+    move_rest: bool = True  # False: the rest shape is the user's (single-target mode); only sizes move
 
 
 @dataclass
@@ -81,9 +82,8 @@ def radial_modes(rest: np.ndarray, degree: int) -> np.ndarray:
                 cols.append(u[:, 0] ** a * u[:, 1] ** b * u[:, 2] ** c)
     basis = np.stack(cols, axis=1)
     basis = basis - basis.mean(axis=0)  # a uniform scale is the volume bound's, not a mode
-    q, r = np.linalg.qr(basis)
-    keep = np.abs(np.diag(r)) > 1e-8 * np.abs(np.diag(r)).max()
-    return (q[:, keep] * np.sqrt(len(rest))).T
+    q, sv, _ = np.linalg.svd(basis, full_matrices=False)
+    return (q[:, sv > 1e-8 * sv[0]] * np.sqrt(len(rest))).T
 
 
 def min_norm_direction(grads: np.ndarray, iterations: int = 200) -> np.ndarray:
@@ -109,13 +109,13 @@ def min_norm_direction(grads: np.ndarray, iterations: int = 200) -> np.ndarray:
     return w @ grads
 
 
-class _Problem:
+class CodesignProblem:
     """The parameterised design: rest modes c (M,) and IPAM log sizes (2 n,) -> a Design."""
 
     def __init__(self, design: Design, mode: str, settings: CodesignSettings, volume_bound: float):
         self.base, self.mode, self.settings, self.volume_bound = design, mode, settings, volume_bound
         self.x0 = design.rest.vertices.copy()
-        self.modes = radial_modes(self.x0, settings.degree)
+        self.modes = radial_modes(self.x0, settings.degree) if settings.move_rest else np.zeros((0, len(self.x0)))
         self.area0 = np.array([ip.area for ip in design.ipams])
         self.k0 = np.array([ip.stiffness for ip in design.ipams])
         self.sizes = mode == "rest+ipams" and design.n_ipams > 0
@@ -127,10 +127,10 @@ class _Problem:
 
     def design(self, p: np.ndarray) -> Design:
         M = len(self.modes)
-        x = self.x0 * np.exp(p[:M] @ self.modes)[:, None]
+        x = self.x0 * np.exp(p[:M] @ self.modes)[:, None] if M else self.x0
         rest = TriMesh(x, self.base.rest.faces)
         vol = rest.volume()
-        if vol > self.volume_bound:
+        if M and vol > self.volume_bound:
             rest = rest.scaled((self.volume_bound / vol) ** (1.0 / 3.0))
         n = self.base.n_ipams
         area = self.area0 * np.exp(p[M:M + n]) if self.sizes else self.area0
@@ -155,6 +155,12 @@ class _Problem:
         k = np.array([ip.stiffness for ip in design.ipams])
         return np.concatenate([g_modes, values["ipam_area"] * area, values["ipam_stiffness"] * k])
 
+    def gradients(self, design: Design, results, targets, device: str = "cpu") -> np.ndarray:
+        """(T, P) d objective / d parameters of each target's sequence replayed on ``design``."""
+        wrt = ("rest_positions", "ipam_area", "ipam_stiffness")
+        return np.stack([self.chain(design, gradient(design, r, t, wrt=wrt, device=device).values)
+                         for r, t in zip(results, targets)])
+
     def clip_step(self, p: np.ndarray, step: np.ndarray) -> np.ndarray:
         """``step`` scaled into the per-step limits, and p + step into the size bounds."""
         M, s = len(self.modes), self.settings
@@ -170,7 +176,7 @@ class _Problem:
         return q
 
 
-def _replayed(design: Design, results, targets, samplers) -> np.ndarray:
+def replayed_objectives(design: Design, results, targets, samplers) -> np.ndarray:
     """(T,) the objective of each result's sequence replayed open loop on ``design``."""
     out = []
     for r, t, s in zip(results, targets, samplers):
@@ -190,14 +196,15 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
     if mode == "off":
         record.reason = "co-design off"
         return design, results, record
-    problem = _Problem(design, mode, settings, volume_bound)
+    problem = CodesignProblem(design, mode, settings, volume_bound)
+    if problem.size == 0:
+        record.reason, record.after = "nothing to co-design (the rest shape is fixed and no IPAM sizes move)", record.before
+        return design, results, record
     samplers = [RadialSampler(t, device=device) for t in targets]
     p = np.zeros(problem.size)
-    current, objectives = design, _replayed(design, results, targets, samplers)
+    current, objectives = design, replayed_objectives(design, results, targets, samplers)
     for step in range(settings.steps):
-        grads = np.stack([problem.chain(current, gradient(current, r, t, wrt=("rest_positions", "ipam_area",
-                                                                              "ipam_stiffness"), device=device).values)
-                          for r, t in zip(results, targets)])
+        grads = problem.gradients(current, results, targets, device)
         direction = -min_norm_direction(grads)
         if not np.any(direction):
             record.reason = "no direction lowers every target's objective"
@@ -206,7 +213,7 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
         for _ in range(settings.halvings + 1):
             q = problem.clip_step(p, direction * trial_scale / max(np.abs(direction).max(), 1e-300))
             trial = problem.design(q)
-            trial_obj = _replayed(trial, results, targets, samplers)
+            trial_obj = replayed_objectives(trial, results, targets, samplers)
             if np.all(trial_obj <= objectives) and np.any(trial_obj < objectives):
                 p, current, objectives, accepted = q, trial, trial_obj, True
                 break

@@ -12,6 +12,7 @@ from ..material import Material
 from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
 from ..settings import settings_or_default
+from .codesign import CodesignRecord, CodesignSettings, codesign
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
 from .placement import PlacementContext, check_record
 from .result import DesignResult
@@ -52,6 +53,26 @@ def control_round(run: DesignRun, i: int, round_settings: ControlSettings, choos
     if run.on_round is not None:
         run.on_round(i, run.designs[-1], run.rounds[-1])
     return results
+
+
+def _codesign(run: DesignRun) -> dict:
+    """Co-design the placed design (``DesignSettings.codesign``); a kept result replaces the last
+    round's design and results. Returns the record (``CodesignRecord.as_dict``)."""
+    s = run.settings
+    if s.codesign == "off":
+        return CodesignRecord(mode="off", reason="co-design off").as_dict()
+    bound = s.volume_scale * min(t.volume() for t in run.targets) if s.initialize else run.current.rest.volume()
+    new, results, record = codesign(run.current, run.targets, run.rounds[-1], mode=s.codesign, volume_bound=bound,
+                                    control_settings=run.control_settings,
+                                    passive_ipams=run.passive_sets.passive_ipams(),
+                                    passive_cells=run.passive_sets.passive_cells(), device=run.device,
+                                    settings=CodesignSettings(steps=s.codesign_steps, move_rest=s.initialize),
+                                    target_names=run.names)
+    if record.kept:
+        run.current = new
+        run.designs[-1] = copy_design(new)
+        run.rounds[-1] = results
+    return record.as_dict()
 
 
 def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device: str = "cpu", target_names=None,
@@ -101,8 +122,9 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
         run.added.append(check_record(placement, record))
         i += 1
     placement.finish(run, i)
+    record = _codesign(run)
     pcc_rows = np.array([[r.pcc for r in rs] for rs in run.rounds])
     return DesignResult(design=run.current, designs=run.designs, rounds=run.rounds, pcc_by_round=pcc_rows,
                         target_names=names, targets=targets, added=run.added, settings=settings,
                         control_settings=control_settings, passive_ipams=run.passive_sets.passive_ipams(),
-                        passive_cells=run.passive_sets.passive_cells(), placement=run.info)
+                        passive_cells=run.passive_sets.passive_cells(), placement=run.info, codesign=record)

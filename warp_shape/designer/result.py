@@ -30,6 +30,7 @@ class DesignResult:
     settings: DesignSettings = field(default_factory=DesignSettings)
     control_settings: ControlSettings = field(default_factory=ControlSettings)
     placement: dict = field(default_factory=dict)  # method, K, start PCC, bad start, every candidate's scores
+    codesign: dict = field(default_factory=dict)  # what co-design did (designer.codesign.CodesignRecord.as_dict)
 
     @property
     def objective_by_round(self) -> np.ndarray:
@@ -57,7 +58,7 @@ class DesignResult:
             objective_by_round=self.objective_by_round.tolist(),
             mare_by_round=[[r.mare for r in rs] for rs in self.rounds],
             mpre_by_round=[[r.mpre for r in rs] for rs in self.rounds],
-            placement=self.placement,
+            placement=self.placement, codesign=self.codesign,
             final={name: r.summary() for name, r in zip(self.target_names, fin)},
             added=self.added,
             settings=dict(designer=asdict(self.settings), controller=asdict(self.control_settings)),

@@ -11,7 +11,11 @@ from ..errors import DesignError
 from ..registry import Registry
 from ..settings import check_field_types, replace_settings
 
-__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENTS", "DEFAULT_ACTUATORS"]
+__all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENTS", "DEFAULT_ACTUATORS",
+           "CODESIGN_MODES"]
+
+#: what co-design optimises after placement: nothing, the rest shape, or the rest shape and the IPAM sizes
+CODESIGN_MODES = ("off", "rest", "rest+ipams")
 
 DEFAULT_ACTUATORS = 4  # the IPAMs a design places unless the scene or a flag says otherwise
 
@@ -56,6 +60,8 @@ class DesignSettings:
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
     ipam_pressure_limits: tuple = DEFAULT_IPAM_PRESSURE_LIMITS  # Pa gauge
     round_control: str = "law"  # control of the rounds before the last: "law", "quick" or "full" (ROUND_CONTROLS)
+    codesign: str = "off"  # after placement: "off", "rest" or "rest+ipams" (CODESIGN_MODES, docs/gradients.md)
+    codesign_steps: int = 4  # co-design's descent steps at most
 
     def __post_init__(self):
         check_field_types(self, "DesignSettings")
@@ -67,6 +73,11 @@ class DesignSettings:
         if self.round_control not in ROUND_CONTROLS:
             raise DesignError(f"round_control must be one of {list(ROUND_CONTROLS)}, got {self.round_control!r}")
         PLACEMENTS.check(self.placement, "DesignSettings.placement")
+        if self.codesign not in CODESIGN_MODES:
+            raise DesignError(f"codesign must be one of {list(CODESIGN_MODES)}, got {self.codesign!r}")
+        if isinstance(self.codesign_steps, bool) or not isinstance(self.codesign_steps, numbers.Integral) \
+                or not 0 <= self.codesign_steps <= 100:
+            raise DesignError(f"codesign_steps must be a whole number in 0..100, got {self.codesign_steps!r}")
         whole = isinstance(self.candidates, numbers.Integral) and not isinstance(self.candidates, bool)
         if not whole or self.candidates < 1:
             raise DesignError(f"candidates must be a whole number >= 1 (candidate actuator sets per round), got "

@@ -1,0 +1,101 @@
+"""Co-design: the rest shape and the IPAM sizes descended by the replay's gradients, never worse.
+
+Targets the project does not ship (an egg and a tilted ellipsoid), a 162-vertex membrane, two
+actuator sets, the paper's law as the design's controller (so the suite stays short)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from generated_shapes import shape
+from warp_shape.designer.codesign import (CodesignProblem, CodesignSettings, min_norm_direction, radial_modes,
+                                         replayed_objectives)
+
+KW = dict(actuators=2, refine_rounds=0, control_settings=ws.ControlSettings(method="paper"))
+
+
+@pytest.fixture(scope="module")
+def targets():
+    return [shape("egg", subdivisions=3), shape("tilted_ellipsoid", subdivisions=3)]
+
+
+@pytest.fixture(scope="module")
+def designs(targets):
+    off = ws.design(ws.icosphere(2, 0.04), targets, **KW)
+    on = ws.design(ws.icosphere(2, 0.04), targets, codesign="rest+ipams", **KW)
+    return off, on
+
+
+def test_radial_modes_are_orthonormal_smooth_and_scale_free():
+    x = ws.icosphere(2, 0.04).vertices
+    m = radial_modes(x, 4)
+    assert m.shape == (24, len(x))  # the spherical harmonics of degrees 1..4: 3 + 5 + 7 + 9
+    np.testing.assert_allclose(m @ m.T / len(x), np.eye(len(m)), atol=1e-10)
+    np.testing.assert_allclose(m.sum(axis=1), 0.0, atol=1e-9)  # no uniform scale among them
+
+
+def test_min_norm_direction_lowers_every_objective_to_first_order():
+    rng = np.random.default_rng(1)
+    g = rng.normal(size=(3, 8))
+    d = min_norm_direction(g)
+    assert np.all(g @ d >= d @ d - 1e-9)  # the min-norm point: every gradient has at least |d|^2 along it
+    opposed = np.array([[1.0, 0.0], [-1.0, 0.0]])
+    assert np.linalg.norm(min_norm_direction(opposed)) < 1e-9  # no common descent: no step
+
+
+def test_codesign_is_never_worse_on_any_target_and_off_is_todays_design(designs, targets):
+    off, on = designs
+    rec = on.codesign
+    assert rec["mode"] == "rest+ipams" and rec["kept"], rec["reason"]
+    before, after = np.array(rec["before"]), np.array([r.objective for r in on.results])
+    np.testing.assert_allclose(before, [r.objective for r in off.results], rtol=0, atol=0)  # the same placement
+    assert np.all(after <= before), (before, after)  # per target
+    assert np.all(after < before * 0.99), (before, after)  # and it pays on both
+    # every accepted step lowered every replayed objective
+    steps = np.array([rec["before"]] + rec["steps"])
+    assert len(steps) > 1 and np.all(np.diff(steps, axis=0) <= 0)
+    # the rest shape stays within the initialisation's volume bound; sizes within their bounds
+    bound = on.settings.volume_scale * min(t.volume() for t in targets)
+    assert on.design.rest.volume() <= bound * (1 + 1e-9)
+    lo, hi = CodesignSettings().size_bounds
+    for ip, placed in zip(on.design.ipams, off.design.ipams):
+        assert lo * placed.area <= ip.area <= hi * placed.area
+    assert 0 < rec["max_displacement_m"] < 0.01
+    assert off.codesign["mode"] == "off" and not off.codesign["kept"]
+
+
+def test_codesign_off_reproduces_the_design_bit_for_bit(designs, targets):
+    off, _ = designs
+    again = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", **KW)
+    np.testing.assert_array_equal(again.design.rest.vertices, off.design.rest.vertices)
+    np.testing.assert_array_equal(again.results[1].achieved.vertices, off.results[1].achieved.vertices)
+
+
+def test_the_parameter_gradient_matches_finite_differences(designs):
+    """The chain from vertex gradients to the modes and log sizes, against replayed objectives."""
+    off, _ = designs
+    results = [dataclasses.replace(r, settings=r.settings.replace(simulation=r.settings.simulation.replace(
+        precision="float64"))) for r in off.results]  # the replays in float64, as the gradient
+    problem = CodesignProblem(off.design, "rest+ipams", CodesignSettings(), volume_bound=np.inf)
+    grads = problem.gradients(off.design, results, off.targets)
+    samplers = [ws.RadialSampler(t) for t in off.targets]
+
+    def objective(design):
+        return replayed_objectives(design, results, off.targets, samplers)
+    rng = np.random.default_rng(0)
+    direction = rng.normal(size=problem.size)
+    direction /= np.abs(direction).max()
+    eps = 1e-5
+    up = objective(problem.design(eps * direction))
+    down = objective(problem.design(-eps * direction))
+    fd = (up - down) / (2 * eps)
+    np.testing.assert_allclose(grads @ direction, fd, rtol=1e-4)
+
+
+def test_bad_codesign_mode_is_named():
+    with pytest.raises(ws.DesignError, match=r"codesign must be one of \['off', 'rest', 'rest\+ipams'\]"):
+        ws.DesignSettings(codesign="shape")
