@@ -12,6 +12,7 @@ import pytest
 
 import warp_shape as ws
 from generated_shapes import shape
+from warp_shape.io.report import design_markdown
 from warp_shape.designer.codesign import (CodesignProblem, CodesignSettings, min_norm_direction, radial_modes,
                                          replayed_objectives)
 
@@ -66,6 +67,9 @@ def test_codesign_is_never_worse_on_any_target_and_off_is_todays_design(designs,
         assert lo * placed.area <= ip.area <= hi * placed.area
     assert 0 < rec["max_displacement_m"] < 0.01
     assert off.codesign["mode"] == "off" and not off.codesign["kept"]
+    report = design_markdown(on)
+    assert "## Co-design" in report and "(kept)" in report and "Rest shape moved by at most" in report
+    assert "## Co-design" not in design_markdown(off)
 
 
 def test_codesign_off_reproduces_the_design_bit_for_bit(designs, targets):

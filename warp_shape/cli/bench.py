@@ -27,8 +27,8 @@ def register(subparsers) -> None:
     b = subparsers.add_parser("bench", help="speed benchmarks (tables + JSON)",
                               description="Speed benchmarks: a table on stdout and bench_<name>.json in --out per bench.")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
-                                                                    "rays", "gradient", "all"],
-                   help="; ".join(f"{k}: {v}" for k, v in ABOUT.items()) + "; all: every one")
+                                                                    "rays", "gradient", "codesign", "all"],
+                   help="; ".join(f"{k}: {v}" for k, v in ABOUT.items()) + "; all: every one but codesign")
     b.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
     add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
@@ -37,6 +37,9 @@ def register(subparsers) -> None:
     add_bounded(b, "--candidates", 1, MAX_CANDIDATES, type=int, nargs="+", default=None,
                    help="design bench: also the default problem by the paper's placement and at each K, e.g. 1 2 4 8")
     add_bounded(b, "--repeats", 1, 100, type=int, default=3, help="timing repeats (the best is kept)")
+    b.add_argument("--cases", nargs="+", default=None, metavar="CASE",
+                   help="codesign bench: the cases (default: all; shipped problems, targets, generated shapes, "
+                        "pairs as a+b, e.g. oval_heart egg puck+peanut)")
     b.add_argument("--out", default="out/bench", help="folder of the bench_<name>.json files")
     b.set_defaults(func=run)
 
@@ -69,6 +72,24 @@ def _control(args, format_rows) -> list:
     return rows
 
 
+def _codesign(args, format_rows) -> list:
+    from ..benchmarks.codesign import CODESIGN_CASES, CODESIGN_COLUMNS, bench_codesign
+    from ..benchmarks.generated_shapes import NAMES, shape
+
+    cases = args.cases or list(CODESIGN_CASES)
+    shapes = set(NAMES) | {"oval", "pear", "heart", "cube"}
+    bad = [c for c in cases if c not in CODESIGN_CASES and any(part not in shapes for part in c.split("+"))]
+    if bad:
+        raise DesignError(f"--cases: unknown case {bad[0]!r}; choose from {', '.join(CODESIGN_CASES)} (or a+b pairs "
+                          f"of {', '.join(sorted(shapes))})")
+    rows = bench_codesign(cases, device=args.device, generated=shape,
+                          progress=lambda text: print(text, file=sys.stderr, flush=True))
+    print("codesign: per target objective (RMS of (R - r) / V_t^(1/3)), PCC, MARE, MPRE; vs_paper = objective / "
+          "Algorithm 1's (placement paper); ways: paper, default (co-design off), codesign (rest+ipams)")
+    print(format_rows(rows, CODESIGN_COLUMNS))
+    return rows
+
+
 def _peer(args, format_rows) -> list:
     from ..benchmarks.peer import bench_peer
 
@@ -98,6 +119,7 @@ ABOUT = {
     "peer": "the same membrane in Newton's semi-implicit solver",
     "rays": "radial sampling throughput",
     "gradient": "the adjoint of a replayed Fig. 6 sequence beside the forward replay: wall time and memory",
+    "codesign": "per target fit after co-design beside Algorithm 1 and the default placement (minutes per case)",
 }
 
 
@@ -135,6 +157,8 @@ def _run_one(name: str, args, format_rows, results: dict) -> None:
         results["peer"] = _peer(args, format_rows)
     elif name == "rays":
         _rays(args, results)
+    elif name == "codesign":
+        results["codesign"] = _codesign(args, format_rows)
     elif name == "gradient":
         from ..benchmarks.gradient import GRADIENT_COLUMNS, bench_gradient
 
@@ -152,7 +176,7 @@ def run(args) -> int:
 
     check_out(StagedFolder(args.out), replaced=False, kind="bench")  # files written one by one
     check_device(args.device)
-    names = list(ABOUT) if args.which == "all" else [args.which]
+    names = [n for n in ABOUT if n != "codesign"] if args.which == "all" else [args.which]  # codesign: hours
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M:%S"), device=args.device, machine=os.uname().nodename,
                 cpu_count=os.cpu_count(), warp=wp.config.version)
     written = []

@@ -119,6 +119,34 @@ def _placement_section(result) -> list[str]:
     return lines + _holds_lines(result, info)
 
 
+def _codesign_section(result) -> list[str]:
+    """Co-design after placement: each step's replayed objectives, the objectives before and after,
+    the rest shape's largest displacement and the IPAM sizes (docs/gradients.md)."""
+    rec = getattr(result, "codesign", None) or {}
+    if not rec or rec.get("mode", "off") == "off":
+        return []
+    names = result.target_names
+    lines = ["", "## Co-design", "", f"Mode: {rec['mode']} (the rest shape by smooth radial modes"
+             + (" and the IPAM sizes" if rec["mode"] == "rest+ipams" else "") + ", by exact gradients of each "
+             f"target's replayed sequence). {rec['reason']}."]
+    if rec.get("steps"):
+        lines += ["", "| step | " + " | ".join(f"{n} replayed objective" for n in names) + " |",
+                  "|---" * (len(names) + 1) + "|",
+                  "| 0 | " + " | ".join(f"{v:.4f}" for v in rec["before"]) + " |"]
+        lines += [f"| {k + 1} | " + " | ".join(f"{v:.4f}" for v in row) + " |" for k, row in enumerate(rec["steps"])]
+    if rec.get("after"):
+        lines += ["", "Under the design's controller: " + ", ".join(
+            f"{n} {b:.4f} -> {a:.4f}" for n, b, a in zip(names, rec["before"], rec["after"]))
+            + (" (kept)." if rec.get("kept") else " (not kept: the placed design stands).")]
+    if rec.get("kept"):
+        (a0, a1), (k0, k1) = rec["ipam_area_m2"], rec["ipam_stiffness_n_per_m"]
+        lines += ["", f"Rest shape moved by at most {rec['max_displacement_m'] * 1e3:.2f} mm.", "",
+                  "| IPAM | area before (mm^2) | area after (mm^2) | stiffness before (N/m) | stiffness after (N/m) |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {i} | {a0[i] * 1e6:.2f} | {a1[i] * 1e6:.2f} | {k0[i]:.2f} | {k1[i]:.2f} |" for i in range(len(a0))]
+    return lines
+
+
 def _held(hold: dict) -> str:
     """"IPAM 2 with cells 4 5" / "cells 4 5" (the IPAM acting): a refinement candidate's hold."""
     ipams = " ".join(map(str, hold.get("ipams", [])))
@@ -255,6 +283,7 @@ def design_markdown(result, figures=()) -> str:
              f"{d.rest.n_vertices}-vertex membrane (rest volume {d.rest.volume() * 1e6:.1f} cm^3).", ""]
     shown = figures_section(result, figures)
     lines += _achieved(result) + [""] + (shown + [""] if shown else []) + _pcc_table(result) + [""] + _added_table(result) + [""] \
-        + _placement_section(result) + [""] + _fit_table(result) + [""] + _actuator_needs(result)
+        + _placement_section(result) + _codesign_section(result) + [""] + _fit_table(result) + [""] \
+        + _actuator_needs(result)
     lines += [""] + lab_sections(result)
     return "\n".join(lines) + "\n"
