@@ -19,7 +19,7 @@ def run_example(name: str, *argv: str) -> dict:
 
 
 def test_every_example_is_run_here():
-    tested = {"inflate_fig6", "control_cube", "design_oval_heart", "many_worlds", "custom_target"}
+    tested = {"inflate_fig6", "control_cube", "design_oval_heart", "many_worlds", "custom_target", "gradient"}
     assert {p.stem for p in EXAMPLES.glob("*.py")} == tested
 
 
@@ -29,6 +29,13 @@ def test_inflate_fig6_reproduces_the_paper_signs():
     # section IV-C: pressurised corner IPAMs push (compression), the vented pole IPAM pulls
     assert np.all(out["ipam_forces"][:4] < 0) and out["ipam_forces"][4] > 0
     assert out["jammed"].all()
+
+
+def test_gradient_step_lowers_the_replayed_objective_as_predicted():
+    out = run_example("gradient")
+    assert out["after"] < out["before"]
+    drop, predicted = out["before"] - out["after"], out["before"] - out["predicted"]
+    assert abs(drop - predicted) < 0.1 * predicted  # first order holds for the small step
 
 
 def test_many_worlds_gives_a_monotone_pressure_volume_curve():
