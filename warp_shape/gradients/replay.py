@@ -2,10 +2,11 @@
 
 The forward replay is ``controller.replay``'s, on the simulator's own fused step; it fixes the
 schedule (the internal step of every output step, the jam events) and keeps checkpoints every
-``segment`` output steps. The adjoint runs backwards over segments: each is recomputed from its
-checkpoint with the backward-enabled kernels (``kernels/adjoint.py``), then every internal step's
-vector-Jacobian product is taken in reverse, through the jam events (the frozen rest lengths and
-angles depend on the state they froze at) down to the model's parameters and the rest shape.
+``segment`` internal steps at most. The adjoint runs backwards over segments: each is recomputed from
+its checkpoint with the backward-enabled kernels (``kernels/adjoint.py``) along a chain of slots that
+keep every internal step's intermediates, then every internal step's adjoint is taken in reverse,
+through the jam events (the frozen rest lengths and angles depend on the state they froze at) down to
+the model's parameters and the rest shape.
 docs/gradients.md gives the algorithm and its cost.
 """
 
@@ -38,7 +39,7 @@ class ReplayPlan:
     (R, n_ipam) Pa the rows' controls; ``jam_steps`` (J,) the output steps before which cells jam and
     ``jam_edges`` J x (edges newly jammed there); ``checkpoints`` {output step: (2, V, 3) float64
     state}, ``edges`` J + 1 x (4, E) the edge fields of each jam phase; ``final`` (V, 3) positions at
-    the end."""
+    the end; ``segment`` the internal steps between checkpoints at most."""
 
     h: np.ndarray
     substeps: np.ndarray
@@ -63,19 +64,30 @@ class ReplayPlan:
         return int(self.substeps.sum())
 
 
+#: internal steps between two checkpoints at most: the adjoint keeps one segment's intermediates and
+#: their adjoints (about 40 V vectors per internal step with RK4), so this bounds its memory (about
+#: 20 MB at 642 vertices, 75 MB at 2562 in float64)
+MAX_SEGMENT = 32
+
+
+def segment_budget(internal_steps: int) -> int:
+    """Internal steps between checkpoints: the square root of the replay's count, at most ``MAX_SEGMENT``."""
+    return max(1, min(MAX_SEGMENT, int(math.ceil(math.sqrt(max(internal_steps, 1))))))
+
+
 def plan_replay(design: Design, result, *, precision: str = "float64", device: str = "cpu",
                 segment: int | None = None) -> ReplayPlan:
     """Replay ``result``'s sequence on ``design`` with the simulator (as ``ws.replay``) and record
-    the plan the adjoint needs (see ``ReplayPlan``); ``segment`` output steps between checkpoints
-    (None: the square root of the number of output steps)."""
+    the plan the adjoint needs (see ``ReplayPlan``); ``segment``: internal steps between checkpoints
+    at most (an output step's substeps are never split; None: ``segment_budget``)."""
     settings = result.settings.simulation.replace(precision=precision)
     sim = Simulator(design, device=device, settings=settings, worlds=1)
     steps, air, pressures, jam = control_schedule(result, sim.dt)
     pi, pc = passive_masks([result], design.n_ipams, design.n_cells)
     mask_passive(sim, pi, pc)
     n = int(steps[-1])
-    seg = max(1, int(math.ceil(math.sqrt(max(n, 1))))) if segment is None else int(segment)
-    host = sim.model.host
+    seg = segment_budget(n * sim.substeps) if segment is None else max(1, int(segment))
+    since, last = 0, sim.substeps  # internal steps since the last checkpoint; the last output step's
     h, sub, row = np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     checkpoints, jam_steps, jam_edges, jam_states = {}, [], [], []
     edges = [sim.state.edge.numpy()[:, 0].astype(np.float64)]
@@ -95,10 +107,11 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
         if design.n_ipams:
             sim.ipam_pressures = pressures[k]
         for s in range(int(a), int(b)):
-            if s % seg == 0:
-                checkpoints[s] = _state_of(sim)
+            if s == 0 or since + last > seg:
+                checkpoints[s], since = _state_of(sim), 0
             sim.step(1)
             h[s], sub[s], row[s] = sim.internal_dt, sim.substeps, k
+            since, last = since + int(sub[s]), int(sub[s])
     return ReplayPlan(h=h, substeps=sub, row=row, air=air, pressures=pressures,
                       enabled=(~pi[0]).astype(np.int32), jam_steps=jam_steps, jam_edges=jam_edges,
                       checkpoints=checkpoints, edges=edges, jam_states=jam_states,
@@ -108,6 +121,19 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
 def _state_of(sim) -> np.ndarray:
     return np.stack([np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3),
                      np.asarray(sim.velocities, dtype=np.float64).reshape(-1, 3)])
+
+
+@dataclass
+class StepBuffers:
+    """One internal step's arrays: the state in and out (2, 1, V) and the intermediates (per stage the
+    forces without pressure and dV/dx, the volume; the RK4 stage points and accelerations)."""
+
+    xv_in: wp.array
+    xv_out: wp.array
+    fg: list
+    volume: list
+    points: list
+    accel: list
 
 
 @dataclass
@@ -178,18 +204,16 @@ class DifferentiableReplay:
         self.free_fixed = self._arr(ip["free_length"] if n else np.ones(1), grad=False)
         self.ipam_damping = self._arr(ip["damping"] if n else np.zeros(1), grad=False)
         self.xv0 = vec((2, 1, V))
-        # step buffers: the state in and out, the edge fields and controls in force
-        self.xv_a, self.xv_b = vec((2, 1, V)), vec((2, 1, V))
+        # the controls and edge fields in force (every step reads them)
         self.edge = sc((4, 1, E))
         self.air = wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True)
         self.pressure = sc(max(n, 1))
         self.enabled = wp.ones(max(n, 1), dtype=wp.int32, device=self.device)
-        stages = 4 if self.integrator == "rk4" else 1
-        self.fg = [vec((2, 1, V)) for _ in range(stages)]
-        self.volume = [wp.zeros((1, 1), dtype=wp.float64, device=self.device, requires_grad=True)
-                       for _ in range(stages)]
-        self.points = [vec((2, 1, V)) for _ in range(stages - 1)]  # RK4 stage points 1..3
-        self.accel = [vec((1, V)) for _ in range(stages - 1)]  # RK4 accelerations of stages 0..2
+        self._vec, self._stages = vec, 4 if self.integrator == "rk4" else 1
+        # one step's buffers for the forward on the kernels alone; a segment's chain of slots for the adjoint
+        self.single = self._buffers(vec((2, 1, V)), vec((2, 1, V)))
+        self.chain = [vec((2, 1, V))]  # slot i steps chain[i] into chain[i + 1]
+        self.slots: list[StepBuffers] = []
         # jam event buffers
         self.jam_now = wp.zeros(E, dtype=wp.int32, device=self.device)
         self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
@@ -197,6 +221,21 @@ class DifferentiableReplay:
         self.params = dict(rest_positions=self.rest, stretch_modulus=self.stretch_modulus,
                            bending_stiffness=self.bending_stiffness, ipam_stiffness=self.ipam_stiffness,
                            ipam_area=self.ipam_area)
+
+    def _buffers(self, xv_in: wp.array, xv_out: wp.array) -> StepBuffers:
+        V, vec, stages = len(self.host.rest_vertices), self._vec, self._stages
+        return StepBuffers(xv_in=xv_in, xv_out=xv_out, fg=[vec((2, 1, V)) for _ in range(stages)],
+                           volume=[wp.zeros((1, 1), dtype=wp.float64, device=self.device, requires_grad=True)
+                                   for _ in range(stages)],
+                           points=[vec((2, 1, V)) for _ in range(stages - 1)],
+                           accel=[vec((1, V)) for _ in range(stages - 1)])
+
+    def _slot(self, i: int) -> StepBuffers:
+        """Slot i of the chain (allocated on first use)."""
+        while len(self.slots) <= i:
+            self.chain.append(self._vec((2, 1, len(self.host.rest_vertices))))
+            self.slots.append(self._buffers(self.chain[-2], self.chain[-1]))
+        return self.slots[i]
 
     # ------------------------------------------------------------------ launches
     def _build(self, launch) -> None:
@@ -224,23 +263,23 @@ class DifferentiableReplay:
                    [self.sub_pairs, self.offsets, self.ipam_stiffness, self.area_over_k, self.free_length,
                     self.ipam_damping, xv, self.pressure, self.enabled, fg])
 
-    def _step(self, h: float, launch) -> None:
-        """One internal step h from xv_a into xv_b."""
+    def _step(self, h: float, b: StepBuffers, launch) -> None:
+        """One internal step h from b.xv_in into b.xv_out."""
         V = len(self.host.rest_vertices)
         gas = (wp.float64(self.host.gas_rt), wp.float64(self.host.atmospheric_pressure))
         if self.integrator != "rk4":
-            self._forces(self.xv_a, self.fg[0], self.volume[0], launch)
-            launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, self.xv_a,
-                                                      self.fg[0], self.volume[0], self.xv_b])
+            self._forces(b.xv_in, b.fg[0], b.volume[0], launch)
+            launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, b.xv_in,
+                                                      b.fg[0], b.volume[0], b.xv_out])
             return
-        points = [self.xv_a] + self.points
+        points = [b.xv_in] + b.points
         for s, c in enumerate((0.5 * h, 0.5 * h, h)):
-            self._forces(points[s], self.fg[s], self.volume[s], launch)
-            launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, self.scalar(c), self.air, self.xv_a, points[s],
-                                             self.fg[s], self.volume[s], self.accel[s], points[s + 1]])
-        self._forces(points[3], self.fg[3], self.volume[3], launch)
-        launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, self.xv_a, *self.points,
-                                           *self.accel, self.fg[3], self.volume[3], self.xv_b])
+            self._forces(points[s], b.fg[s], b.volume[s], launch)
+            launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, self.scalar(c), self.air, b.xv_in, points[s],
+                                             b.fg[s], b.volume[s], b.accel[s], points[s + 1]])
+        self._forces(points[3], b.fg[3], b.volume[3], launch)
+        launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, b.xv_in, *b.points,
+                                           *b.accel, b.fg[3], b.volume[3], b.xv_out])
 
     # ------------------------------------------------------------------ recorded launches and graphs
     def _record(self, fill) -> list:
@@ -259,23 +298,36 @@ class DifferentiableReplay:
             wp.launch(kernel, dim, inputs, adj_inputs=[_adjoint(a) for a in inputs], device=self.device,
                       adjoint=True, record_tape=False)
 
-    def _graphs_for(self, h: float):
-        """(forward, vector-Jacobian product) graphs of one internal step h: the forward from xv_a into
-        xv_b; the product zeroes the adjoints of xv_a and of the intermediates, recomputes the step and
-        runs its adjoints (xv_b.grad in, xv_a.grad out; the parameters' and controls' adjoints add up)."""
-        if h in self._graphs:
-            return self._graphs[h]
-        launches = self._record(lambda launch: self._step(h, launch))
-        scratch = [self.xv_a, *self.fg, *self.volume, *self.points, *self.accel]
-        with wp.ScopedCapture(device=self.device, force_module_load=False) as fwd:
-            self._run(launches)
-        with wp.ScopedCapture(device=self.device, force_module_load=False) as vjp:
-            for a in scratch:
-                a.grad.zero_()
-            self._run(launches)
-            self._run(launches, adjoint=True)
-        self._graphs[h] = (fwd.graph, vjp.graph)
-        return self._graphs[h]
+    def _capture(self, fill):
+        with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+            fill()
+        return capture.graph
+
+    def _single_graph(self, h: float):
+        """The captured forward of one internal step h on the single buffers."""
+        key = ("single", h)
+        if key not in self._graphs:
+            launches = self._record(lambda launch: self._step(h, self.single, launch))
+            self._graphs[key] = self._capture(lambda: self._run(launches))
+        return self._graphs[key]
+
+    def _slot_graphs(self, i: int, h: float):
+        """(forward, adjoint) graphs of slot i stepping h: the forward from chain[i] into chain[i + 1]
+        keeping its intermediates; the adjoint zeroes the adjoints of chain[i] and of the intermediates
+        and runs the step's adjoints (chain[i + 1].grad in, chain[i].grad out; the adjoints of the
+        parameters, edge fields and controls add up)."""
+        key = (i, h)
+        if key not in self._graphs:
+            b = self._slot(i)
+            launches = self._record(lambda launch: self._step(h, b, launch))
+            scratch = [b.xv_in, *b.fg, *b.volume, *b.points, *b.accel]
+
+            def adjoint():
+                for a in scratch:
+                    a.grad.zero_()
+                self._run(launches, adjoint=True)
+            self._graphs[key] = (self._capture(lambda: self._run(launches)), self._capture(adjoint))
+        return self._graphs[key]
 
     # ------------------------------------------------------------------ forward and backward
     def forward(self) -> ReplayPlan:
@@ -294,23 +346,20 @@ class DifferentiableReplay:
             self._set(self.pressure, p.pressures[row])
             self._set(self.enabled, p.enabled)
 
-    def _segment_states(self, start: int, stop: int) -> list:
-        """Every internal state of output steps start..stop-1 recomputed from the checkpoint at start:
-        per output step the list of its substeps' first states, (2, 1, V) arrays."""
+    def _recompute(self, start: int, stop: int) -> list:
+        """Output steps start..stop-1 recomputed from the checkpoint at start along the chain of slots
+        (intermediates kept); per output step the slot of its first substep."""
         p = self.plan
-        self._set(self.xv_b, p.checkpoints[start].reshape(2, 1, -1, 3))
-        out = []
+        self._set(self.chain[0], p.checkpoints[start].reshape(2, 1, -1, 3))
+        firsts, i = [], 0
         for k in range(start, stop):
             self._load_edges(self._phase_of(k))
             self._controls(int(p.row[k]))
-            fwd, _ = self._graphs_for(float(p.h[k]))
-            firsts = []
+            firsts.append(i)
             for _ in range(int(p.substeps[k])):
-                wp.copy(self.xv_a, self.xv_b)
-                firsts.append(wp.clone(self.xv_a, requires_grad=False))
-                wp.capture_launch(fwd)
-            out.append(firsts)
-        return out
+                wp.capture_launch(self._slot_graphs(i, float(p.h[k]))[0])
+                i += 1
+        return firsts
 
     def _phase_of(self, k: int) -> int:
         """The jam phase of output step k (0 before the first jam event)."""
@@ -369,27 +418,26 @@ class DifferentiableReplay:
         lam_np[0, 0] = np.asarray(dloss_dx, dtype=np.float64).reshape(-1, 3)
         self._set(lam, lam_np)
         adj_air, adj_p = np.zeros(len(p.air)), np.zeros(p.pressures.shape)
-        starts = list(range(0, p.n_steps, p.segment))
+        starts = sorted(p.checkpoints)
         events = {s: j for j, s in enumerate(p.jam_steps)}
-        for start in reversed(starts):
-            stop = min(start + p.segment, p.n_steps)
-            states = self._segment_states(start, stop)
+        for start, stop in reversed(list(zip(starts, starts[1:] + [p.n_steps]))):
+            firsts = self._recompute(start, stop)
+            i = firsts[-1] + int(p.substeps[stop - 1])
+            wp.copy(self.chain[i].grad, lam)
             for k in reversed(range(start, stop)):
                 self._load_edges(self._phase_of(k))
                 self._controls(int(p.row[k]))
-                _, vjp = self._graphs_for(float(p.h[k]))
-                for first in reversed(states[k - start]):
-                    wp.copy(self.xv_a, first)
-                    wp.copy(self.xv_b.grad, lam)
-                    wp.capture_launch(vjp)
-                    wp.copy(lam, self.xv_a.grad)
+                for _ in range(int(p.substeps[k])):
+                    i -= 1
+                    wp.capture_launch(self._slot_graphs(i, float(p.h[k]))[1])
                 adj_air[p.row[k]] += float(self.air.grad.numpy()[0])
                 self.air.grad.zero_()
                 if n:
                     adj_p[p.row[k]] += self.pressure.grad.numpy()[:n].astype(np.float64)
                     self.pressure.grad.zero_()
                 if k in events:
-                    self._jam_adjoint(events[k], lam)
+                    self._jam_adjoint(events[k], self.chain[i].grad)
+            wp.copy(lam, self.chain[0].grad)
         wp.copy(self.edge0.grad, self.edge.grad)
         wp.copy(self.xv0.grad, lam)
         self._run(build, adjoint=True)
@@ -427,14 +475,15 @@ class DifferentiableReplay:
         rows_air = p.air if air is None else np.asarray(air, dtype=np.float64)
         rows_p = p.pressures if ipam_pressures is None else np.asarray(ipam_pressures, dtype=np.float64)
         self._run(self._record(self._build))
-        wp.copy(self.xv_b, self.xv0)
+        b = self.single
+        wp.copy(b.xv_out, self.xv0)
         wp.copy(self.edge, self.edge0)
         self._loaded_phase = None
         events = {s: j for j, s in enumerate(p.jam_steps)}
         for k in range(p.n_steps):
             if k in events:
                 self._jam_mask(events[k])
-                wp.copy(self.xv_jam, self.xv_b)
+                wp.copy(self.xv_jam, b.xv_out)
                 wp.copy(self.edge_before, self.edge)
                 self._run([self._jam_launch()])
                 wp.copy(self.edge, self.edge_after)
@@ -443,12 +492,12 @@ class DifferentiableReplay:
             if n:
                 self._set(self.pressure, rows_p[row])
                 self._set(self.enabled, p.enabled)
-            fwd, _ = self._graphs_for(float(p.h[k]))
+            fwd = self._single_graph(float(p.h[k]))
             for _ in range(int(p.substeps[k])):
-                wp.copy(self.xv_a, self.xv_b)
+                wp.copy(b.xv_in, b.xv_out)
                 wp.capture_launch(fwd)
         self._loaded_phase = None
-        return self.xv_b.numpy()[0, 0].astype(np.float64)
+        return b.xv_out.numpy()[0, 0].astype(np.float64)
 
 
 def _adjoint(a):
