@@ -6,6 +6,7 @@ actuator sets, the paper's law as the design's controller (so the suite stays sh
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -103,3 +104,20 @@ def test_the_parameter_gradient_matches_finite_differences(designs):
 def test_bad_codesign_mode_is_named():
     with pytest.raises(ws.DesignError, match=r"codesign must be one of \['off', 'rest', 'rest\+ipams'\]"):
         ws.DesignSettings(codesign="shape")
+
+
+def test_the_command_codesigns_and_saves_the_codesigned_rest_shape(tmp_path):
+    from warp_shape.cli import main
+
+    out = tmp_path / "out"
+    assert main(["design", "--subdivisions", "2", "--actuators", "1", "--placement", "paper", "--targets", "oval",
+                 "--codesign", "rest", "--out", str(out)]) == 0
+    report = (out / "report.md").read_text()
+    assert "## Co-design" in report and "Mode: rest" in report
+    scene = ws.load_scene(out / "design.usda")
+    assert scene.settings["designer"]["codesign"] == "rest"
+    rec = json.loads((out / "report.json").read_text())["codesign"]
+    assert rec["kept"] and all(a <= b for a, b in zip(rec["after"], rec["before"]))
+    # the saved rest shape is the co-designed one: within the volume bound, moved from the placed one
+    assert scene.design.rest.volume() <= 0.8 * ws.target("oval").volume() * (1 + 1e-9)
+    assert rec["max_displacement_m"] > 1e-4
