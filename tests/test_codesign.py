@@ -109,9 +109,9 @@ def test_bad_codesign_mode_is_named():
 def test_the_command_codesigns_and_saves_the_codesigned_rest_shape(tmp_path):
     from warp_shape.cli import main
 
-    out = tmp_path / "out"
+    out, rrd = tmp_path / "out", tmp_path / "run.rrd"
     assert main(["design", "--subdivisions", "2", "--actuators", "1", "--placement", "paper", "--targets", "oval",
-                 "--codesign", "rest", "--out", str(out)]) == 0
+                 "--codesign", "rest", "--rerun", str(rrd), "--out", str(out)]) == 0
     report = (out / "report.md").read_text()
     assert "## Co-design" in report and "Mode: rest" in report
     scene = ws.load_scene(out / "design.usda")
@@ -121,3 +121,10 @@ def test_the_command_codesigns_and_saves_the_codesigned_rest_shape(tmp_path):
     # the saved rest shape is the co-designed one: within the volume bound, moved from the placed one
     assert scene.design.rest.volume() <= 0.8 * ws.target("oval").volume() * (1 + 1e-9)
     assert rec["max_displacement_m"] > 1e-4
+    # the recording logs every step's replayed objective and the final one
+    from warp_shape.io.recording_read import read_recording
+
+    ents = read_recording(rrd)["entities"]
+    logged = np.concatenate(ents["/design/codesign/oval"]["Scalars:scalars"])
+    np.testing.assert_allclose(logged, [rec["before"][0]] + [row[0] for row in rec["steps"]])
+    assert np.concatenate(ents["/design/codesign/oval/final"]["Scalars:scalars"])[0] == pytest.approx(rec["after"][0])

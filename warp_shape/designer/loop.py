@@ -68,6 +68,8 @@ def _codesign(run: DesignRun) -> dict:
                                     passive_cells=run.passive_sets.passive_cells(), device=run.device,
                                     settings=CodesignSettings(steps=s.codesign_steps, move_rest=s.initialize),
                                     target_names=run.names)
+    if run.recorder is not None:
+        run.recorder.log_codesign(record.as_dict(), run.names)
     if record.kept:
         run.current = new
         run.designs[-1] = copy_design(new)

@@ -384,6 +384,21 @@ class Recorder:
         for p in paths:
             self.stream.log(f"design/figures/{Path(p).stem}", self._rr.EncodedImage(path=str(p)), static=True)
 
+    def log_codesign(self, record: dict, target_names) -> None:
+        """Co-design's replayed objective of every target after each accepted step
+        (``design/codesign/<target>``, ``codesign`` timeline, step 0 = as placed) and the objective under
+        the design's controller after it (``design/codesign/<target>/final``)."""
+        rr, s = self._rr, self.stream
+        rows = [record.get("before", [])] + list(record.get("steps", []))
+        s.reset_time()
+        for k, row in enumerate(rows):
+            s.set_time("codesign", sequence=k)
+            for n, v in zip(target_names, row):
+                s.log(f"design/codesign/{n}", rr.Scalars([float(v)]))
+        for n, v in zip(target_names, record.get("after", [])):
+            s.log(f"design/codesign/{n}/final", rr.Scalars([float(v)]))
+        s.reset_time()
+
     def log_design_refinement(self, r: int, record: dict, target_names) -> None:
         """Every hold tried in refinement round ``r`` of the simulated placement: its screened objective
         (``design/refine/<target>/<k>/score``, ``refine`` timeline), and per target whether a hold was
