@@ -20,6 +20,17 @@ import warp_shape as ws  # noqa: E402
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
 
+def with_pressure_max(design: ws.Design, p_max: float) -> ws.Design:
+    """A copy of ``design`` whose IPAMs' upper pressure limit is ``p_max`` (Pa gauge)."""
+    out = ws.Design(design.rest, design.material)
+    for ip in design.ipams:
+        out.add_ipam(ip.face_a, ip.face_b, stiffness=ip.stiffness, area=ip.area,
+                     pressure_limits=(ip.pressure_limits[0], p_max), damping=ip.damping)
+    for c in design.cells:
+        out.add_cell(c.faces)
+    return out
+
+
 def rel_err(a, b) -> float:
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))

@@ -13,19 +13,10 @@ from warp_shape.controller import control
 from warp_shape.controller.observe import fit_of, vertex_area_shares
 from warp_shape.sampling import fit_objective
 from warp_shape.scenarios import cube_fig6_design
+from conftest import with_pressure_max
 
 # fraction by which holding a converged run's final controls may still change its volume
 HOLD_VOLUME_FRACTION = 1e-3
-
-
-def _with_pressure_max(design: ws.Design, p_max: float) -> ws.Design:
-    out = ws.Design(design.rest, design.material)
-    for ip in design.ipams:
-        out.add_ipam(ip.face_a, ip.face_b, stiffness=ip.stiffness, area=ip.area,
-                     pressure_limits=(ip.pressure_limits[0], p_max), damping=ip.damping)
-    for c in design.cells:
-        out.add_cell(c.faces)
-    return out
 
 
 def _replay(res) -> ws.Simulator:
@@ -117,7 +108,7 @@ def test_converged_run_is_at_rest_and_replays(fig6_small):
 
 
 def test_saturated_run_names_the_limit_and_is_not_converged():
-    design = _with_pressure_max(cube_fig6_design(subdivisions=2), 100e3)
+    design = with_pressure_max(cube_fig6_design(subdivisions=2), 100e3)
     res = control(design, ws.target("cube"), method="paper")
     corners = [f"ipam {i} at P_max 100 kPa" for i in range(4)]
     assert res.saturated == corners, res.saturated

@@ -16,25 +16,16 @@ from warp_shape.gradients import DifferentiableReplay
 from warp_shape.objective_grad import fit_objective_and_gradient
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.settings import SimulationSettings
+from conftest import with_pressure_max
 
 RTOL = 1e-4
-
-
-def _saturating(design: ws.Design, p_max: float) -> ws.Design:
-    out = ws.Design(design.rest, design.material)
-    for ip in design.ipams:
-        out.add_ipam(ip.face_a, ip.face_b, stiffness=ip.stiffness, area=ip.area,
-                     pressure_limits=(ip.pressure_limits[0], p_max), damping=ip.damping)
-    for c in design.cells:
-        out.add_cell(c.faces)
-    return out
 
 
 class Case:
     """A recorded sequence, its differentiable replay, the objective and the adjoint gradient."""
 
     def __init__(self, integrator: str = "rk4"):
-        self.design = _saturating(cube_fig6_design(subdivisions=2), 100e3)
+        self.design = with_pressure_max(cube_fig6_design(subdivisions=2), 100e3)
         self.target = ws.target("cube").centered()
         settings = ws.ControlSettings(method="paper", simulation=SimulationSettings(integrator=integrator))
         self.result = ws.control(self.design, self.target, settings=settings)
