@@ -4,6 +4,7 @@ a worker killed mid-sweep."""
 from __future__ import annotations
 
 import csv
+import ipaddress
 import json
 import os
 import signal
@@ -16,7 +17,7 @@ import pytest
 import warp_shape as ws
 from warp_shape.cli import main
 from warp_shape.sweeps import SweepError, execute, parse_param
-from warp_shape.sweeps.backends import check_address
+from warp_shape.sweeps.backends import check_address, start_ray
 from warp_shape.sweeps.plan import grid_plan, load_problem, subsets_plan
 
 #: a tiny run: 162-vertex base mesh, one IPAM, the paper's law, short control
@@ -176,11 +177,85 @@ def test_a_failing_run_records_its_error_and_the_sweep_goes_on(tmp_path):
 
 @pytest.fixture(scope="module")
 def ray_local():
+    """The sweep's own local Ray instance (``start_ray``, as ``--backend ray`` without ``--address``)."""
     ray = pytest.importorskip("ray")
-    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="warning", log_to_driver=False)
+    assert start_ray(None, 2)[0]
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # run_fn below, on the workers
     yield ray
     ray.shutdown()
+
+
+def process_tree(root: int) -> dict[int, str]:
+    """{pid: command name} of ``root`` and every process descended from it, from /proc."""
+    parent, name = {}, {}
+    for entry in os.listdir("/proc"):
+        try:
+            stat = open(f"/proc/{entry}/stat").read() if entry.isdigit() else ""
+        except OSError:  # exited meanwhile
+            continue
+        if stat:
+            head, _, rest = stat.rpartition(")")
+            parent[int(entry)], name[int(entry)] = int(rest.split()[1]), head.partition("(")[2]
+    tree, grew = {root}, True
+    while grew:
+        more = {pid for pid, ppid in parent.items() if ppid in tree} - tree
+        tree |= more
+        grew = bool(more)
+    return {pid: name.get(pid, "?") for pid in tree}
+
+
+def listening_tcp() -> dict[int, tuple[ipaddress._BaseAddress, int]]:
+    """{socket inode: (address, port)} of every TCP socket in LISTEN state (/proc/net/tcp and tcp6)."""
+    out = {}
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(table) as f:
+            for line in f.readlines()[1:]:
+                fields = line.split()
+                if fields[3] != "0A":  # LISTEN
+                    continue
+                host, port = fields[1].split(":")
+                raw = bytes.fromhex(host)  # 32-bit words in host (little-endian) order
+                addr = ipaddress.ip_address(b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4)))
+                out[int(fields[9])] = (addr, int(port, 16))
+    return out
+
+
+def socket_inodes(pid: int) -> set[int]:
+    """The inodes of the sockets process ``pid`` holds open."""
+    inodes = set()
+    try:
+        fds = os.listdir(f"/proc/{pid}/fd")
+    except OSError:  # exited meanwhile
+        return inodes
+    for fd in fds:
+        try:
+            link = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:  # closed meanwhile (the listing's own descriptor among them)
+            continue
+        if link.startswith("socket:["):
+            inodes.add(int(link[8:-1]))
+    return inodes
+
+
+def is_loopback(addr) -> bool:
+    return addr.is_loopback or bool(getattr(addr, "ipv4_mapped", None) and addr.ipv4_mapped.is_loopback)
+
+
+def worker_pid() -> int:
+    return os.getpid()
+
+
+def test_the_local_ray_instance_listens_on_the_loopback_interface_only(ray_local):
+    worker = ray_local.get(ray_local.remote(worker_pid).remote())
+    tree = process_tree(os.getpid())
+    assert {"gcs_server", "raylet"} <= set(tree.values()) and worker in tree
+    listening, found = listening_tcp(), []
+    for pid, name in tree.items():
+        for inode in socket_inodes(pid) & listening.keys():
+            found.append((name, pid, *listening[inode]))
+    owners = {pid for _, pid, _, _ in found}
+    assert {os.getpid(), worker} <= owners and {"gcs_server", "raylet"} <= {name for name, *_ in found}
+    assert [f for f in found if not is_loopback(f[2])] == []
 
 
 def test_ray_runs_give_the_numbers_of_the_serial_runs(ray_local, serial_sweep, tmp_path):

@@ -5,6 +5,10 @@ or joins a running cluster at ``address`` (``ray start --head`` on the head node
 ``--address HOST:6379`` or ``auto``). Each run is one task asking for one CPU, and one GPU when the
 device is CUDA; at most ``workers`` tasks are in flight. A task whose worker process dies is retried
 ``retries`` times by Ray, then recorded as failed; the sweep goes on.
+
+A local instance listens on the loopback interface only (its GCS, raylet, object manager, agents and
+workers bind 127.0.0.1): Ray's single-machine mode, which it otherwise keeps for Windows and macOS.
+Nothing of it can be reached, or joined, from another machine.
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ from __future__ import annotations
 import os
 import socket
 import time
+from contextlib import contextmanager
 
 from .params import SweepError
 from .run import error_row
@@ -19,6 +24,10 @@ from .run import error_row
 __all__ = ["BACKENDS", "run_serial", "run_ray", "require_ray", "start_ray", "check_address"]
 
 BACKENDS = ("ray", "serial")
+
+#: Ray's switch between its single-machine mode ("0": every server on 127.0.0.1) and cluster mode
+CLUSTER_MODE_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+LOOPBACK = ("127.0.0.1", "::1")
 
 INSTALL_HINT = ("Ray is not installed: install the cluster extra, pip install 'warp-shape[cluster]' "
                 "(or pip install 'ray>=2.60'), or run the sweep with --backend serial")
@@ -47,6 +56,25 @@ def check_address(address: str, timeout: float = 5.0) -> None:
                          f"`ray start --head --port {port}`, or leave out --address for a local instance") from None
 
 
+@contextmanager
+def _single_machine_mode(ray):
+    """Ray's single-machine mode while a local instance starts: its node address is the loopback one, so
+    every server it starts binds there. Ray reads the switch at import (``ray_constants``, this process)
+    and from the environment (the processes it starts); both are restored afterwards."""
+    constants = ray._private.ray_constants
+    saved_env, saved_flag = os.environ.get(CLUSTER_MODE_ENV), constants.ENABLE_RAY_CLUSTER
+    os.environ[CLUSTER_MODE_ENV] = "0"
+    constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        constants.ENABLE_RAY_CLUSTER = saved_flag
+        if saved_env is None:
+            os.environ.pop(CLUSTER_MODE_ENV, None)
+        else:
+            os.environ[CLUSTER_MODE_ENV] = saved_env
+
+
 def start_ray(address: str | None, workers: int | None) -> tuple[bool, float]:
     """Join ``address`` or start a local Ray instance with ``workers`` CPUs (this machine's count by
     default); returns (started here, seconds taken). An instance already running in this process is used."""
@@ -63,13 +91,19 @@ def start_ray(address: str | None, workers: int | None) -> tuple[bool, float]:
             ray.init(address=address, **common)
         else:
             # "local": a new instance even where a cluster's address is on record (RAY_ADDRESS, a stale file)
-            ray.init(address="local", num_cpus=workers or os.cpu_count() or 1, **common)
+            with _single_machine_mode(ray):
+                ray.init(address="local", num_cpus=workers or os.cpu_count() or 1, **common)
     except (ConnectionError, RuntimeError, ValueError, ray.exceptions.RayError) as exc:
         where = f"the Ray cluster at {address!r}" if address else "a local Ray instance"
         hint = ("start its head with `ray start --head` and pass --address HOST:6379 (or auto on a node); Ray "
                 ">= 2.59 guards a cluster with a token: set RAY_AUTH_MODE=token with the cluster's token in "
                 "~/.ray/auth_token (docs/sweeps.md)") if address else "see docs/sweeps.md"
         raise SweepError(f"could not start or join {where}: {' '.join(str(exc).split())[:300]}. {hint}") from None
+    node_ip = ray.util.get_node_ip_address()
+    if not address and node_ip not in LOOPBACK:
+        ray.shutdown()
+        raise SweepError(f"this Ray ({ray.__version__}) would run its local instance on {node_ip}, reachable from "
+                         f"other machines; run the sweep with --backend serial, or on a cluster with --address")
     return True, time.perf_counter() - t0
 
 
