@@ -217,6 +217,17 @@ def test_a_corrupt_sweep_table_is_one_line_naming_the_fix(tmp_path, capsys):
     (["compare", "scan.ply", "--to", "oval", "--max-iterations", "1000000000"], "--max-iterations takes 1..10000"),
     (["sweep", "subsets", "--workers", "100000"], "--workers takes 1..1024, got 100000"),
     (["sweep", "grid", "--param", "actuators=5", "--actuators", "0"], "--actuators takes 1..500, got 0"),
+    # a sweep's settings (--param values, --set values) are held to the bounds of the flags that give them
+    (["sweep", "grid", "--param", "max_steps=5,1000000000"],
+     "sweep setting controller.max_steps takes 1..100000, as --max-steps does, got 1000000000"),
+    (["sweep", "subsets", "--set", "controller.max_steps=1000000000"], "controller.max_steps takes 1..100000"),
+    (["sweep", "grid", "--param", "actuators=5,100000"], "sweep setting actuators takes 1..500, as --actuators does"),
+    (["sweep", "subsets", "--set", "candidates=100000"], "designer.candidates takes 1..256, as --candidates does"),
+    (["sweep", "grid", "--param", "refine_rounds=0,100000"], "designer.refine_rounds takes 0..50, as --refine-rounds"),
+    (["sweep", "subsets", "--set", "subdivisions=12"], "sweep setting subdivisions takes 1..6, as --subdivisions"),
+    (["sweep", "grid", "--param", "control_period=10,1000000"], "controller.control_period takes 1..1000, got 1000000"),
+    (["sweep", "grid", "--param", "max_settle_steps=1000000000000"], "max_settle_steps takes 0..100000, got 1000000000000"),
+    (["sweep", "subsets", "--set", "simulation.max_substeps=1000000000"], "simulation.max_substeps takes 1..1000000"),
 ])
 def test_every_size_a_flag_requests_is_bounded_before_any_work(tmp_path, monkeypatch, capsys, argv, message):
     """Rates, counts, resolutions and steps: a one-line error naming the bounds, before any file is

@@ -12,7 +12,8 @@ import warp as wp
 
 from ..errors import DesignError
 from ..io.atomic import StagedFolder, write_json
-from .options import MAX_CANDIDATES, MAX_WORLDS, add_bounded, check_device, check_out, print_outputs
+from ..limits import MAX_CANDIDATES, MAX_WORLDS
+from .options import add_bounded, check_device, check_out, print_outputs
 
 # the benchmarks are imported by the functions that run them: ~20 ms kept out of every command's start-up
 

@@ -11,9 +11,10 @@ from ..controller import CONTROL_METHODS, control_many
 from ..designer.run_settings import RunSettings
 from ..io.atomic import StagedFolder
 from ..io.outputs import write_control_outputs, write_figures_or_skip
-from .options import (MAX_CONTROL_STEPS, ControlProgress, actuator_selection, add_bounded, add_common_args,
-                      add_units_arg, check_device, check_out, check_rerun, open_recorder, print_outputs,
-                      resolve_design_and_targets, stop_if_interrupted)
+from ..limits import MAX_CONTROL_STEPS
+from .options import (ControlProgress, actuator_selection, add_bounded, add_common_args, add_units_arg, check_device,
+                      check_out, check_rerun, open_recorder, print_outputs, resolve_design_and_targets,
+                      stop_if_interrupted)
 
 __all__ = ["register", "run"]
 

@@ -24,10 +24,11 @@ from ..io.outputs import is_run_output, record_round, write_design_outputs, writ
 from ..io.report import design_markdown
 from ..io.scene_read import load_scene
 from ..molds import equivalent_radius
+from ..limits import MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS
 from .lab_timing import add_timing_args, timing_from_args
-from .options import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS, add_bounded, add_common_args,
-                      add_units_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
-                      open_recorder, print_outputs, recording_entry, run_progress, stop_if_interrupted)
+from .options import (add_bounded, add_common_args, add_units_arg, check_device, check_mold_flags, check_out,
+                      check_rerun, load_targets, open_recorder, print_outputs, recording_entry, run_progress,
+                      stop_if_interrupted)
 
 __all__ = ["register", "run"]
 

@@ -38,15 +38,6 @@ __all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder"
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
 
-#: upper bounds of the flags that size a run (``add_bounded``): each is well past what the paper
-#: and the shipped scenes use, and below what exhausts a workstation's memory or disk
-MAX_ACTUATORS = 500  # IPAMs placed (the shipped problems place 4..20)
-MAX_CANDIDATES = 256  # holds or candidate sets per round, each a world of one batch
-MAX_REFINE_ROUNDS = 50
-MAX_CONTROL_STEPS = 100_000  # control steps of one run (default 300)
-MAX_SIM_STEPS = 200_000  # output steps of `simulate` (default 800)
-MAX_WORLDS = 4096
-
 
 def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:
     """``--device``, ``--out`` (default ``out``), ``--json``, ``--verbose`` and (with ``rerun``) the

@@ -10,10 +10,11 @@ import numpy as np
 
 from ..errors import StabilityError
 from ..io.atomic import StagedFolder, write_json
+from ..limits import MAX_SIM_STEPS, MAX_SUBDIVISIONS
 from ..scenarios import cube_fig6_design
 from ..simulator import Simulator
-from .options import (MAX_SIM_STEPS, Bar, add_bounded, add_common_args, check_device, check_out, check_rerun,
-                      open_recorder, print_outputs)
+from .options import (Bar, add_bounded, add_common_args, check_device, check_out, check_rerun, open_recorder,
+                      print_outputs)
 
 __all__ = ["register", "run"]
 
@@ -28,7 +29,8 @@ def register(subparsers) -> None:
                    help="time integrator: rk4 (the paper's reference) or semi_implicit (Euler, about 3x faster)")
     s.add_argument("--precision", default="float32", choices=["float32", "float64"], help="floating-point precision")
     s.add_argument("--dt", type=float, default=1e-3, help="output step, s (internal substeps are automatic)")
-    add_bounded(s, "--subdivisions", 1, 6, type=int, default=3, help="icosphere subdivisions of the membrane")
+    add_bounded(s, "--subdivisions", 1, MAX_SUBDIVISIONS, type=int, default=3,
+                help="icosphere subdivisions of the membrane")
     add_bounded(s, "--air-scale", 0.01, 100.0, type=float, default=1.6,
                 help="final air amount relative to the rest amount")
     s.add_argument("--inflate-time", type=float, default=0.4, help="s")

@@ -6,8 +6,9 @@ import json
 import sys
 from pathlib import Path
 
+from ..limits import MAX_ACTUATORS
 from ..sweeps import SweepError, sweep
-from .options import MAX_ACTUATORS, add_bounded, check_device
+from .options import add_bounded, check_device
 
 __all__ = ["register", "run"]
 

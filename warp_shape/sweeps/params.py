@@ -12,15 +12,19 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import math
+import numbers
 from dataclasses import MISSING, dataclass, fields
 
 from ..controller import ControlSettings
 from ..designer import DesignSettings, design
 from ..errors import WarpShapeError
+from ..limits import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_CONTROL_PERIOD, MAX_CONTROL_STEPS, MAX_INVERSE_ITERATIONS,
+                      MAX_REFINE_ROUNDS, MAX_SUBDIVISIONS, MAX_SUBSTEPS)
 from ..material import Material
 from ..settings import SimulationSettings
 
-__all__ = ["SweepError", "Param", "GROUPS", "SPECIAL", "known_params", "resolve_param", "parse_param",
+__all__ = ["SweepError", "Param", "GROUPS", "SPECIAL", "SIZE_BOUNDS", "known_params", "resolve_param", "parse_param",
            "parse_value", "check_values", "split_params"]
 
 #: design() keywords that are not settings (the problem itself, callbacks, the settings objects)
@@ -33,7 +37,25 @@ GROUPS = {"designer": DesignSettings, "controller": ControlSettings, "simulation
 
 #: parameters that are not a settings field: name -> (type, meaning)
 SPECIAL = {"actuators": (int, "number of IPAMs placed"),
-           "subdivisions": (int, "base mesh: an icosphere of 1..6 subdivisions (2: 162 vertices, 3: 642)")}
+           "subdivisions": (int, f"base mesh: an icosphere of 1..{MAX_SUBDIVISIONS} subdivisions (2: 162 vertices, "
+                                 f"3: 642)")}
+
+#: the settings that size a run (counts, resolutions, steps), held before any work to the bounds of the
+#: flag that gives them to one run (`warp-shape design` / `control`), or (no flag) to the foundation's
+#: bounds: (group, field) -> (low, high, flag or None)
+SIZE_BOUNDS = {
+    ("run", "actuators"): (1, MAX_ACTUATORS, "--actuators"),
+    ("run", "subdivisions"): (1, MAX_SUBDIVISIONS, "--subdivisions"),
+    ("designer", "candidates"): (1, MAX_CANDIDATES, "--candidates"),
+    ("designer", "refine_rounds"): (0, MAX_REFINE_ROUNDS, "--refine-rounds"),
+    ("controller", "max_steps"): (1, MAX_CONTROL_STEPS, "--max-steps"),
+    ("controller", "max_settle_steps"): (0, MAX_CONTROL_STEPS, None),
+    ("controller", "inverse_settle_steps"): (1, MAX_CONTROL_STEPS, None),
+    ("controller", "control_period"): (1, MAX_CONTROL_PERIOD, None),
+    ("controller", "inverse_iterations"): (0, MAX_INVERSE_ITERATIONS, None),
+    ("simulation", "substeps"): (1, MAX_SUBSTEPS, None),
+    ("simulation", "max_substeps"): (1, MAX_SUBSTEPS, None),
+}
 
 
 #: names that look like settings but change no design or fit: name -> what they are instead
@@ -140,13 +162,27 @@ def parse_value(text, kind: type):
     return t
 
 
+def _check_size(group: str, field_name: str, value) -> None:
+    """A size (``SIZE_BOUNDS``) within its bounds, as its flag's: a one-line ``SweepError`` naming them."""
+    bounds = SIZE_BOUNDS.get((group, field_name))
+    if bounds is None or value is None or isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return  # not a size, or not a number: the settings object's own checks say what it needs
+    lo, hi, flag = bounds
+    if not (math.isfinite(value) and lo <= value <= hi):
+        where = field_name if group == "run" else f"{group}.{field_name}"
+        same = f", as {flag} does" if flag else ""
+        got = value if isinstance(value, numbers.Integral) else f"{value:g}"
+        raise SweepError(f"sweep setting {where} takes {lo}..{hi}{same}, got {got}; give values within these "
+                         f"bounds")
+
+
 def _check_one(group: str, field_name: str, value) -> None:
     """Build the settings object with the value (its own checks run); a bad value raises ``SweepError``."""
+    _check_size(group, field_name, value)
     try:
         if group == "run":
-            lo, hi = (1, 6) if field_name == "subdivisions" else (1, 10_000)
-            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
-                raise SweepError(f"must be a whole number in {lo}..{hi}, got {value!r}")
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise SweepError(f"must be a whole number, got {value!r}")
             return
         if group == "design":
             return  # checked by design() when it runs

@@ -68,6 +68,7 @@ def _load_targets(specs) -> list:
 def load_problem(scene: str | None = None, targets=None, fixed: dict | None = None) -> Problem:
     """The design problem of a scene (default ``oval_heart``, as ``warp-shape design``), its targets
     replaced by ``targets`` (names or mesh files) when given; ``fixed`` settings are checked."""
+    checked = {key: check_values(key, [value]).values[0] for key, value in (fixed or {}).items()}  # before any work
     name = scene or DEFAULT_SCENE
     sc = load_scene(name)
     base = sc.base_mesh()
@@ -76,7 +77,6 @@ def load_problem(scene: str | None = None, targets=None, fixed: dict | None = No
         raise SweepError("no targets: give --targets (e.g. --targets oval heart) or a scene with targets")
     groups = {g: dict(v) for g, v in (sc.settings or {}).items() if g in ("simulation", "controller", "designer")}
     actuators = int(groups.get("designer", {}).pop("actuators", DEFAULT_ACTUATORS))
-    checked = {key: check_values(key, [value]).values[0] for key, value in (fixed or {}).items()}
     material = dataclasses.asdict(sc.design.material) if sc.design is not None else {}
     return Problem(scene=str(name), base=base, targets=named, actuators=actuators, settings=groups, fixed=checked,
                    material=material)
