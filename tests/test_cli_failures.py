@@ -144,6 +144,43 @@ def test_held_interrupts_deliver_the_press_when_the_block_ends():
     assert done and signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+def test_held_interrupts_off_the_main_thread_are_a_plain_block_and_an_error_inside_is_not_held():
+    import threading
+
+    from warp_shape.interrupts import held_interrupts
+
+    seen = []
+
+    def worker():
+        with held_interrupts():
+            seen.append(signal.getsignal(signal.SIGINT))
+
+    t = threading.Thread(target=worker)
+    t.start()
+    t.join()
+    assert seen == [signal.default_int_handler]
+    with pytest.raises(ZeroDivisionError):  # the error, not a KeyboardInterrupt for a press inside the block
+        with held_interrupts():
+            os.kill(os.getpid(), signal.SIGINT)
+            1 / 0
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+#: what Python's start-up (``site``) and the console script (``import re``) have loaded before the package
+BEFORE_THE_PACKAGE = "import os, sys, re"
+
+
+def test_the_start_up_hold_comes_before_any_import_of_the_package_but_signal():
+    """The hold is the package's first statement and its module imports nothing that Python's start-up and
+    the console script have not loaded (``signal`` aside): Ctrl-C before it is Python's own start-up only."""
+    proc = subprocess.run([sys.executable, "-S", "-X", "importtime", "-c", f"{BEFORE_THE_PACKAGE}; import warp_shape"],
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=120)
+    names = [line.rpartition("|")[2].strip() for line in proc.stderr.splitlines() if line.startswith("import time:")]
+    assert "re" in names and "warp_shape.interrupts" in names, proc.stderr[-2000:]
+    before_hold = names[names.index("re") + 1:names.index("warp_shape.interrupts")]
+    assert set(before_hold) <= {"__future__", "signal"}, before_hold
+
+
 # ------------------------------------------------------------------------------------------ full disk
 def full_disk(*args, **kwargs):
     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(args[0]) if args else None)

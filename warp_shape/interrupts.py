@@ -8,7 +8,10 @@
   the process with a traceback from the middle of an import. The command's ``main`` ends the hold
   (``release_the_command``) once its own handling is in place, so the press ends it in one line.
 
-Only the main thread installs handlers; importing warp_shape in any other program installs none.
+The hold starts as early as a package can: this module imports only what the interpreter and its
+``site`` start-up have loaded already (``signal`` aside, which is small), so nothing but Python's
+own start-up precedes it (docs/reliability.md measures what is left). Only the main thread installs
+handlers (``signal.signal`` refuses elsewhere); importing warp_shape in any other program installs none.
 """
 
 from __future__ import annotations
@@ -16,45 +19,55 @@ from __future__ import annotations
 import os
 import signal
 import sys
-import threading
-from contextlib import contextmanager
 
 __all__ = ["held_interrupts", "hold_for_the_command", "release_the_command", "COMMAND"]
 
 COMMAND = "warp-shape"  # the console script's name
 _START: dict = {}  # the start-up hold: {"previous": handler, "pressed": [signals]}
+_OFF_MAIN_THREAD = object()  # what ``_catch`` returns where Python takes no signal handler
 
 
-def _main_thread() -> bool:
-    return threading.current_thread() is threading.main_thread()
-
-
-@contextmanager
-def held_interrupts():
-    """Ctrl-C inside the block waits for its end, then goes to the handler in place before (by default
-    a ``KeyboardInterrupt`` there)."""
-    if not _main_thread():
-        yield
-        return
-    pressed: list = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum))
+def _catch(pressed: list):
+    """Note Ctrl-C presses in ``pressed`` from now: the handler in place before, or ``_OFF_MAIN_THREAD``."""
     try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if pressed:
-        signal.raise_signal(signal.SIGINT)
+        return signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum))
+    except ValueError:  # not the main thread
+        return _OFF_MAIN_THREAD
+
+
+class _Held:
+    """The context of ``held_interrupts``."""
+
+    def __enter__(self):
+        self.pressed: list = []
+        self.previous = _catch(self.pressed)
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if self.previous is _OFF_MAIN_THREAD:
+            return False
+        signal.signal(signal.SIGINT, self.previous)
+        if self.pressed and exc_type is None:
+            signal.raise_signal(signal.SIGINT)
+        return False
+
+
+def held_interrupts() -> _Held:
+    """A ``with`` block in which Ctrl-C waits for the block's end, then goes to the handler in place
+    before (by default a ``KeyboardInterrupt`` there); off the main thread, a block like any other."""
+    return _Held()
 
 
 def hold_for_the_command() -> None:
     """In the ``warp-shape`` process only (its console script), hold Ctrl-C from now until
     ``release_the_command``."""
     name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else ""
-    if not name.startswith(COMMAND) or _START or not _main_thread():
+    if not name.startswith(COMMAND) or _START:
         return
     pressed: list = []
-    _START.update(previous=signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum)),
-                  pressed=pressed)
+    previous = _catch(pressed)
+    if previous is not _OFF_MAIN_THREAD:
+        _START.update(previous=previous, pressed=pressed)
 
 
 def release_the_command():
