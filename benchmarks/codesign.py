@@ -12,11 +12,14 @@ from __future__ import annotations
 import time
 
 from warp_shape.designer import design
+from warp_shape.errors import DesignError
 from warp_shape.io.scene_read import load_scene
 from warp_shape.mesh import icosphere
-from warp_shape.targets import target
+from warp_shape.targets import TARGET_NAMES, target
 
-__all__ = ["bench_codesign", "CODESIGN_COLUMNS", "CODESIGN_CASES"]
+from .generated_shapes import NAMES, shape
+
+__all__ = ["bench_codesign", "check_cases", "CODESIGN_COLUMNS", "CODESIGN_CASES"]
 
 CODESIGN_COLUMNS = ["case", "target", "way", "objective", "vs_paper", "pcc", "mare_mm", "mpre_pct", "wall_s"]
 
@@ -28,6 +31,17 @@ CODESIGN_CASES = ("oval_heart", "four_targets_5", "four_targets_20", "pear", "he
 WAYS = (("paper", dict(placement="paper")), ("default", dict()), ("codesign", dict(codesign="rest+ipams")))
 
 
+def check_cases(cases) -> list:
+    """The cases asked for (None: all), each a name of ``CODESIGN_CASES`` or shapes joined by '+'."""
+    cases = list(cases or CODESIGN_CASES)
+    shapes = set(NAMES) | set(TARGET_NAMES)
+    bad = [c for c in cases if c not in CODESIGN_CASES and any(part not in shapes for part in c.split("+"))]
+    if bad:
+        raise DesignError(f"--cases: unknown case {bad[0]!r}; choose from {', '.join(CODESIGN_CASES)} (or a+b pairs "
+                          f"of {', '.join(sorted(shapes))})")
+    return cases
+
+
 def _problem(case: str, generated):
     """(base mesh, targets, names, actuators, cell radius) of a case."""
     if case in ("oval_heart", "four_targets_5", "four_targets_20"):
@@ -35,12 +49,11 @@ def _problem(case: str, generated):
         opts = sc.settings["designer"]
         return sc.design.rest, sc.targets, sc.target_names, opts["actuators"], opts["cell_radius"]
     names = case.split("+")
-    shipped = ("oval", "pear", "heart", "cube")
-    targets = [target(n) if n in shipped else generated(n) for n in names]
+    targets = [target(n) if n in TARGET_NAMES else generated(n) for n in names]
     return icosphere(3, 0.04), targets, names, 4 if len(names) > 1 else 3, 0.012
 
 
-def bench_codesign(cases=CODESIGN_CASES, device: str = "cpu", generated=None, progress=print) -> list[dict]:
+def bench_codesign(cases=CODESIGN_CASES, device: str = "cpu", generated=shape, progress=print) -> list[dict]:
     """Rows of ``CODESIGN_COLUMNS`` for every case; ``generated(name)`` makes a target the project does
     not ship (the tests' shapes); ``progress(text)`` is told each finished design."""
     rows = []

@@ -74,17 +74,10 @@ def _control(args, format_rows) -> list:
 
 
 def _codesign(args, format_rows) -> list:
-    from ..benchmarks.codesign import CODESIGN_CASES, CODESIGN_COLUMNS, bench_codesign
-    from ..benchmarks.generated_shapes import NAMES, shape
+    from ..benchmarks.codesign import CODESIGN_COLUMNS, bench_codesign, check_cases
 
-    cases = args.cases or list(CODESIGN_CASES)
-    shapes = set(NAMES) | {"oval", "pear", "heart", "cube"}
-    bad = [c for c in cases if c not in CODESIGN_CASES and any(part not in shapes for part in c.split("+"))]
-    if bad:
-        raise DesignError(f"--cases: unknown case {bad[0]!r}; choose from {', '.join(CODESIGN_CASES)} (or a+b pairs "
-                          f"of {', '.join(sorted(shapes))})")
-    rows = bench_codesign(cases, device=args.device, generated=shape,
-                          progress=lambda text: print(text, file=sys.stderr, flush=True))
+    cases = check_cases(args.cases)
+    rows = bench_codesign(cases, device=args.device, progress=lambda text: print(text, file=sys.stderr, flush=True))
     print("codesign: per target objective (RMS of (R - r) / V_t^(1/3)), PCC, MARE, MPRE; vs_paper = objective / "
           "Algorithm 1's (placement paper); ways: paper, default (co-design off), codesign (rest+ipams)")
     print(format_rows(rows, CODESIGN_COLUMNS))
@@ -132,15 +125,15 @@ def _announce(name: str, args) -> None:
     print(f"bench {name}: {ABOUT[name]}{extra} ...", file=sys.stderr, flush=True)
 
 
-def _run_one(name: str, args, format_rows, results: dict) -> None:
-    from ..benchmarks.sim import BENCH_COLUMNS, bench_sim
-
+def _run_one(name: str, args, sim_bench, results: dict) -> None:
+    format_rows = sim_bench.format_rows
     if name == "sim":
         if min(args.worlds) < 1:
             raise DesignError(f"--worlds takes counts >= 1, got {args.worlds}")
-        rows = bench_sim(device=args.device, subdivisions=args.subdivisions, repeats=args.repeats, worlds=args.worlds)
+        rows = sim_bench.bench_sim(device=args.device, subdivisions=args.subdivisions, repeats=args.repeats,
+                                   worlds=args.worlds)
         results["sim"] = rows
-        columns = BENCH_COLUMNS + ["estimate_ms"]
+        columns = sim_bench.BENCH_COLUMNS + ["estimate_ms"]
         if max(args.worlds) > 1:
             columns.insert(1, "worlds")
         print(format_rows(rows, columns))
@@ -173,7 +166,7 @@ def _run_one(name: str, args, format_rows, results: dict) -> None:
 
 def run(args) -> int:
     """Run the chosen benchmarks; print their tables; write ``bench_<name>.json`` for each."""
-    from ..benchmarks.sim import format_rows
+    from ..benchmarks import sim as sim_bench
 
     check_out(StagedFolder(args.out), replaced=False, kind="bench")  # files written one by one
     check_device(args.device)
@@ -184,7 +177,7 @@ def run(args) -> int:
     for name in names:
         results: dict = {}
         _announce(name, args)
-        _run_one(name, args, format_rows, results)
+        _run_one(name, args, sim_bench, results)
         if name in results:
             written.append(write_json(Path(args.out) / f"bench_{name}.json", {name: results[name], "meta": meta}))
     print_outputs(args.out, [p.name for p in written], args)
