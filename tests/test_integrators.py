@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -158,3 +160,35 @@ def test_cuda_matches_cpu(integrator):
         sim.step(10)
         out.append(sim.positions)
     np.testing.assert_allclose(out[1], out[0], rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_blowup_code_of_each_kind_of_vertex(precision):
+    """flag_blowup gives each vertex its worst code (4 x non-finite, 3 v non-finite, 2 |x| > bound,
+    1 |v| > bound), also where every component is finite but their sum overflows."""
+    import warp as wp
+    from warp_shape.kernels.integrate import flag_blowup
+
+    @wp.kernel
+    def flag(x: wp.array(dtype=Any), v: wp.array(dtype=Any), x_bound: Any, v_bound: Any,
+             status: wp.array(dtype=wp.int32)):
+        w = wp.tid()
+        flag_blowup(x[w], v[w], x_bound, v_bound, w, status)
+
+    big = float(np.finfo(precision).max) * 0.75  # finite, but two of them sum to inf
+    nan, inf = np.nan, np.inf
+    cases = [  # (x, v, code) with x_bound = 1 m, v_bound = 10 m/s
+        ((0.5, 0, 0), (1, 0, 0), 0),
+        ((nan, 0, 0), (1, 0, 0), 4), ((0, inf, 0), (1, 0, 0), 4), ((inf, -inf, 0), (1, 0, 0), 4),
+        ((nan, 0, 0), (nan, 0, 0), 4),
+        ((0, 0, 0), (0, 0, nan), 3), ((0, 0, 0), (-inf, 0, 0), 3), ((2, 0, 0), (inf, 0, 0), 3),
+        ((2, 0, 0), (0, 0, 0), 2), ((big, big, 0), (0, 0, 0), 2), ((big, big, 0), (20, 0, 0), 2),
+        ((0, 0, 0.5), (0, 20, 0), 1), ((0, 0, 0), (big, big, 0), 1), ((0, 0, 0), (0, -big, -big), 1),
+    ]
+    vec = wp.vec3f if precision == "float32" else wp.vec3d
+    x = wp.array(np.array([c[0] for c in cases], dtype=precision), dtype=vec, device="cpu")
+    v = wp.array(np.array([c[1] for c in cases], dtype=precision), dtype=vec, device="cpu")
+    status = wp.zeros(len(cases), dtype=wp.int32, device="cpu")
+    scalar = wp.float32 if precision == "float32" else wp.float64
+    wp.launch(flag, len(cases), [x, v, scalar(1.0), scalar(10.0), status], device="cpu")
+    assert status.numpy().tolist() == [c[2] for c in cases]
