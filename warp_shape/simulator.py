@@ -11,6 +11,8 @@ re-evaluated when air is changed, a cell jams or positions are set, and every
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import warp as wp
 
@@ -127,7 +129,8 @@ class Simulator:
         self._tangle_checked_at = 0  # internal step of the last tangle check
         self._face_corners = tuple(np.ascontiguousarray(self.design.rest.faces[:, k]) for k in range(3))
         self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
-        self._volume_cmds = [None, None]  # per state: the recorded volume launch of the chamber check
+        self._volume_cmds = [None, None]  # per state: the prepared volume launch of the chamber check
+        self._vol_view = None  # on CPU: a NumPy view of _vol_probe (set with _volume_cmds)
         self._update_plan()
 
     # ------------------------------------------------------------------ world helpers
@@ -381,18 +384,38 @@ class Simulator:
         return self._out(self._fg_probe[0].numpy().astype(np.float64))
 
     def _volumes(self) -> np.ndarray:
-        """(W,) chamber volumes, m^3, through one recorded launch (no Python launch path: ``step`` reads
-        them after every output step on CPU)."""
-        if self._volume_cmds[0] is None:  # one per state, both recorded at the first use
-            for p, state in enumerate(self._states):
-                cmds = []
-                eval_volume(self.model, state.x, self._vol_probe,
-                            lambda k, dim, inputs: cmds.append(wp.launch(k, dim, inputs, device=self.device,
-                                                                         record_cmd=True)))
-                self._volume_cmds[p] = cmds[0]
-        self._vol_probe.zero_()
-        self._volume_cmds[self.plan.parity].launch()
-        return self._vol_probe.numpy().copy()
+        """(W,) chamber volumes, m^3, through one prepared launch per state (``step`` reads them after
+        every output step on CPU): a captured graph where the plan captures its steps, else the
+        recorded launch. On CPU the probe is zeroed and read through a NumPy view of its memory."""
+        if self._volume_cmds[0] is None:  # one per state, both prepared at the first use
+            self._prepare_volumes()
+        view = self._vol_view
+        if view is None:
+            self._vol_probe.zero_()
+        else:
+            view.fill(0.0)
+        self._volume_cmds[self.plan.parity]()
+        return self._vol_probe.numpy().copy() if view is None else view.copy()
+
+    def _prepare_volumes(self) -> None:
+        for p, state in enumerate(self._states):
+            cmds = []
+            eval_volume(self.model, state.x, self._vol_probe,
+                        lambda k, dim, inputs: cmds.append(wp.launch(k, dim, inputs, device=self.device,
+                                                                     record_cmd=True)))
+            self._volume_cmds[p] = cmds[0].launch
+        cpu = wp.get_device(self.device).is_cpu
+        self._vol_view = self._vol_probe.numpy() if cpu else None  # host memory: a view, no copy
+        if cpu and self.plan.mode == "graph":  # a graph replay packs no launch arguments in Python
+            try:
+                graphs = []
+                for launch in self._volume_cmds:
+                    with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                        launch()
+                    graphs.append(capture.graph)
+            except Exception:  # capture unsupported here: the recorded launches stay
+                return
+            self._volume_cmds = [partial(wp.capture_launch, g) for g in graphs]
 
     def volume(self):
         """Enclosed volume in m^3 (float; (W,) with several worlds)."""
@@ -525,7 +548,7 @@ class Simulator:
         inside out or collapsed). ``step`` calls it after each output step where the host reads the
         state anyway (CPU): such a step is a blow-up of that step."""
         vol = self._volumes()
-        if np.all(vol > 0):
+        if (vol > 0).all():
             return
         w = int(np.argmin(vol))
         safe = 0.5 * min(self._dt_stable, self.plan.h)
