@@ -282,6 +282,22 @@ def test_a_membrane_tangled_for_two_checks_is_an_error_naming_the_step():
     assert info.value.quantity == "tangle" and info.value.step == 2 * TANGLE_EVERY
 
 
+
+def test_the_tangle_screen_counts_the_faces_that_face_the_centre():
+    """inward_fraction: none of a sphere's faces, all of a sphere turned inside out, each world on its
+    own, and the same float operations as the cross product and sum it replaces."""
+    from warp_shape.crossing import inward_fraction
+
+    m = ws.icosphere(2, 0.04)
+    corners = tuple(np.ascontiguousarray(m.faces[:, k]) for k in range(3))
+    rng = np.random.default_rng(4)
+    x = np.stack([m.vertices, -m.vertices, m.vertices + rng.normal(0, 0.01, m.vertices.shape)]).astype(np.float32)
+    frac = inward_fraction(x, corners)
+    assert frac[0] == 0 and frac[1] == 1 and 0 < frac[2] < 1
+    a, b, c = (x[:, k] for k in corners)
+    out = a + b + c - 3.0 * x.mean(axis=1, keepdims=True)
+    assert np.array_equal(frac, np.mean((np.cross(b - a, c - a) * out).sum(axis=2) < 0, axis=1))
+
 # ------------------------------------------------------------------------------------ scans and scenes
 def test_a_degenerate_scan_is_refused():
     with pytest.raises(ws.ShapeError, match="the scan is 0 m across"):

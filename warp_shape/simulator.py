@@ -22,7 +22,7 @@ from .design import Design
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused, force_terms
 from .integrators import BlowupWatch, blowup_error, make_solver
-from .crossing import check_rest_mesh, self_crossing
+from .crossing import check_rest_mesh, inward_fraction, self_crossing
 from .model import State, WorldRef, build_model, check_device, check_layout, copy_worlds, host_model
 from .physics.bending import bending_energy_np
 from .physics.ipam_law import axial_force_np, ipam_lengths_np, natural_length_np
@@ -569,9 +569,7 @@ class Simulator:
         steps apart, where it checks the volume."""
         rest = self.design.rest
         x = self.state.x.numpy().reshape(self.worlds, -1, 3)
-        a, b, c = (x[:, k] for k in self._face_corners)
-        out = a + b + c - 3.0 * x.mean(axis=1, keepdims=True)  # 3 x (face centroid - world centroid)
-        suspect = np.flatnonzero(np.mean((np.cross(b - a, c - a) * out).sum(axis=2) < 0, axis=1) > INWARD_FACES)
+        suspect = np.flatnonzero(inward_fraction(x, self._face_corners) > INWARD_FACES)
         x = x[suspect].astype(np.float64)
         hits = self_crossing(x, rest, device="cpu") if suspect.size else []
         found = {int(suspect[w]): (e, face, n) for w, e, face, n in hits}
