@@ -15,6 +15,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ import warp as wp
 
 import warp_shape as ws
 import warp_shape.kernels
+from warp_shape.gradients import DifferentiableReplay
 from warp_shape.physics import FORCE_TERMS
 
 KERNEL_MODULES = sorted(f"warp_shape.kernels.{m.name}" for m in pkgutil.iter_modules(warp_shape.kernels.__path__))
@@ -96,6 +98,20 @@ def _drive(recorder: OverloadRecorder) -> None:
                         sim.jam(0)
 
 
+def _drive_adjoint(recorder: OverloadRecorder) -> None:
+    """Every launch of the differentiable replay's kernels (warp_shape.kernels.adjoint): the build, a
+    step of each integrator and bending variant, a jam event; in both precisions."""
+    for precision in PRECISIONS:
+        recorder.precision = precision
+        for integrator in ("rk4", "semi_implicit"):
+            for bending in ("exact", "paper"):
+                sim = ws.SimulationSettings(integrator=integrator, bending=bending)
+                recorded = SimpleNamespace(settings=SimpleNamespace(simulation=sim))
+                for kernel, dim, inputs in DifferentiableReplay(_designs()[0], recorded,
+                                                                precision=precision).kernel_launches():
+                    wp.launch(kernel, dim, inputs)
+
+
 @pytest.fixture(scope="module")
 def launched():
     wp.init()
@@ -105,6 +121,7 @@ def launched():
     try:
         with OverloadRecorder() as recorder:
             _drive(recorder)
+            _drive_adjoint(recorder)
     finally:
         ws.Simulator.check_volume = check
     return recorder.launched

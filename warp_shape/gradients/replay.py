@@ -281,6 +281,12 @@ class DifferentiableReplay:
         launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, b.xv_in, *b.points,
                                            *b.accel, b.fg[3], b.volume[3], b.xv_out])
 
+    def kernel_launches(self, h: float = 1.0e-4) -> list:
+        """(kernel, dim, inputs) of every launch the adjoint's forward makes: the build, one internal
+        step h and a jam event (their adjoints take the same arguments); e.g. to compile them."""
+        return (self._record(self._build) + self._record(lambda launch: self._step(h, self.single, launch))
+                + [self._jam_launch()])
+
     # ------------------------------------------------------------------ recorded launches and graphs
     def _record(self, fill) -> list:
         """The launches ``fill(launch)`` makes, as (kernel, dim, inputs)."""
