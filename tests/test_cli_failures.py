@@ -119,21 +119,30 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-def test_ctrl_c_while_the_command_imports_is_one_line_and_nothing_else_is_held(tmp_path):
+@pytest.fixture
+def ctrl_c_reaches_python():
+    """Ctrl-C as a terminal delivers it, also where the suite runs with SIGINT ignored (a job started in
+    the background by a non-interactive shell inherits SIG_IGN, which Python then leaves alone)."""
+    saved = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # for child processes: Python's own handler
+    signal.signal(signal.SIGINT, saved)
+
+
+def test_ctrl_c_while_the_command_imports_is_one_line_and_nothing_else_is_held(tmp_path, ctrl_c_reaches_python):
     script = tmp_path / "warp-shape"  # the console script's name: what the start-up hold looks for
     script.write_text(PRESSED_WHILE_STARTING)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.run([sys.executable, str(script), "simulate", "--out", str(tmp_path / "o")], env=env,
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=120, preexec_fn=ctrl_c_reaches_python)
     assert proc.returncode == 130 and proc.stderr.strip() == "warp-shape: interrupted", proc.stderr
     assert not (tmp_path / "o").exists()
     other = subprocess.run([sys.executable, "-c", "import signal, warp_shape; "
                             "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler"], env=env,
-                           capture_output=True, text=True, timeout=120)
+                           capture_output=True, text=True, timeout=120, preexec_fn=ctrl_c_reaches_python)
     assert other.returncode == 0, other.stderr  # any other program importing warp_shape: Ctrl-C as usual
 
 
-def test_held_interrupts_deliver_the_press_when_the_block_ends():
+def test_held_interrupts_deliver_the_press_when_the_block_ends(ctrl_c_reaches_python):
     from warp_shape.interrupts import held_interrupts
 
     done = []
@@ -144,7 +153,8 @@ def test_held_interrupts_deliver_the_press_when_the_block_ends():
     assert done and signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
-def test_held_interrupts_off_the_main_thread_are_a_plain_block_and_an_error_inside_is_not_held():
+def test_held_interrupts_off_the_main_thread_are_a_plain_block_and_an_error_inside_is_not_held(
+        ctrl_c_reaches_python):
     import threading
 
     from warp_shape.interrupts import held_interrupts

@@ -110,8 +110,13 @@ def test_the_command_codesigns_and_saves_the_codesigned_rest_shape(tmp_path):
     from warp_shape.cli import main
 
     out, rrd = tmp_path / "out", tmp_path / "run.rrd"
-    assert main(["design", "--subdivisions", "2", "--actuators", "1", "--placement", "paper", "--targets", "oval",
-                 "--codesign", "rest", "--rerun", str(rrd), "--out", str(out)]) == 0
+    problem = ws.save_scene(ws.Scene(design=ws.Design(ws.icosphere(2, 0.04)), targets=[ws.target("oval")],
+                                     target_names=["oval"],
+                                     settings={"controller": {"method": "paper"},
+                                               "designer": {"actuators": 1, "codesign": "off"}}),
+                            tmp_path / "problem.usda")
+    assert main(["design", str(problem), "--placement", "paper", "--codesign", "rest", "--rerun", str(rrd),
+                 "--out", str(out)]) == 0  # the flag over the scene's designer group
     report = (out / "report.md").read_text()
     assert "## Co-design" in report and "Mode: rest" in report
     scene = ws.load_scene(out / "design.usda")
