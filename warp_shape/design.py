@@ -50,6 +50,12 @@ class Ipam:
         """A / k in m/Pa: natural-length change per pascal."""
         return self.area / self.stiffness
 
+    @property
+    def free_length_is_rest(self) -> bool:
+        """Whether L0 is the rest centroid distance (``add_ipam(free_length=None)``): it then follows
+        the rest shape."""
+        return abs(self.free_length - self.rest_length) <= 1e-12 * self.rest_length
+
     def natural_length(self, pressure: float) -> float:
         """Natural length L_n = L0 + (A/k) P in m at gauge pressure ``pressure`` (Pa)."""
         return natural_length_np(self.free_length, self.area_over_stiffness, pressure)

@@ -137,9 +137,8 @@ class CodesignProblem:
         k = self.k0 * np.exp(p[M + n:]) if self.sizes else self.k0
         out = Design(rest, self.base.material)
         for i, ip in enumerate(self.base.ipams):
-            derived = abs(ip.free_length - ip.rest_length) <= 1e-12 * ip.rest_length
             out.add_ipam(ip.face_a, ip.face_b, stiffness=float(k[i]), area=float(area[i]),
-                         free_length=None if derived else ip.free_length, pressure_limits=ip.pressure_limits,
+                         free_length=None if ip.free_length_is_rest else ip.free_length, pressure_limits=ip.pressure_limits,
                          damping=ip.damping)
         for c in self.base.cells:
             out.add_cell(c.faces)

@@ -199,7 +199,7 @@ class DifferentiableReplay:
                                   dtype=wp.vec2i, device=self.device)
         self.ipam_faces = wp.array(ip["faces"].astype(np.int32).reshape(-1, 2) if n else np.zeros((1, 2), np.int32),
                                    dtype=wp.vec2i, device=self.device)
-        derived = np.array([abs(i.free_length - i.rest_length) <= 1e-12 * i.rest_length for i in d.ipams], np.int32)
+        derived = np.array([i.free_length_is_rest for i in d.ipams], np.int32)
         self.derived = wp.array(derived if n else np.zeros(1, np.int32), dtype=wp.int32, device=self.device)
         self.free_fixed = self._arr(ip["free_length"] if n else np.ones(1), grad=False)
         self.ipam_damping = self._arr(ip["damping"] if n else np.zeros(1), grad=False)
@@ -218,9 +218,6 @@ class DifferentiableReplay:
         self.jam_now = wp.zeros(E, dtype=wp.int32, device=self.device)
         self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
         self.xv_jam = vec((2, 1, V))
-        self.params = dict(rest_positions=self.rest, stretch_modulus=self.stretch_modulus,
-                           bending_stiffness=self.bending_stiffness, ipam_stiffness=self.ipam_stiffness,
-                           ipam_area=self.ipam_area)
 
     def _buffers(self, xv_in: wp.array, xv_out: wp.array) -> StepBuffers:
         V, vec, stages = len(self.host.rest_vertices), self._vec, self._stages
