@@ -51,6 +51,7 @@ def _save(fig, path) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     png = atomic_write(path, buf.getvalue())
+    fig.set_layout_engine("none")  # the layout the PNG's draw placed is the SVG's: not computed twice
     buf = io.BytesIO()
     fig.savefig(buf, format="svg")
     atomic_write(svg_path(path), buf.getvalue())
