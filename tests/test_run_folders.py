@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+import warp_shape as ws
 from warp_shape.cli import main
 from warp_shape.io.atomic import MANIFEST, OutputError, StagedFolder, file_digest, manifest_problems, read_manifest
 from warp_shape.io.outputs import is_run_output
@@ -239,10 +240,14 @@ def test_sigkill_at_ten_points_leaves_one_whole_set(tmp_path):
     writes, renames, the folder swap, the removal of the old set): the folder holds one whole set
     every time, the old one until the swap, the new one after."""
     out, ref, log = tmp_path / "out", tmp_path / "ref", tmp_path / "events.log"
-    assert main(["design", "--out", str(out), *SMALL, "--targets", "oval", "heart"]) == 0
+    # the paper's law controls: the runs write the same files as the model-based controller's, sooner
+    problem = ws.save_scene(ws.Scene(design=ws.Design(rest=ws.icosphere(2, 0.04)), targets=[ws.target("pear")],
+                                     target_names=["pear"], settings={"controller": {"method": "paper"}}),
+                            tmp_path / "problem.usda")
+    assert main(["design", str(problem), "--out", str(out), *SMALL, "--targets", "oval", "heart"]) == 0
     old = snapshot(out)
     shutil.copytree(out, ref)
-    new_args = [*SMALL, "--targets", "pear"]
+    new_args = [str(problem), *SMALL]
     assert run_killed_at(0, log, [*new_args, "--out", str(ref)]) == 0  # the same run, whole, counting its events
     events = log.read_text().split("\n")[:-1]
     swap = next(i for i, e in enumerate(events, 1) if e.endswith("exchange"))
