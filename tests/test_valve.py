@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import warp_shape as ws
 from warp_shape.errors import DesignError
 from warp_shape.io.valve import PLAN_MARGIN, ValveTiming, peak_rates, row_times, valve_schedule, write_valve_outputs
 from warp_shape.material import GAS_CONSTANT, Material
@@ -131,7 +132,11 @@ def test_written_csv_and_sidecar(tmp_path):
 def test_export_writes_valve_files_at_the_requested_pace(tmp_path, capsys):
     from warp_shape.cli import main
 
-    rc = main(["export", "cube_fig6", "--what", "control", "--targets", "cube", "--out", str(tmp_path),
+    # the Fig. 6 design driven by the paper's law: a sequence of inflation and IPAM steps, in seconds
+    fig6 = ws.load_scene("cube_fig6")
+    fig6.settings["controller"] = {"method": "paper"}
+    scene = ws.save_scene(fig6, tmp_path / "fig6_paper_law.usda")
+    rc = main(["export", str(scene), "--what", "control", "--targets", "cube", "--out", str(tmp_path),
                "--rate", "10", "--max-slew", "40", "--max-flow", "2"])
     assert rc == 0
     with open(tmp_path / "valve_cube.csv", newline="") as f:
