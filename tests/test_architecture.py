@@ -25,6 +25,7 @@ LAYERS = [
     ("warp_shape.material", 1), ("warp_shape.mesh", 1), ("warp_shape.limits", 1),
     ("warp_shape.actuators", 2), ("warp_shape.design", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
     ("warp_shape.integrators", 2), ("warp_shape.crossing", 2), ("warp_shape.stability", 2), ("warp_shape.step_plan", 2),
+    ("warp_shape.equilibrium", 2),
     ("warp_shape.simulator", 2),
     ("warp_shape.targets", 3), ("warp_shape.sampling", 3), ("warp_shape.scan", 3), ("warp_shape.objective_grad", 3),
     ("warp_shape.controller", 4), ("warp_shape.gradients", 4),

@@ -10,7 +10,7 @@ import numpy as np
 from .errors import DesignError
 
 __all__ = ["SimulationSettings", "replace_settings", "check_field_types", "settings_or_default", "INTEGRATOR_NAMES", "PRECISION_NAMES", "LAUNCH_MODES",
-           "DEFAULT_MAX_SUBSTEPS"]
+           "DEFAULT_MAX_SUBSTEPS", "SETTLE_NAMES"]
 
 INTEGRATOR_NAMES = ("rk4", "semi_implicit")
 INTEGRATOR_ALIASES = {"euler": "semi_implicit", "semi_implicit_euler": "semi_implicit",
@@ -18,6 +18,7 @@ INTEGRATOR_ALIASES = {"euler": "semi_implicit", "semi_implicit_euler": "semi_imp
 PRECISION_NAMES = ("float32", "float64")
 BENDING_NAMES = ("exact", "paper")
 LAUNCH_MODES = ("graph", "record", "direct")
+SETTLE_NAMES = ("dynamic", "static")
 DEFAULT_MAX_SUBSTEPS = 10_000
 
 
@@ -107,6 +108,9 @@ class SimulationSettings:
     max_substeps: most internal steps one output step may take (default 10000, a few seconds of host
         work on a 642-vertex membrane); an automatic split beyond it raises ``StabilityError`` naming the
         material or state value that made the stable step so small.
+    settle: how a run that only holds its controls until rest finds the rest state: ``"dynamic"`` (the
+        damped dynamics, the reference) or ``"static"`` (the equilibrium of the potential energy,
+        ``Simulator.settle_static``; docs/equilibria.md says where it is used and where not).
     """
 
     integrator: str = "rk4"
@@ -117,6 +121,7 @@ class SimulationSettings:
     launch_mode: str = "graph"
     reestimate_every: int = 1000
     max_substeps: int = DEFAULT_MAX_SUBSTEPS
+    settle: str = "dynamic"
 
     def __post_init__(self):
         key = str(self.integrator).lower().replace("-", "_") if isinstance(self.integrator, str) else None
@@ -146,6 +151,8 @@ class SimulationSettings:
         if self.substeps is not None and self.substeps > self.max_substeps:
             raise DesignError(f"substeps = {self.substeps} is more than max_substeps = {self.max_substeps}; use fewer "
                               f"substeps (a longer internal step) or raise max_substeps")
+        if not isinstance(self.settle, str) or self.settle not in SETTLE_NAMES:
+            raise DesignError(f"settle must be one of {list(SETTLE_NAMES)}, got {self.settle!r}")
         check_field_types(self, "SimulationSettings")
 
     def replace(self, **changes) -> "SimulationSettings":

@@ -19,6 +19,7 @@ import warp as wp
 from warp_shape.kernels import common as kc
 
 from .design import Design
+from .equilibrium import MAX_ITERATIONS, STATUS_NAMES, Equilibrium, StaticSettle
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused, force_terms
 from .integrators import BlowupWatch, blowup_error, make_solver
@@ -70,14 +71,15 @@ class Simulator:
                  dt: float = FROM_SETTINGS, precision: str = FROM_SETTINGS, bending: str = FROM_SETTINGS,
                  substeps: int | None = FROM_SETTINGS, worlds: int = 1, launch_mode: str = FROM_SETTINGS,
                  reestimate_every: int = FROM_SETTINGS, settings: SimulationSettings | None = None,
-                 max_substeps: int = FROM_SETTINGS):
+                 max_substeps: int = FROM_SETTINGS, settle: str = FROM_SETTINGS):
         if not isinstance(design, Design):
             raise DesignError(f"Simulator needs a ws.Design, got {type(design).__name__}")
         if settings is not None and not isinstance(settings, SimulationSettings):
             raise DesignError(f"settings must be a SimulationSettings or None, got {type(settings).__name__}")
         check_rest_mesh(design.rest)
         given = dict(integrator=integrator, dt=dt, precision=precision, bending=bending, substeps=substeps,
-                     launch_mode=launch_mode, reestimate_every=reestimate_every, max_substeps=max_substeps)
+                     launch_mode=launch_mode, reestimate_every=reestimate_every, max_substeps=max_substeps,
+                     settle=settle)
         self.settings = (settings or SimulationSettings()).replace(
             **{k: v for k, v in given.items() if v is not FROM_SETTINGS})
         if isinstance(worlds, (bool, np.bool_)) or not isinstance(worlds, (int, np.integer)) or worlds < 1:
@@ -131,6 +133,7 @@ class Simulator:
         self._refine = 1  # automatic substeps x this after a blow-up within the estimate (see _retry)
         self._volume_cmds = [None, None]  # per state: the prepared volume launch of the chamber check
         self._vol_view = None  # on CPU: a NumPy view of _vol_probe (set with _volume_cmds)
+        self._static = None  # the quasi-static settle's buffers (StaticSettle), made at its first use
         self._update_plan()
 
     # ------------------------------------------------------------------ world helpers
@@ -695,6 +698,39 @@ class Simulator:
                     self.check_tangle()
                 self._save()
         self._report(watch.poll())
+
+    def settle_static(self, tolerance: float | None = None, max_iterations: int = MAX_ITERATIONS) -> Equilibrium:
+        """Move every world to the equilibrium of its current controls and jam state (the minimum of the
+        potential energy reached from the current positions, ``equilibrium.StaticSettle``), velocities
+        zero; simulated time does not advance. ``tolerance``: the largest residual vertex force (N) of a
+        converged world (None: ``equilibrium.FORCE_TOLERANCE`` of the precision). Returns what it did (``Equilibrium``: per world status, force evaluations and
+        residual). A world that stalls or starts from an invalid state raises ``SimulationError``
+        naming it (the state is then left as it was); one not converged within ``max_iterations`` is
+        left at its best point (``Equilibrium.converged`` False). Needs ``bending="exact"``: the paper's
+        eq. (9) forces are no energy's gradient."""
+        if self.bending != "exact":
+            raise DesignError("a static settle needs bending='exact': the paper variant's forces (eq. 9) are not "
+                              "the gradient of an energy, so they have no equilibrium to find; use settle='dynamic'")
+        if self._broken is not None:
+            self.step(0)  # raises the error that left the state broken
+        if self._static is None:
+            self._static = StaticSettle(self.model, self.worlds, self.solver.x_bound, self.solver.size)
+        if not self._checkpoint.current:
+            self._save()
+        out = self._static.solve(self.state, self.control, tolerance, max_iterations)
+        bad = np.flatnonzero((out.status == 2) | (out.status == 3))
+        if bad.size:
+            self._restore(SimulationError("static settle"))
+            w = int(bad[0])
+            raise SimulationError(
+                f"static settle failed in world {w}: {STATUS_NAMES[int(out.status[w])]} after {int(out.evaluations[w])} "
+                f"force evaluations (largest residual force {out.residual[w]:.3g} N); check the controls and the state "
+                f"for extreme values, or settle by the dynamics (settle='dynamic', Simulator.step)",
+                quantity="equilibrium", world=w)
+        self._geometry_version += 1
+        self._dirty = True
+        self._recover()
+        return out
 
     def __repr__(self) -> str:
         return (f"Simulator({self.design!r}, device={self.device!r}, integrator={self.integrator!r}, dt={self.dt}, "
