@@ -5,6 +5,12 @@ this state?" for many control vectors at once: every question is one world of on
 finite-difference Jacobian or a line search is one batch (one launch per kernel for all of them).
 Passive IPAMs are held neutral while a batch settles, as in the control loop: every control period
 their pressure is set so that their natural length is their current length.
+
+With ``SimulationSettings.settle == "static"`` a batch is not stepped: every world goes to the
+equilibrium of its controls (``Simulator.settle_static``; passive IPAMs are masked out, so they exert
+no force either way), which is where the dynamics comes to rest. Nothing jams while a batch settles,
+so the equilibrium is on the branch the dynamics would take (docs/equilibria.md); a batch whose
+static settle fails is stepped instead.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import SimulationError
 from ..model import HostModel, WorldRef
 from ..sampling import RadialSampler
 from ..simulator import Simulator
@@ -47,6 +54,7 @@ class Explorer:
         self.settle_steps, self.period = int(settle_steps), int(control_period)
         self._sims: dict[int, object] = {}
         self.world_steps = 0  # world-steps simulated so far (cost)
+        self.evaluations = 0  # force evaluations of the static settles so far (cost; settle "static")
 
     def _sim(self, worlds: int):
         if worlds not in self._sims:
@@ -63,6 +71,8 @@ class Explorer:
         passive = self.passive[np.asarray(targets)] if self.host.n_ipams else np.zeros((B, 0), bool)
         mask_passive(sim, passive)
         p = np.array(pressures, dtype=np.float64).reshape(B, self.host.n_ipams)
+        if self.sim_settings.settle == "static" and self._settle_static(sim, passive, p):
+            return self.measure(sim, np.asarray(targets))
         done = 0
         while done < self.settle_steps:
             if passive.any():
@@ -75,6 +85,21 @@ class Explorer:
             done += n
         self.world_steps += B * self.settle_steps
         return self.measure(sim, np.asarray(targets))
+
+    def _settle_static(self, sim, passive: np.ndarray, p: np.ndarray) -> bool:
+        """Every world of ``sim`` to the equilibrium of its controls; False (the state as it was) where
+        the static settle fails, so that the caller steps instead."""
+        if passive.any():
+            lengths = np.asarray(sim.ipam_lengths()).reshape(len(p), -1)
+            p = np.where(passive, ipam_neutral_pressures(lengths, self.host), p)
+        if self.host.n_ipams:
+            sim.ipam_pressures = p
+        try:
+            out = sim.settle_static()
+        except SimulationError:
+            return False
+        self.evaluations += int(out.iterations)
+        return True
 
     def measure(self, sim, targets: np.ndarray) -> Settled:
         """The fit of every world of ``sim`` (world b measured on target ``targets[b]``)."""
