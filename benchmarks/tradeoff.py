@@ -6,6 +6,12 @@ variant x mesh resolution, and measure the achieved shape's error against a refe
 RK4, an eighth of the automatic step, same mesh; for the resolution axis, the finest mesh sampled
 radially) beside the wall time. The Pareto front (least error for the time) is taken per mesh;
 the default is marked.
+
+``bench_settle``: the other axis, how a hold until rest is found: the Fig. 6 device after its cells
+jam and its IPAMs step to 150 / -20 kPa, settled by RK4 until the largest vertex speed is below
+the controller's ``settle_speed`` against the quasi-static settle (``Simulator.settle_static``),
+each in both precisions: force evaluations, wall time (minimum of repeats) and the shape's distance
+to a float64 static settle at a tight tolerance (rigid motion taken out; raw beside it).
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from warp_shape.controller import control
+from warp_shape.equilibrium import FORCE_TOLERANCE
 from warp_shape.sampling import radial_sample
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.simulator import Simulator
@@ -23,7 +30,11 @@ from warp_shape.targets import target
 
 from .common import jammed_fig6
 
-__all__ = ["ControlSequence", "record_sequence", "replay", "bench_tradeoff", "pareto_front"]
+__all__ = ["ControlSequence", "record_sequence", "replay", "bench_tradeoff", "bench_settle", "pareto_front",
+           "SETTLE_COLUMNS"]
+
+SETTLE_COLUMNS = ["vertices", "settle", "precision", "criterion", "evaluations", "wall_s", "residual_n", "error_um",
+                  "error_raw_um"]
 
 
 @dataclass
@@ -75,6 +86,72 @@ def replay(design, seq: ControlSequence, *, integrator="rk4", precision="float32
     return sim.positions, time.perf_counter() - t0, sim.substeps
 
 
+def _stepped_fig6(design, precision: str, device: str):
+    """The Fig. 6 device inflated to 1.3 x its rest air and at rest, every cell jammed there, then its
+    IPAMs stepped to 150 kPa (the four corner ones) and -20 kPa (the face one)."""
+    sim = Simulator(design, device=device, precision=precision)
+    sim.air_moles = sim.air_moles * 1.3
+    for _ in range(100):
+        sim.step(10)
+        if np.linalg.norm(sim.velocities, axis=1).max() < 1e-3:
+            break
+    for c in range(design.n_cells):
+        sim.jam(c)
+    sim.ipam_pressures = np.where(np.arange(design.n_ipams) < 4, 150e3, -20e3)
+    return sim
+
+
+def _rigid_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest vertex distance (m) between a and b once b is moved onto a by the best rigid motion."""
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((b - cb).T @ (a - ca))
+    r = (u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt).T
+    return float(np.linalg.norm(a - ((b - cb) @ r.T + ca), axis=1).max())
+
+
+def bench_settle(device: str = "cpu", subdivisions: int = 3, repeats: int = 3, settle_speed: float = 1e-3) -> list[dict]:
+    """RK4 settle against static settle after the Fig. 6 jam + IPAM step (module docstring)."""
+    design = cube_fig6_design(subdivisions=subdivisions)
+    starts = {p: _stepped_fig6(design, p, device) for p in ("float32", "float64")}
+    refs = {p: sim.snapshot() for p, sim in starts.items()}
+    ref_sim = starts["float64"]
+    ref_sim.settle_static(tolerance=1e-10, max_iterations=20000)
+    x_ref = np.asarray(ref_sim.positions)
+    rows = []
+    for settle in ("dynamic", "static"):
+        for precision in ("float32", "float64"):
+            sim = Simulator(design, device=device, precision=precision)
+            best, evals, x = np.inf, 0, None
+            for _ in range(repeats):
+                sim.load_worlds(refs[precision])
+                sim.velocities = np.zeros((design.rest.n_vertices, 3))
+                if settle == "dynamic":
+                    assert sim.substeps  # the stable-step estimate of the loaded state, outside the timing
+                    t0, steps = time.perf_counter(), 0
+                    while True:
+                        sim.step(1)
+                        steps += 1
+                        if np.linalg.norm(sim.velocities, axis=1).max() < settle_speed:
+                            break
+                    wall = time.perf_counter() - t0
+                    evals = steps * sim.substeps * 4
+                else:
+                    t0 = time.perf_counter()
+                    out = sim.settle_static()
+                    wall = time.perf_counter() - t0
+                    evals = int(out.evaluations[0])
+                best = min(best, wall)
+                x = np.asarray(sim.positions)
+            rows.append(dict(vertices=design.rest.n_vertices, settle=settle, precision=precision,
+                             criterion=(f"speed < {settle_speed * 1e3:g} mm/s" if settle == "dynamic" else
+                                        f"force < {FORCE_TOLERANCE[precision]:.0e} N"),
+                             evaluations=evals, wall_s=round(best, 4),
+                             residual_n=float(np.linalg.norm(sim.forces(), axis=1).max()),
+                             error_um=_rigid_distance(x_ref, x) * 1e6,
+                             error_raw_um=float(np.linalg.norm(x - x_ref, axis=1).max()) * 1e6))
+    return rows
+
+
 def pareto_front(rows: list[dict], x: str = "wall_s", y: str = "error_mm") -> list[dict]:
     """Rows not beaten on both time and error by another row."""
     front = []
@@ -85,8 +162,9 @@ def pareto_front(rows: list[dict], x: str = "wall_s", y: str = "error_mm") -> li
 
 
 def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdivisions: int = 4,
-                   step_fractions=(1.0, 0.5, 0.25)) -> dict:
-    """Error of the achieved Fig. 6 shape versus wall time over the numerical settings."""
+                   step_fractions=(1.0, 0.5, 0.25), settle: bool = True) -> dict:
+    """Error of the achieved Fig. 6 shape versus wall time over the numerical settings; with ``settle``
+    also ``bench_settle``'s rows (``settle``) and their front (``settle_pareto``)."""
     cube = target("cube")
     base_design = cube_fig6_design(subdivisions=3)
     seq = record_sequence(base_design, cube)
@@ -139,4 +217,8 @@ def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdiv
     pareto = []  # per mesh: the resolution axis is reported separately
     for v in sorted({r["vertices"] for r in finite}):
         pareto += pareto_front([r for r in finite if r["vertices"] == v])
-    return dict(rows=rows, pareto=pareto, resolution=resolution, control_steps=seq.steps)
+    out = dict(rows=rows, pareto=pareto, resolution=resolution, control_steps=seq.steps)
+    if settle:
+        out["settle"] = bench_settle(device=device)
+        out["settle_pareto"] = pareto_front(out["settle"], y="error_um")
+    return out

@@ -9,6 +9,7 @@ import pytest
 
 import warp_shape as ws
 from generated_shapes import shape
+from warp_shape.benchmarks.tradeoff import bench_settle
 from warp_shape.controller.explore import Explorer
 from warp_shape.errors import DesignError, SimulationError
 from warp_shape.model import host_model
@@ -162,3 +163,14 @@ def test_guards_and_settings():
     with pytest.raises(SimulationError, match="world 1: invalid start") as info:
         sim.settle_static()
     assert info.value.quantity == "equilibrium" and info.value.world == 1
+
+
+def test_settle_bench_counts_both_ways():
+    """``bench tradeoff``'s settle rows on the 162-vertex Fig. 6 device: the static settle takes fewer
+    force evaluations than RK4 to rest and lands nearer the tight float64 equilibrium."""
+    rows = {(r["settle"], r["precision"]): r for r in bench_settle(subdivisions=2, repeats=1)}
+    for p in ("float32", "float64"):
+        dyn, st = rows["dynamic", p], rows["static", p]
+        assert st["evaluations"] < dyn["evaluations"] / 3
+        assert st["error_um"] < dyn["error_um"] and dyn["error_um"] < 10.0
+        assert st["residual_n"] < dyn["residual_n"]
