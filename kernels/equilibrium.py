@@ -119,42 +119,15 @@ def scaled(a: Any, c: wp.float64):
 
 
 @wp.func
-def project_rigid(
-    w: int,
-    n: int,  # vertices
-    x: wp.array2d(dtype=Any),  # (W, V) positions, m
-    d: wp.array2d(dtype=Any),  # (W, V) direction (updated)
-):
-    """Remove from world w's direction its rigid part: the mean (a translation) and the best-fitting
-    infinitesimal rotation about the centroid (unit weights), so the settle keeps the centroid and
-    the orientation, as the damped dynamics does (its viscous term dominates the slow motion)."""
-    c = wp.vec3d(0.0, 0.0, 0.0)
-    m = wp.vec3d(0.0, 0.0, 0.0)
-    for i in range(n):
-        xi = x[w, i]
-        di = d[w, i]
-        c = c + wp.vec3d(wp.float64(xi[0]), wp.float64(xi[1]), wp.float64(xi[2]))
-        m = m + wp.vec3d(wp.float64(di[0]), wp.float64(di[1]), wp.float64(di[2]))
-    inv_n = wp.float64(1.0) / wp.float64(n)
-    c = c * inv_n
-    m = m * inv_n
-    L = wp.vec3d(0.0, 0.0, 0.0)
-    inertia = wp.mat33d(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    eye = wp.identity(n=3, dtype=wp.float64)
-    for i in range(n):
-        xi = x[w, i]
-        di = d[w, i]
-        r = wp.vec3d(wp.float64(xi[0]), wp.float64(xi[1]), wp.float64(xi[2])) - c
-        u = wp.vec3d(wp.float64(di[0]), wp.float64(di[1]), wp.float64(di[2])) - m
-        L = L + wp.cross(r, u)
-        inertia = inertia + eye * wp.dot(r, r) - wp.outer(r, r)
-    omega = wp.inverse(inertia) * L
-    for i in range(n):
-        xi = x[w, i]
-        r = wp.vec3d(wp.float64(xi[0]), wp.float64(xi[1]), wp.float64(xi[2])) - c
-        rigid = m + wp.cross(omega, r)
-        di = d[w, i]
-        d[w, i] = di - type(di)(type(di[0])(rigid[0]), type(di[0])(rigid[1]), type(di[0])(rigid[2]))
+def as_vec3d(a: Any):
+    """a as a wp.vec3d."""
+    return wp.vec3d(wp.float64(a[0]), wp.float64(a[1]), wp.float64(a[2]))
+
+
+@wp.func
+def history_slot(head: int, back: int, memory: int):
+    """The history slot ``back`` pairs before the newest (0: the newest)."""
+    return (head - 1 - back + 2 * memory) % memory
 
 
 @wp.func
@@ -173,41 +146,89 @@ def lbfgs_direction(
     flags: wp.array2d(dtype=wp.int32),  # (W, N_FLAGS)
     scalars: wp.array2d(dtype=wp.float64),  # (W, N_SCALARS)
 ):
-    """The L-BFGS direction d = -H g0 (two-loop recursion, H0 = gamma D), rigid part projected out;
-    a direction that does not descend restarts the history (preconditioned steepest descent).
-    Writes g0 . d and the largest |d_i| into the scalars."""
+    """The L-BFGS direction d = -H g0 (two-loop recursion, H0 = gamma D) with its rigid part removed:
+    the mean (a translation) and the best-fitting infinitesimal rotation about the centroid (unit
+    weights), so the settle keeps the centroid and the orientation. Each pass over the vertices
+    finishes one update and accumulates the next dot product (2 count + 2 passes). A direction that
+    does not descend restarts the history (preconditioned steepest descent). Writes g0 . d and the
+    largest |d_i| into the scalars."""
     for attempt in range(2):
         count = flags[w, F_COUNT]
         head = flags[w, F_HEAD]
-        for i in range(n):
-            d[w, i] = g0[w, i]
-        for t in range(count):
-            j = (head - 1 - t + 2 * memory) % memory
-            a = wp.float64(0.0)
-            for i in range(n):
-                a += dot64(hist_s[j, w, i], d[w, i])
-            a = a * rho[j, w]
-            coef[j, w] = a
-            for i in range(n):
-                d[w, i] = d[w, i] - scaled(hist_y[j, w, i], a)
         gamma = scalars[w, S_GAMMA]
         if count == 0:
             gamma = wp.float64(1.0)
-        for i in range(n):
-            d[w, i] = scaled(d[w, i], gamma * wp.float64(precond[w, i]))
+        # first loop, newest to oldest: a_j = rho_j s_j . q; q -= a_j y_j (q = g0 at first)
+        acc = wp.float64(0.0)
+        if count > 0:
+            j = history_slot(head, 0, memory)
+            for i in range(n):
+                acc += dot64(hist_s[j, w, i], g0[w, i])
         for t in range(count):
-            j = (head - count + t + 2 * memory) % memory
-            b = wp.float64(0.0)
+            j = history_slot(head, t, memory)
+            a = acc * rho[j, w]
+            coef[j, w] = a
+            acc = wp.float64(0.0)
+            last = t + 1 == count
+            jn = history_slot(head, t + 1, memory)
             for i in range(n):
-                b += dot64(hist_y[j, w, i], d[w, i])
-            b = b * rho[j, w]
+                q = g0[w, i]
+                if t > 0:
+                    q = d[w, i]
+                q = q - scaled(hist_y[j, w, i], a)
+                if last:  # r = gamma D q, and the oldest pair's y . r for the second loop
+                    q = scaled(q, gamma * wp.float64(precond[w, i]))
+                    acc += dot64(hist_y[j, w, i], q)
+                else:
+                    acc += dot64(hist_s[jn, w, i], q)
+                d[w, i] = q
+        # second loop, oldest to newest: b = rho_j y_j . r; r += (a_j - b) s_j; the rigid sums on the last pass
+        sx = wp.vec3d(0.0, 0.0, 0.0)
+        sr = wp.vec3d(0.0, 0.0, 0.0)
+        sxr = wp.vec3d(0.0, 0.0, 0.0)
+        sxx = wp.mat33d(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        if count == 0:
             for i in range(n):
-                d[w, i] = d[w, i] + scaled(hist_s[j, w, i], coef[j, w] - b)
-        project_rigid(w, n, x0, d)
+                r = scaled(g0[w, i], wp.float64(precond[w, i]))
+                d[w, i] = r
+                xi = as_vec3d(x0[w, i])
+                ri = as_vec3d(r)
+                sx = sx + xi
+                sr = sr + ri
+                sxr = sxr + wp.cross(xi, ri)
+                sxx = sxx + wp.outer(xi, xi)
+        for t in range(count):
+            j = history_slot(head, count - 1 - t, memory)
+            c = coef[j, w] - acc * rho[j, w]
+            acc = wp.float64(0.0)
+            last = t + 1 == count
+            jn = history_slot(head, count - 2 - t, memory)
+            for i in range(n):
+                r = d[w, i] + scaled(hist_s[j, w, i], c)
+                d[w, i] = r
+                if last:
+                    xi = as_vec3d(x0[w, i])
+                    ri = as_vec3d(r)
+                    sx = sx + xi
+                    sr = sr + ri
+                    sxr = sxr + wp.cross(xi, ri)
+                    sxx = sxx + wp.outer(xi, xi)
+                else:
+                    acc += dot64(hist_y[jn, w, i], r)
+        # rigid part: translation m (the mean), rotation omega about the centroid c: I omega = L
+        nv = wp.float64(n)
+        cen = sx / nv
+        m = sr / nv
+        L = sxr - wp.cross(cen, m) * nv
+        eye = wp.identity(n=3, dtype=wp.float64)
+        inertia = eye * (wp.trace(sxx) - nv * wp.dot(cen, cen)) - (sxx - wp.outer(cen, cen) * nv)
+        omega = wp.inverse(inertia) * L
         gd = wp.float64(0.0)
         dmax = wp.float64(0.0)
         for i in range(n):
-            di = -d[w, i]
+            rigid = m + wp.cross(omega, as_vec3d(x0[w, i]) - cen)
+            di = d[w, i]
+            di = -(di - type(di)(type(di[0])(rigid[0]), type(di[0])(rigid[1]), type(di[0])(rigid[2])))
             d[w, i] = di
             gd += dot64(g0[w, i], di)
             dmax = wp.max(dmax, dot64(di, di))
