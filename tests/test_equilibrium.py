@@ -174,3 +174,18 @@ def test_settle_bench_counts_both_ways():
         assert st["evaluations"] < dyn["evaluations"] / 3
         assert st["error_um"] < dyn["error_um"] and dyn["error_um"] < 10.0
         assert st["residual_n"] < dyn["residual_n"]
+
+
+def test_model_based_control_with_static_scratch_batches():
+    """settle="static" reaches the controller's scratch batches (no world-steps simulated there) and
+    leaves its result within 1e-4 of the dynamic batches' on a small problem."""
+    d = cube_fig6_design(subdivisions=2)
+    cube = ws.target("cube")
+    out = {}
+    for settle in ("dynamic", "static"):
+        s = ws.ControlSettings(inverse_plans="never", inverse_iterations=2,
+                               simulation=SimulationSettings(settle=settle))
+        out[settle] = ws.control(d, cube, settings=s)
+    assert out["dynamic"].refinement["world_steps"] > 0 and out["static"].refinement["world_steps"] == 0
+    assert abs(out["static"].objective - out["dynamic"].objective) < OBJECTIVE_TOL
+    assert out["static"].objective <= out["static"].refinement["warm_objective"]
