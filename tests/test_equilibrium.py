@@ -190,3 +190,21 @@ def test_model_based_control_with_static_scratch_batches():
     assert out["dynamic"].refinement["world_steps"] > 0 and out["static"].refinement["world_steps"] == 0
     assert abs(out["static"].objective - out["dynamic"].objective) < OBJECTIVE_TOL
     assert out["static"].objective <= out["static"].refinement["warm_objective"]
+
+
+def test_a_tangled_equilibrium_is_refused_and_the_state_kept(monkeypatch):
+    """The settled state goes through the step's tangle test (``crossing``): a world found passing
+    through itself raises, naming the world and an edge, and the state before the settle is kept."""
+    import warp_shape.simulator as simulator
+
+    d = cube_fig6_design(subdivisions=2)
+    sim = ws.Simulator(d, worlds=2)
+    sim.air_moles = np.asarray(sim.air_moles) * 1.2
+    assert sim._static_tangles() == []  # a sane membrane passes
+    monkeypatch.setattr(simulator, "INWARD_FACES", -1.0)  # every world is tested exactly...
+    monkeypatch.setattr(simulator, "self_crossing", lambda x, rest, device=None: [(1, 5, 7, 2)])  # ...one is found
+    x = sim.positions.copy()
+    with pytest.raises(SimulationError, match=r"world 1: its equilibrium passes through itself .* edge \(") as info:
+        sim.settle_static()
+    assert info.value.quantity == "tangle" and info.value.world == 1
+    assert np.array_equal(sim.positions, x)

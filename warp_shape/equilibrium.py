@@ -12,7 +12,7 @@ what it costs.
 Guards, as in a step: a trial point with non-finite forces, a vertex beyond the blow-up region or no
 chamber (volume <= 0) is rejected and a shorter step taken; a world whose step shrinks to nothing
 stalls, and a start that is not a valid state is reported. ``Simulator.settle_static`` raises
-``SimulationError`` for those worlds.
+``SimulationError`` for those worlds, and for a settled membrane that passes through itself.
 """
 
 from __future__ import annotations

@@ -704,8 +704,8 @@ class Simulator:
         potential energy reached from the current positions, ``equilibrium.StaticSettle``), velocities
         zero; simulated time does not advance. ``tolerance``: the largest residual vertex force (N) of a
         converged world (None: ``equilibrium.FORCE_TOLERANCE`` of the precision). Returns what it did (``Equilibrium``: per world status, force evaluations and
-        residual). A world that stalls or starts from an invalid state raises ``SimulationError``
-        naming it (the state is then left as it was); one not converged within ``max_iterations`` is
+        residual). A world that stalls, starts from an invalid state or settles passing through itself
+        raises ``SimulationError`` naming it (the state is then left as it was); one not converged within ``max_iterations`` is
         left at its best point (``Equilibrium.converged`` False). Needs ``bending="exact"``: the paper's
         eq. (9) forces are no energy's gradient."""
         if self.bending != "exact":
@@ -719,6 +719,15 @@ class Simulator:
             self._save()
         out = self._static.solve(self.state, self.control, tolerance, max_iterations)
         bad = np.flatnonzero((out.status == 2) | (out.status == 3))
+        tangled = self._static_tangles() if not bad.size else []
+        if tangled:
+            self._restore(SimulationError("static settle"))
+            w, e, face, n = tangled[0]
+            a, b = self.design.rest.edges[e]
+            raise SimulationError(
+                f"static settle failed in world {w}: its equilibrium passes through itself ({n} edges cross a face, e.g. "
+                f"edge ({a}, {b}) through face {face}); the model has no self-contact, so check the controls for "
+                f"extreme values", quantity="tangle", world=int(w))
         if bad.size:
             self._restore(SimulationError("static settle"))
             w = int(bad[0])
@@ -731,6 +740,17 @@ class Simulator:
         self._dirty = True
         self._recover()
         return out
+
+    def _static_tangles(self) -> list:
+        """The worlds whose settled membrane passes through itself (``crossing.self_crossing`` rows), tested
+        exactly only where more than ``INWARD_FACES`` of the faces face the centre. An equilibrium does
+        not untangle later, so one such check is decisive (the dynamics' ``check_tangle`` waits for two)."""
+        x = self.state.x.numpy().reshape(self.worlds, -1, 3)
+        suspect = np.flatnonzero(inward_fraction(x, self._face_corners) > INWARD_FACES)
+        if not suspect.size:
+            return []
+        hits = self_crossing(x[suspect].astype(np.float64), self.design.rest, device="cpu")
+        return [(int(suspect[w]), e, face, n) for w, e, face, n in hits]
 
     def __repr__(self) -> str:
         return (f"Simulator({self.design!r}, device={self.device!r}, integrator={self.integrator!r}, dt={self.dt}, "
