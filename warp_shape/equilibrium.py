@@ -117,7 +117,7 @@ class StaticSettle:
 
     def _plan(self, state: State, control: Control, tolerance: float):
         """The iteration prepared for replay: a captured graph where possible, else recorded launches."""
-        key = (id(state), id(control), float(tolerance))
+        key = (id(state), id(control), float(tolerance), self.x_bound)
         if key in self._plans:
             return self._plans[key]
         cmds = []
@@ -133,7 +133,9 @@ class StaticSettle:
             run = lambda: wp.capture_launch(graph)  # noqa: E731
         except Exception:  # capture unsupported here: the recorded launches
             run = lambda: [c.launch() for c in cmds]  # noqa: E731
-        self._plans = {key: run}  # one pair of arrays at a time (a simulator's current state)
+        if len(self._plans) >= 4:  # a simulator alternates between two states: keep a few
+            self._plans.clear()
+        self._plans[key] = run
         return run
 
     def solve(self, state: State, control: Control, tolerance: float | None = None,

@@ -715,6 +715,7 @@ class Simulator:
             self.step(0)  # raises the error that left the state broken
         if self._static is None:
             self._static = StaticSettle(self.model, self.worlds, self.solver.x_bound, self.solver.size)
+        self._static.x_bound = self.solver.x_bound  # the blow-up region follows positions set far away
         if not self._checkpoint.current:
             self._save()
         out = self._static.solve(self.state, self.control, tolerance, max_iterations)
