@@ -52,7 +52,7 @@ from .sampling import RadialSampler, radial_metrics
 from .targets import TARGET_NAMES, target
 
 __all__ = ["ScanComparison", "IcpConvergenceWarning", "compare_scan", "surface_samples", "load_scan", "icp", "kabsch",
-           "surface_distances", "detect_length_unit", "length_unit_of", "LENGTH_UNITS", "PLAUSIBLE_EXTENT_M"]
+           "surface_distances", "closest_points_query", "detect_length_unit", "length_unit_of", "LENGTH_UNITS", "PLAUSIBLE_EXTENT_M"]
 
 # Ignore pairs farther than this many robust standard deviations of the pair distances.
 INLIER_SIGMAS = 3.0
@@ -270,6 +270,13 @@ class _Closest:
         # float64 distance from the float32 closest point
         d = np.linalg.norm(c - points, axis=1)
         return (c, d, nrm.numpy().astype(np.float64)) if normals else (c, d)
+
+
+def closest_points_query(mesh, *, device=None):
+    """A query of the closest points on ``mesh`` (a TriMesh, trimesh object or ``(vertices, faces)``; open
+    meshes allowed) on the Warp BVH, as ``icp`` takes it: ``query(points)`` gives (closest points (N, 3),
+    distances (N,)), ``query(points, normals=True)`` also the closest faces' unit normals (N, 3)."""
+    return _Closest(mesh, wp.get_device(device))
 
 
 def surface_distances(points, mesh, *, device=None) -> np.ndarray:

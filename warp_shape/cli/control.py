@@ -7,11 +7,13 @@ from pathlib import Path
 
 import argparse
 
+from ..calibration.files import apply_calibration
 from ..controller import CONTROL_METHODS, control_many
 from ..designer.run_settings import RunSettings
 from ..io.atomic import StagedFolder
 from ..io.outputs import write_control_outputs, write_figures_or_skip
 from ..limits import MAX_CONTROL_STEPS
+from .calibrate import add_calibration_arg
 from .options import (ControlProgress, actuator_selection, add_bounded, add_common_args, add_units_arg, check_device,
                       check_out, check_rerun, open_recorder, print_outputs, resolve_design_and_targets,
                       stop_if_interrupted)
@@ -42,6 +44,8 @@ def register(subparsers) -> None:
     c.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
     add_units_arg(c)
+    add_calibration_arg(c, "each target's sequence is controlled on the calibrated model (its fitted "
+                           "material, IPAMs and rest scale)")
     add_common_args(c, out="out/control")
     c.set_defaults(func=run)
 
@@ -76,6 +80,8 @@ def run(args) -> int:
     check_device(args.device)
     check_rerun(args)
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets, args.units)
+    if args.calibration:
+        design = apply_calibration(design, args.calibration)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     names = [n for n, _ in targets]
     # the scene's simulation and controller settings (checked: unknown keys and bad values are errors),

@@ -13,7 +13,9 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 
+from ..calibration.files import ipam_values, material_values
 from ..designer import PLACEMENTS, design
 from ..designer.settings import CODESIGN_MODES
 from ..designer.run_settings import RunSettings
@@ -24,7 +26,9 @@ from ..io.outputs import is_run_output, record_round, write_design_outputs, writ
 from ..io.report import design_markdown
 from ..io.scene_read import load_scene
 from ..molds import equivalent_radius
+from ..material import Material
 from ..limits import MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS
+from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
 from .options import (add_bounded, add_common_args, add_units_arg, check_device, check_mold_flags, check_out,
                       check_rerun, load_targets, open_recorder, print_outputs, recording_entry, run_progress,
@@ -65,6 +69,8 @@ def register(subparsers) -> None:
                    help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
     add_units_arg(d)
     add_timing_args(d)
+    add_calibration_arg(d, "the new design's material (E, t, bending) and its IPAMs' stiffness and area (the "
+                           "fitted mean) are the calibrated ones")
     add_common_args(d)
     d.set_defaults(func=run)
 
@@ -76,6 +82,9 @@ def run_settings(scene, args) -> RunSettings:
                     candidates=args.candidates, refine_rounds=args.refine_rounds, codesign=args.codesign,
                     initialize=False if args.keep_rest else None)
     material = scene.design.material if scene.design is not None else None
+    if getattr(args, "calibration", None):  # the fitted material, and the fitted IPAMs' mean size for new ones
+        material = replace(material or Material(), **material_values(args.calibration))
+        designer.update(ipam_values(args.calibration))
     return RunSettings.from_groups(scene.settings, designer=designer, material=material)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from ..calibration.files import apply_calibration
 from ..controller import control_many
 from ..designer.run_settings import RunSettings
 from ..errors import DesignError
@@ -14,6 +15,7 @@ from ..io.scene_read import load_scene
 from ..io.scene_write import save_scene
 from ..io.valve import write_valve_outputs
 from ..molds import equivalent_radius
+from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
 from .options import (actuator_selection, add_common_args, check_device, check_mold_flags, check_out,
                       check_rerun, control_progress, load_targets, open_recorder, stop_if_interrupted)
@@ -43,12 +45,15 @@ def register(subparsers) -> None:
     e.add_argument("--passive", choices=["neutral", "zero"], default="neutral",
                    help="pressure written for IPAMs a target does not use: the simulated neutral pressure "
                         "(force-free, default) or 0 kPa (vented)")
+    add_calibration_arg(e, "the control sequences are controlled on the calibrated model (molds and USD stay "
+                           "the design's)")
     add_common_args(e, out="out/export")  # beside, not inside, a design's own output folder
     e.set_defaults(func=run)
 
 
 def _checked_inputs(args, staged):
-    """(scene, [(name, target)], ControlSettings) once every input is checked, before any work:
+    """(scene, [(name, target)], ControlSettings, the design to control: calibrated with
+    ``--calibration``) once every input is checked, before any work:
     ``--out`` (``staged``), the device, the recording path, the scene (a design, its settings), the
     mold lengths and the targets."""
     check_out(staged, replaced=False, kind="export")  # files written one by one
@@ -62,18 +67,19 @@ def _checked_inputs(args, staged):
     check_mold_flags(args, equivalent_radius(scene.design.rest))
     settings = RunSettings.from_groups(scene.settings).control  # the design's own, as it was designed
     named = load_targets(args.targets) if args.targets else list(zip(scene.target_names, scene.targets))
-    return scene, named, settings
+    controlled = apply_calibration(scene.design, args.calibration) if args.calibration else scene.design
+    return scene, named, settings, controlled
 
 
 def run(args) -> int:
     """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
     staged = StagedFolder(args.out, owned=is_run_output)
-    scene, named, settings = _checked_inputs(args, staged)
+    scene, named, settings, controlled = _checked_inputs(args, staged)
     timing = timing_from_args(args)
     out = Path(args.out)
     written: list = []
     try:
-        _write(args, scene, named, settings, timing, out, written)
+        _write(args, scene, named, settings, timing, out, written, controlled)
     finally:  # what was written is listed in the folder's manifest, also when a later part failed
         if written:
             staged.record(written, "export")
@@ -84,7 +90,7 @@ def run(args) -> int:
     return 0
 
 
-def _write(args, scene, named, settings, timing, out: Path, written: list) -> None:
+def _write(args, scene, named, settings, timing, out: Path, written: list, controlled=None) -> None:
     """The molds, the scene and the control outputs ``--what`` asks for (control with ``settings``,
     the lab sequences on ``timing``), each appended to ``written`` as it is written."""
     if "molds" in args.what:
@@ -95,7 +101,7 @@ def _write(args, scene, named, settings, timing, out: Path, written: list) -> No
     if "control" in args.what and named:
         names = [n for n, _ in named]
         with open_recorder(args) as rec:
-            results = control_many(scene.design, [t for _, t in named], device=args.device, settings=settings,
+            results = control_many(controlled or scene.design, [t for _, t in named], device=args.device, settings=settings,
                                    progress=control_progress, recorder=rec, target_names=names,
                                    **actuator_selection(args, scene.settings, names))
         written += write_control_outputs(results, names, out, usd="usd" in args.what, timing=timing)

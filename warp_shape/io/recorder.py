@@ -384,6 +384,24 @@ class Recorder:
         for p in paths:
             self.stream.log(f"design/figures/{Path(p).stem}", self._rr.EncodedImage(path=str(p)), static=True)
 
+    def log_calibration(self, result) -> None:
+        """A calibration's residual maps (``CalibrationResult.residuals``): per scan ``calibration/<k>`` the
+        replayed membrane coloured by the signed residual (blue inside, red outside, white 0, grey where
+        not scanned; the scale is the largest |residual|) and the aligned scan points coloured the same."""
+        rr = self._rr
+        for k, m in enumerate(result.residuals):
+            v = m.vertex_residual
+            lim = max(float(np.nanmax(np.abs(v))) if np.any(np.isfinite(v)) else 0.0, 1e-6)
+            colors = diverging_colors(np.nan_to_num(v), lim)
+            colors[~np.isfinite(v)] = _FREE
+            faces = result.design.rest.faces
+            self.stream.log(f"calibration/{k}/membrane", rr.Mesh3D(vertex_positions=m.vertices, triangle_indices=faces,
+                                                                   vertex_colors=colors), static=True)
+            keep = m.weight > 0
+            self.stream.log(f"calibration/{k}/scan", rr.Points3D(m.points[keep], colors=diverging_colors(
+                m.residual[keep], lim), radii=2e-4), static=True)
+            self.stream.log(f"calibration/{k}/rms_mm", rr.TextDocument(f"{m.name}: RMS {m.rms_mm:.3f} mm"), static=True)
+
     def log_codesign(self, record: dict, target_names) -> None:
         """Co-design's replayed objective of every target after each accepted step
         (``design/codesign/<target>``, ``codesign`` timeline, step 0 = as placed) and the objective under

@@ -1,0 +1,267 @@
+"""Calibration files: the observation manifest, the calibration file, the report and residual maps.
+
+The calibration file is a small versioned JSON in SI units (``write_calibration``, ``read_calibration``);
+``apply_calibration`` gives a design its fitted values, and ``design``, ``control`` and ``export`` take
+one with ``--calibration FILE``. The manifest lists the observations: each a scan file and the control
+state it was taken at (a row or lab time of a ``valve_<target>.csv``, or the state given directly);
+every path in it is relative to its folder and must stay inside it.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..design import Design
+from ..errors import DesignError
+from ..io.atomic import atomic_write, write_json
+from ..material import GAS_CONSTANT
+from ..settings import SimulationSettings
+from .observations import ControlState, ScanObservation, Sequence
+from .parameters import CALIBRATION_PARAMETERS, apply_values, check_wrt
+from .result import CalibrationResult
+
+__all__ = ["CALIBRATION_FORMAT", "CALIBRATION_VERSION", "UNITS", "calibration_data", "write_calibration",
+           "read_calibration", "apply_calibration", "read_manifest", "calibration_markdown", "write_residual_figures",
+           "valve_sequence"]
+
+CALIBRATION_FORMAT = "warp-shape calibration"
+CALIBRATION_VERSION = 1
+#: the unit of every value in a calibration file
+UNITS = {"youngs_modulus": "Pa", "thickness": "m", "bending_stiffness": "N m/rad", "ipam_stiffness": "N/m",
+         "ipam_area": "m^2", "rest_scale": "1", "residual_mm": "mm"}
+
+
+def _plain(v):
+    a = np.asarray(v, dtype=np.float64)
+    if a.ndim == 0:
+        return float(a) if math.isfinite(float(a)) else None
+    return [float(x) if math.isfinite(x) else None for x in a.tolist()]
+
+
+def calibration_data(result: CalibrationResult, design: Design) -> dict:
+    """The calibration file's content (a JSON-ready dict, SI units named in ``units``)."""
+    return {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "units": UNITS,
+            "design": {"vertices": design.rest.n_vertices, "ipams": design.n_ipams, "cells": design.n_cells},
+            "values": {k: _plain(v) for k, v in result.values.items()},
+            "stderr": {k: _plain(v) for k, v in result.stderr.items()},
+            "start": {k: _plain(v) for k, v in result.start.items()},
+            "unidentifiable": list(result.unidentifiable), "notes": list(result.notes),
+            "residual_mm": [float(x) for x in result.residual_mm],
+            "initial_residual_mm": [float(x) for x in result.initial_residual_mm],
+            "observations": list(result.observation_names)}
+
+
+def write_calibration(result: CalibrationResult, design: Design, path) -> Path:
+    """Write the calibration file (atomically)."""
+    return write_json(Path(path), calibration_data(result, design))
+
+
+def read_calibration(path) -> dict:
+    """{name: value} of a calibration file, checked (format, version, known parameters, positive
+    numbers); a bad file is a one-line ``DesignError``."""
+    path = Path(path)
+    if not path.is_file():
+        raise DesignError(f"calibration file {path} does not exist; write one with warp-shape calibrate")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DesignError(f"calibration file {path} is not JSON ({exc}); give a file warp-shape calibrate wrote") \
+            from None
+    if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
+        raise DesignError(f"{path} is not a calibration file (no \"format\": \"{CALIBRATION_FORMAT}\")")
+    if data.get("version") != CALIBRATION_VERSION:
+        raise DesignError(f"calibration file {path} has version {data.get('version')!r}; this warp-shape reads "
+                          f"version {CALIBRATION_VERSION}")
+    values = data.get("values")
+    if not isinstance(values, dict) or not values:
+        raise DesignError(f"calibration file {path} holds no values")
+    check_wrt(tuple(values))
+    out = {}
+    for k, v in values.items():
+        a = np.asarray(v, dtype=object)
+        if any(x is None or isinstance(x, bool) or not isinstance(x, (int, float)) or not x > 0
+               for x in a.reshape(-1)):
+            raise DesignError(f"calibration file {path}: {k} must be positive numbers ({UNITS.get(k)}), got {v!r}")
+        out[k] = float(v) if a.ndim == 0 else np.asarray(v, dtype=np.float64)
+    out["_design"] = data.get("design", {})
+    return out
+
+
+def apply_calibration(design: Design, calibration) -> Design:
+    """``design`` with a calibration's values (a file path or ``read_calibration``'s dict): a file of
+    another design (other IPAM count) is a one-line ``DesignError``."""
+    values = read_calibration(calibration) if isinstance(calibration, (str, Path)) else dict(calibration)
+    made_for = values.pop("_design", {}) or {}
+    n = made_for.get("ipams")
+    if n is not None and n != design.n_ipams and any(k.startswith("ipam_") for k in values):
+        raise DesignError(f"the calibration was fitted on a design with {n} IPAMs; this design has "
+                          f"{design.n_ipams}: calibrate this design, or use a file of it")
+    return apply_values(design, values)
+
+
+def material_values(calibration) -> dict:
+    """The material fields of a calibration (for a new design's material: ``design --calibration``)."""
+    values = read_calibration(calibration) if isinstance(calibration, (str, Path)) else dict(calibration)
+    return {k: values[k] for k in ("youngs_modulus", "thickness", "bending_stiffness") if k in values}
+
+
+def ipam_values(calibration) -> dict:
+    """The mean fitted IPAM stiffness and area of a calibration (for the IPAMs a new design adds)."""
+    values = read_calibration(calibration) if isinstance(calibration, (str, Path)) else dict(calibration)
+    return {k: float(np.mean(values[k])) for k in ("ipam_stiffness", "ipam_area") if k in values}
+
+
+def _inside(folder: Path, name, what: str) -> Path:
+    """``name`` (relative to ``folder``) as a path inside ``folder``; outside it is a one-line error."""
+    if not isinstance(name, str) or not name:
+        raise DesignError(f"manifest {what}: give a file name relative to the manifest's folder, got {name!r}")
+    path = (folder / name).resolve()
+    if not path.is_relative_to(folder.resolve()):
+        raise DesignError(f"manifest {what} {name!r} points outside the manifest's folder {folder}; copy the file "
+                          f"next to the manifest")
+    if not path.is_file():
+        raise DesignError(f"manifest {what} {name!r}: no such file in {folder}")
+    return path
+
+
+def valve_sequence(path: Path, design: Design, *, row: int | None = None, time_s: float | None = None) -> Sequence:
+    """The sequence of a ``valve_<target>.csv`` up to ``row`` (0-based) or lab time ``time_s`` (None
+    and None: its end): simulated times, the chamber air (mL at atmospheric pressure -> mol, the
+    design's temperature and atmosphere), IPAM pressures (kPa -> Pa) and jam states."""
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    need = ["time_s", "sim_time_s", "chamber_air_ml"] + [f"ipam{i}_pressure_kpa" for i in range(design.n_ipams)]
+    cols = rows[0].keys() if rows else []
+    missing = [c for c in need if c not in cols]
+    if missing:
+        raise DesignError(f"{path.name} is not a valve schedule of this design: no column {missing[0]!r}")
+    n_csv = sum(1 for c in cols if c.startswith("ipam") and c.endswith("_pressure_kpa"))
+    if n_csv != design.n_ipams:
+        raise DesignError(f"{path.name} drives {n_csv} IPAMs but the design has {design.n_ipams}: a schedule of "
+                          f"another design")
+    t_lab = np.array([float(r["time_s"]) for r in rows])
+    last = len(rows) - 1 if row is None and time_s is None else \
+        (int(row) if row is not None else int(np.searchsorted(t_lab, float(time_s) + 1e-9)) - 1)
+    if not 0 <= last < len(rows):
+        raise DesignError(f"{path.name}: row/time outside the schedule ({len(rows)} rows, 0 to {t_lab[-1]:.3f} s)")
+    rows = rows[: last + 1]
+    mat = design.material
+    air = np.array([float(r["chamber_air_ml"]) for r in rows]) * 1e-6 * mat.atmospheric_pressure / (
+        GAS_CONSTANT * mat.temperature)
+    p = np.array([[float(r[f"ipam{i}_pressure_kpa"]) * 1e3 for i in range(design.n_ipams)] for r in rows])
+    jam = np.array([[r.get(f"cell{j}_jammed", "0") == "1" for j in range(design.n_cells)] for r in rows], bool)
+    times = np.array([float(r["sim_time_s"]) for r in rows])
+    return Sequence(times - times[0], air, p.reshape(len(rows), design.n_ipams),
+                    np.maximum.accumulate(jam.reshape(len(rows), design.n_cells), axis=0), simulation=SimulationSettings())
+
+
+def _state(entry: dict, what: str) -> ControlState:
+    s = entry["state"]
+    if not isinstance(s, dict):
+        raise DesignError(f"manifest {what}: \"state\" must be an object with air_mol, ipam_pressures_kpa, jammed")
+    try:
+        return ControlState(air_moles=float(s["air_mol"]),
+                            ipam_pressures=tuple(float(p) * 1e3 for p in s.get("ipam_pressures_kpa", [])),
+                            jammed=tuple(int(j) for j in s.get("jammed", [])))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DesignError(f"manifest {what}: bad state ({exc}); give air_mol (mol), ipam_pressures_kpa (one per "
+                          f"IPAM) and jammed (cell indices)") from None
+
+
+def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | None]:
+    """(observations, wrt or None) of a manifest file (JSON): ``{"observations": [{"scan": FILE, "units":
+    "auto", and "valve": FILE with "row" or "time_s", or "state": {"air_mol", "ipam_pressures_kpa",
+    "jammed"}}, ...], "wrt": [...]}``. Every path is relative to the manifest's folder and must stay in it;
+    each observation's state is checked against ``design``. Errors are one line, before any work."""
+    path = Path(path)
+    if not path.is_file():
+        raise DesignError(f"manifest {path} does not exist")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DesignError(f"manifest {path} is not JSON: {exc}") from None
+    entries = data.get("observations") if isinstance(data, dict) else None
+    if not isinstance(entries, list) or not entries:
+        raise DesignError(f"manifest {path} lists no observations (\"observations\": [{{\"scan\": ..., ...}}])")
+    folder, obs = path.parent, []
+    for k, e in enumerate(entries):
+        what = f"observation {k}"
+        if not isinstance(e, dict) or "scan" not in e:
+            raise DesignError(f"manifest {what}: an observation is an object with \"scan\" and its state")
+        scan = _inside(folder, e["scan"], f"{what} scan")
+        if "valve" in e:
+            state = valve_sequence(_inside(folder, e["valve"], f"{what} valve"), design, row=e.get("row"),
+                                   time_s=e.get("time_s"))
+        elif "state" in e:
+            state = _state(e, what)
+        else:
+            raise DesignError(f"manifest {what}: give the state the scan was taken at: \"valve\" (with \"row\" or "
+                              f"\"time_s\") or \"state\"")
+        o = ScanObservation(str(scan), state, units=e.get("units", "auto"), name=e.get("name", Path(scan).name))
+        o.sequence(design)  # checked against the design here
+        obs.append(o)
+    wrt = data.get("wrt")
+    return obs, (check_wrt(wrt) if wrt is not None else None)
+
+
+def calibration_markdown(result: CalibrationResult) -> str:
+    """The calibration report (markdown): fitted values with standard errors, residuals, warnings."""
+    lines = ["# Calibration from scans", "",
+             f"{len(result.observation_names)} scan(s); {result.iterations} Gauss-Newton iteration(s), "
+             f"{result.jacobians} finite-difference Jacobian(s); {'converged' if result.converged else 'stopped at the iteration limit'}.",
+             "", "| parameter | start | fitted | std. error | change |", "|---|---|---|---|---|"]
+    for label, start, value, se in _rows(result):
+        se_text = "not identifiable" if not math.isfinite(se) else f"{se:.4g}"
+        lines.append(f"| {label} | {start:.4g} | {value:.4g} | {se_text} | {100 * (value / start - 1):+.1f} % |")
+    lines += ["", "Units: " + ", ".join(f"{k} {UNITS[k]}" for k in CALIBRATION_PARAMETERS), "",
+              "| scan | RMS residual before (mm) | after (mm) |", "|---|---|---|"]
+    for name, a, b in zip(result.observation_names, result.initial_residual_mm, result.residual_mm):
+        lines.append(f"| {name} | {a:.3f} | {b:.3f} |")
+    if result.notes:
+        lines += ["", "## Not identifiable", ""] + [f"- {n}" for n in result.notes]
+    return "\n".join(lines) + "\n"
+
+
+def _rows(result: CalibrationResult):
+    for name, value in result.values.items():
+        v, s0, se = (np.atleast_1d(np.asarray(x, dtype=np.float64)) for x in
+                     (value, result.start[name], result.stderr[name]))
+        for i in range(len(v)):
+            yield (name if np.ndim(value) == 0 else f"{name}[{i}]"), float(s0[i]), float(v[i]), float(se[i])
+
+
+def write_residual_figures(result: CalibrationResult, faces: np.ndarray, out_dir) -> list[Path]:
+    """``residuals_<k>.png`` per scan: the membrane coloured by the signed residual (mm) of the scan points
+    nearest each vertex; none (an empty list) where matplotlib is not installed."""
+    try:
+        import matplotlib  # noqa: PLC0415  (optional)
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt  # noqa: PLC0415
+    except ImportError:
+        return []
+    out = []
+    for k, m in enumerate(result.residuals):
+        fig = plt.figure(figsize=(5, 4.5))
+        ax = fig.add_subplot(projection="3d")
+        v = m.vertices * 1e3
+        face_r = np.nanmean(np.where(np.isnan(m.vertex_residual[faces]), np.nan, m.vertex_residual[faces]), axis=1) \
+            if np.any(np.isfinite(m.vertex_residual)) else np.zeros(len(faces))
+        lim = max(float(np.nanmax(np.abs(face_r))) * 1e3, 1e-3) if np.any(np.isfinite(face_r)) else 1.0
+        tri = ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=faces, cmap="coolwarm", vmin=-lim, vmax=lim,
+                              linewidth=0.1, edgecolor="0.5")
+        tri.set_array(np.nan_to_num(face_r * 1e3, nan=0.0))
+        fig.colorbar(tri, ax=ax, shrink=0.7, label="signed residual, mm (grey: not scanned)")
+        ax.set_title(f"{m.name}: RMS {m.rms_mm:.3f} mm")
+        path = Path(out_dir) / f"residuals_{k}.png"
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100)
+        plt.close(fig)
+        out.append(atomic_write(path, buf.getvalue()))
+    return out

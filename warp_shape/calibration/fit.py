@@ -1,0 +1,414 @@
+"""``ws.calibrate``: fit a design's material and IPAM parameters to scans of the built device.
+
+Damped Gauss-Newton (Levenberg-Marquardt) on the signed point-to-surface residuals of every scan,
+with a Huber loss (iteratively reweighted) and each scan's rigid pose fitted jointly; the Jacobian of
+the parameters by forward finite differences (one replay per parameter, every observation a world of
+it), updated by Broyden's rank-one rule between fresh ones. docs/calibration.md gives the algorithm.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..design import Design
+from ..errors import DesignError, ShapeError
+from ..scan import IcpConvergenceWarning, closest_points_query, compare_scan, icp
+from .observations import ScanObservation
+from .parameters import DEFAULT_WRT, ParameterSet
+from .replay import HOLD_S, replay_held
+from .result import CalibrationResult, ScanResidual
+
+__all__ = ["calibrate", "scan_residuals", "FIT_POINTS", "MIN_COVERAGE", "MAX_MEDIAN_DISTANCE"]
+
+#: scan points used per observation (a fixed random subset)
+FIT_POINTS = 8000
+#: a scan must cover at least this share of the modelled membrane
+MIN_COVERAGE = 0.1
+#: a scan whose points lie farther than this (median, as a fraction of the membrane's mean radius) from
+#: the modelled surface after alignment is not a scan of this display
+MAX_MEDIAN_DISTANCE = 0.1
+#: random starting rotations of the unknown-pose alignment
+POSE_TRIALS = 32
+#: forward-difference step in the logarithm of a parameter
+FD_STEP = 1e-2
+#: Huber loss threshold in robust standard deviations; residuals beyond REJECT_SIGMAS weigh nothing
+HUBER_SIGMAS = 1.345
+REJECT_SIGMAS = 6.0
+#: a parameter combination whose normal-matrix eigenvalue (correlation form) is below this is not identifiable
+NULL_EIGENVALUE = 1e-6
+#: a parameter whose Jacobian column is below this fraction of the largest is not seen at all
+NULL_COLUMN = 1e-4
+
+
+class _Fit:
+    """The observations, their fixed point subsets and poses, and the model replays."""
+
+    def __init__(self, design: Design, observations, params: ParameterSet, device: str, hold_s: float, seed: int):
+        self.design, self.params, self.device, self.hold_s = design, params, device, hold_s
+        self.obs = observations
+        self.seqs = [o.sequence(design) for o in observations]  # checks every state first
+        rng = np.random.default_rng(seed)
+        self.points = [o.points[rng.choice(len(o.points), size=min(FIT_POINTS, len(o.points)), replace=False)]
+                       for o in observations]
+        self.replays = 0
+        self.seed = seed
+
+    def shapes(self, x: np.ndarray) -> np.ndarray:
+        """(W, V, 3) the replayed membranes at parameters ``x``."""
+        self.replays += 1
+        return replay_held(self.params.design(self.design, x), self.seqs, hold_s=self.hold_s, device=self.device)
+
+    def residuals(self, shapes: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(r (M,), aligned points (M, 3), normals (M, 3)) of every scan at its pose on ``shapes``."""
+        rs, ps, ns = [], [], []
+        for x, pts, (rot, t) in zip(shapes, self.points, poses):
+            p = pts @ rot.T + t
+            q, _, n = closest_points_query((x, self.design.rest.faces), device=self.device)(p, normals=True)
+            rs.append(((p - q) * n).sum(axis=1))
+            ps.append(p)
+            ns.append(n)
+        return np.concatenate(rs), np.concatenate(ps), np.concatenate(ns)
+
+
+def _robust_weights(r: np.ndarray, sizes: list[int]) -> np.ndarray:
+    """Huber IRLS weights per scan (robust scale 1.4826 median |r|), zero beyond ``REJECT_SIGMAS``."""
+    out, start = [], 0
+    for n in sizes:
+        a = np.abs(r[start:start + n])
+        s = max(1.4826 * float(np.median(a)), 1e-9)
+        w = np.minimum(1.0, HUBER_SIGMAS * s / np.maximum(a, 1e-30))
+        w[a > REJECT_SIGMAS * s] = 0.0
+        out.append(w)
+        start += n
+    return np.concatenate(out)
+
+
+def _pose_columns(p: np.ndarray, n: np.ndarray, sizes: list[int]) -> np.ndarray:
+    """(M, 6 W) d r / d (rotation vector, shift) of each scan's pose: r = n . (p - q)."""
+    cols = np.zeros((len(p), 6 * len(sizes)))
+    start = 0
+    for w, m in enumerate(sizes):
+        sl = slice(start, start + m)
+        cols[sl, 6 * w:6 * w + 3] = np.cross(p[sl], n[sl])
+        cols[sl, 6 * w + 3:6 * w + 6] = n[sl]
+        start += m
+    return cols
+
+
+def _rotation(omega: np.ndarray) -> np.ndarray:
+    a = float(np.linalg.norm(omega))
+    if a < 1e-15:
+        return np.eye(3)
+    k = omega / a
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * kx + (1 - np.cos(a)) * kx @ kx
+
+
+def _moved(poses, delta: np.ndarray):
+    out = []
+    for w, (rot, t) in enumerate(poses):
+        dr = _rotation(delta[6 * w:6 * w + 3])
+        out.append((dr @ rot, dr @ t + delta[6 * w + 3:6 * w + 6]))
+    return out
+
+
+def _random_rotations(n: int, seed: int) -> list[np.ndarray]:
+    """``n`` rotations spread uniformly (random unit quaternions, seeded)."""
+    q = np.random.default_rng(seed).normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    a, b, c, d = q.T
+    return list(np.stack([np.stack([a*a + b*b - c*c - d*d, 2*(b*c - a*d), 2*(b*d + a*c)], -1),
+                          np.stack([2*(b*c + a*d), a*a - b*b + c*c - d*d, 2*(c*d - a*b)], -1),
+                          np.stack([2*(b*d - a*c), 2*(c*d + a*b), a*a - b*b - c*c + d*d], -1)], 1))
+
+
+def _trimmed(d: np.ndarray) -> float:
+    d = np.sort(d)[: max(1, int(0.8 * len(d)))]
+    return float(np.sqrt(np.mean(d * d)))
+
+
+def robust_pose(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, device: str = "cpu",
+                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) taking ``points`` (a partial scan, any pose) onto the surface (``vertices``, ``faces``):
+    ``POSE_TRIALS`` random rotations and the scan's own, each refined by point-to-plane ICP on a subset; the best few by trimmed RMS refined on all points, the best kept. A nearly
+    round membrane has no clear principal axes, so the random starts are what find its pose."""
+    q = closest_points_query((vertices, faces), device=device)
+    scale = float(np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))
+    sub = points[np.random.default_rng(seed).choice(len(points), size=min(300, len(points)), replace=False)]
+    cs, cm = points.mean(axis=0), vertices.mean(axis=0)
+    trials = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IcpConvergenceWarning)
+        for rot in _random_rotations(POSE_TRIALS, seed) + [np.eye(3)]:
+            r1, t1, _, _ = icp(sub, q, rot, cm - rot @ cs, max_iterations=30, tolerance=1e-6, scale=scale)
+            trials.append((_trimmed(q(sub @ r1.T + t1)[1]), r1, t1))
+        trials.sort(key=lambda e: e[0])
+        best = None
+        for _, r0, t0 in trials[:2]:
+            r1, t1, _, _ = icp(points, q, r0, t0, max_iterations=40, tolerance=1e-6, scale=scale)
+            score = _trimmed(q(points @ r1.T + t1)[1])
+            if best is None or score < best[0]:
+                best = (score, r1, t1)
+    return best[1], best[2]
+
+
+def _initial_poses(fit: _Fit, shapes: np.ndarray) -> list:
+    """Each scan aligned to its replayed shape (``robust_pose``: unknown pose); a scan that does not
+    match the display (too far from it after alignment, or covering too little of it, measured as
+    ``compare`` does) is an error."""
+    poses, faces = [], fit.design.rest.faces
+    for o, pts, x in zip(fit.obs, fit.points, shapes):
+        rot, t = robust_pose(pts, x, faces, device=fit.device, seed=fit.seed)
+        radius = float(np.mean(np.linalg.norm(x - x.mean(axis=0), axis=1)))
+        d = closest_points_query((x, faces), device=fit.device)(pts @ rot.T + t)[1]
+        med = float(np.median(d))
+        if med > MAX_MEDIAN_DISTANCE * radius:
+            raise ShapeError(f"scan {o.name} does not match the display: after alignment its points lie "
+                             f"{med * 1e3:.1f} mm (median) from the modelled membrane ({radius * 1e3:.0f} mm radius); "
+                             f"is it a scan of this device, in the right units?")
+        tf = np.eye(4)
+        tf[:3, :3], tf[:3, 3] = rot, t
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IcpConvergenceWarning)
+            cmp = compare_scan(pts, fit.design.rest.copy_with(x), device=fit.device, scan_units="m",
+                               initial_transform=tf, max_iterations=5)
+        if cmp.covered_fraction < MIN_COVERAGE:
+            raise ShapeError(f"scan {o.name} covers {100 * cmp.covered_fraction:.1f} % of the modelled membrane "
+                             f"(at least {100 * MIN_COVERAGE:.0f} % needed): no overlap to fit; scan more of the device")
+        poses.append((rot, t))
+    return poses
+
+
+def _realign(fit: _Fit, shapes: np.ndarray, poses) -> list:
+    """Each pose refined by ICP onto the current replayed shape (a few point-to-plane iterations)."""
+    out, faces = [], fit.design.rest.faces
+    for pts, x, (rot, t) in zip(fit.points, shapes, poses):
+        q = closest_points_query((x, faces), device=fit.device)
+        scale = float(np.max(np.linalg.norm(x, axis=1)))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IcpConvergenceWarning)
+            r1, t1, _, _ = icp(pts, q, rot, t, max_iterations=20, tolerance=1e-6, inlier_sigmas=REJECT_SIGMAS,
+                               scale=scale)
+        out.append((r1, t1))
+    return out
+
+
+def _jacobian(fit: _Fit, x: np.ndarray, poses, r0: np.ndarray) -> np.ndarray:
+    """(M, P) forward differences of the residuals in the parameters' logarithms (poses held)."""
+    cols = []
+    for k in range(len(x)):
+        step = FD_STEP if x[k] + FD_STEP <= fit.params.upper[k] else -FD_STEP
+        xk = x.copy()
+        xk[k] += step
+        cols.append((fit.residuals(fit.shapes(xk), poses)[0] - r0) / step)
+    return np.stack(cols, axis=1)
+
+
+class _State:
+    """The fit's current point: parameters, poses, shapes, residuals, normals, weights and Jacobian."""
+
+    def __init__(self, fit: _Fit, x, poses, shapes):
+        self.x, self.poses, self.shapes = x, poses, shapes
+        self.r, self.p, self.n = fit.residuals(shapes, poses)
+        self.sizes = [len(p) for p in fit.points]
+        self.w = _robust_weights(self.r, self.sizes)
+        self.jp = None  # (M, P) parameter Jacobian
+        self.fresh = False
+
+    def cost(self, r=None) -> float:
+        r = self.r if r is None else r
+        return float(np.sum(self.w * r * r))
+
+    def jacobian(self) -> np.ndarray:
+        return np.hstack([self.jp, _pose_columns(self.p, self.n, self.sizes)])
+
+
+def _step(s: _State, lam: float, n_par: int) -> np.ndarray:
+    j = s.jacobian()
+    jw = j * s.w[:, None]
+    a, g = jw.T @ j, jw.T @ s.r
+    d = np.diag(a).copy()
+    d = d + 1e-9 * max(float(d.max()), 1e-30)
+    return np.linalg.solve(a + lam * np.diag(d), -g)
+
+
+def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: float) -> tuple[_State, dict]:
+    """Damped Gauss-Newton with IRLS weights, re-aligning each scan every iteration. A fresh
+    finite-difference Jacobian at the start; Broyden updates after each accepted step; a fresh one when
+    a step fails or gains less than ``tolerance`` noise variances; converged when a step on a fresh
+    Jacobian gains less than that."""
+    n_par, lam = len(s.x), 1e-3
+    info = dict(iterations=0, jacobians=0, costs=[s.cost()], converged=False)
+    while info["iterations"] < max_iterations:
+        info["iterations"] += 1
+        if s.jp is None or info.pop("refresh", False):
+            s.jp, s.fresh = _jacobian(fit, s.x, s.poses, s.r), True
+            info["jacobians"] += 1
+        delta = _step(s, lam, n_par)
+        x1 = fit.params.clip(s.x + delta[:n_par])
+        poses1 = _moved(s.poses, delta[n_par:])
+        shapes1 = fit.shapes(x1)
+        r1 = fit.residuals(shapes1, poses1)[0]
+        c0, c1 = s.cost(), s.cost(r1)
+        sigma2 = c0 / max(float((s.w > 0).sum()), 1.0)
+        if c1 < c0:
+            dx = np.concatenate([x1 - s.x, delta[n_par:]])
+            pred = s.r + s.jacobian() @ dx
+            jp = s.jp + np.outer(r1 - pred, (x1 - s.x)) / max(float((x1 - s.x) @ (x1 - s.x)), 1e-30)
+            fresh = s.fresh
+            s = _State(fit, x1, _realign(fit, shapes1, poses1), shapes1)
+            s.jp, s.fresh = jp, False
+            lam = max(lam / 3.0, 1e-7)
+            info["costs"].append(s.cost())
+            if c0 - c1 < tolerance * sigma2:
+                if fresh:
+                    info["converged"] = True
+                    break
+                info["refresh"] = True
+        elif s.fresh:
+            lam *= 4.0
+            if lam > 1e4:
+                info["converged"] = True
+                break
+        else:
+            info["refresh"] = True
+    return s, info
+
+
+def _parameter_normal(s: _State) -> np.ndarray:
+    """The parameters' normal matrix with the poses eliminated (Schur complement of J^T W J)."""
+    j = s.jacobian()
+    n_par = s.jp.shape[1]
+    a = (j * s.w[:, None]).T @ j
+    app, apq, aqq = a[:n_par, :n_par], a[:n_par, n_par:], a[n_par:, n_par:]
+    return app - apq @ np.linalg.pinv(aqq) @ apq.T
+
+
+def _why(labels: list[str], members: list[int], fit: _Fit) -> str:
+    names = [labels[i] for i in members]
+    if len(members) == 1:
+        lab = names[0]
+        if lab.startswith("ipam_area["):
+            i = int(lab[len("ipam_area["):-1])
+            if all(seq.pressure_range()[i] == 0 for seq in fit.seqs):
+                return f"{lab}: IPAM {i}'s pressure never changed in the observations (A acts only through A P)"
+        return f"{lab}: no observation moves the scanned surface with it"
+    if set(names) == {"youngs_modulus", "thickness"}:
+        return "youngs_modulus ~ thickness: only their product E t acts on the membrane's springs"
+    return f"{' ~ '.join(names)}: the observations move the surface the same way for this combination"
+
+
+def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray]:
+    """(stderr of log-parameters (P,), unidentifiable names, notes, correlation matrix)."""
+    labels = fit.params.labels
+    npar = len(labels)
+    keep = s.w > 0
+    dof = max(int(keep.sum()) - npar - 6 * len(fit.points), 1)
+    sigma2 = float(np.sum(s.w * s.r ** 2)) / dof
+    norm = _parameter_normal(s)
+    d = np.sqrt(np.maximum(np.diag(norm), 0.0))
+    seen = d > NULL_COLUMN * max(float(d.max()), 1e-30)
+    names, notes, free = [], [], np.zeros(npar, bool)
+    for i in np.flatnonzero(~seen):
+        names.append(labels[i])
+        notes.append(_why(labels, [int(i)], fit))
+        free[i] = True
+    idx = np.flatnonzero(seen)
+    c = norm[np.ix_(idx, idx)] / np.outer(d[idx], d[idx])
+    lam, vec = np.linalg.eigh(c)
+    cov = np.zeros((len(idx), len(idx)))
+    for k in range(len(lam)):
+        if lam[k] < NULL_EIGENVALUE * max(float(lam.max()), 1e-30):
+            members = [int(idx[i]) for i in np.flatnonzero(np.abs(vec[:, k]) >= 0.25)]
+            names.append(" ~ ".join(labels[i] for i in members))
+            notes.append(_why(labels, members, fit))
+            free[members] = True
+        else:
+            cov += np.outer(vec[:, k], vec[:, k]) / lam[k]
+    cov = sigma2 * cov / np.outer(d[idx], d[idx])
+    se = np.full(npar, np.inf)
+    se[idx] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    se[free] = np.inf
+    corr = np.full((npar, npar), np.nan)
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr[np.ix_(idx, idx)] = cov / np.outer(sd, sd)
+    return se, names, notes, corr
+
+
+def _vertex_residual(vertices: np.ndarray, points: np.ndarray, r: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(V,) mean signed residual of the kept scan points nearest each vertex (NaN where none)."""
+    keep = w > 0
+    near = np.argmin(((points[keep, None, :] - vertices[None, :, :]) ** 2).sum(axis=2), axis=1)
+    total = np.bincount(near, weights=r[keep], minlength=len(vertices))
+    count = np.bincount(near, minlength=len(vertices))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def _maps(fit: _Fit, s: _State) -> list[ScanResidual]:
+    out, start = [], 0
+    for o, x, (rot, t), m in zip(fit.obs, s.shapes, s.poses, s.sizes):
+        sl = slice(start, start + m)
+        tf = np.eye(4)
+        tf[:3, :3], tf[:3, 3] = rot, t
+        out.append(ScanResidual(o.name, s.p[sl], s.r[sl], s.w[sl], tf, x,
+                                _vertex_residual(x, s.p[sl], s.r[sl], s.w[sl])))
+        start += m
+    return out
+
+
+def _checked_observations(design, observations) -> list:
+    if not isinstance(design, Design):
+        raise DesignError(f"calibrate needs a ws.Design, got {type(design).__name__}")
+    obs = list(observations) if isinstance(observations, (list, tuple)) else [observations]
+    if not obs:
+        raise DesignError("calibrate needs at least one ws.ScanObservation")
+    bad = [type(o).__name__ for o in obs if not isinstance(o, ScanObservation)]
+    if bad:
+        raise DesignError(f"calibrate needs ws.ScanObservation objects, got {bad[0]}")
+    return obs
+
+
+def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, device: str = "cpu", max_iterations: int = 20,
+              tolerance: float = 0.5, hold_s: float = HOLD_S, seed: int = 0) -> CalibrationResult:
+    """Fit ``design``'s parameters ``wrt`` (names of ``CALIBRATION_PARAMETERS``) to the scans of
+    ``observations`` (``ScanObservation``): each observation's sequence is replayed on the model and held
+    ``hold_s`` s until at rest, its scan aligned to it (unknown pose, as ``compare``), and the signed
+    point-to-surface residuals minimised by damped Gauss-Newton with a Huber loss, the poses fitted
+    jointly, every parameter within its bounds. Every input is checked before the fit (a state that does
+    not fit the design, a scan of another object or without overlap: one-line errors). Returns a
+    ``CalibrationResult``; ``tolerance``: a step on a fresh Jacobian that lowers the robust cost by less
+    than this many residual variances ends the fit. docs/calibration.md gives the algorithm and its measured accuracy."""
+    obs = _checked_observations(design, observations)
+    params = ParameterSet(design, wrt)
+    fit = _Fit(design, obs, params, device, hold_s, seed)
+    shapes = fit.shapes(params.x0)
+    s = _State(fit, params.x0.copy(), _initial_poses(fit, shapes), shapes)
+    s = _State(fit, s.x, _realign(fit, shapes, s.poses), shapes)
+    initial = [m.rms_mm for m in _maps(fit, s)]
+    s, info = _levenberg_marquardt(fit, s, max_iterations, tolerance)
+    se, names, notes, corr = _identify(s, fit)
+    values = params.values(s.x)
+    stderr = params.per_name(se * np.exp(s.x))
+    maps = _maps(fit, s)
+    return CalibrationResult(values=values, stderr=stderr, start=params.values(params.x0),
+                             design=params.design(design, s.x), residual_mm=[m.rms_mm for m in maps],
+                             initial_residual_mm=initial, unidentifiable=names, notes=notes, residuals=maps,
+                             labels=params.labels, correlation=corr, iterations=info["iterations"],
+                             jacobians=info["jacobians"], converged=info["converged"], costs=info["costs"],
+                             wrt=params.names, observation_names=[o.name for o in obs])
+
+
+def scan_residuals(design: Design, observation: ScanObservation, *, device: str = "cpu", hold_s: float = HOLD_S,
+                   seed: int = 0) -> ScanResidual:
+    """The residual map of one observation on ``design`` (no fit): replayed, aligned as ``calibrate``
+    aligns, signed point-to-surface residuals with the robust weights. ``.rms_mm`` is the prediction error."""
+    obs = _checked_observations(design, [observation])
+    params = ParameterSet(design, ("rest_scale",))
+    fit = _Fit(design, obs, params, device, hold_s, seed)
+    shapes = fit.shapes(params.x0)
+    poses = _realign(fit, shapes, _initial_poses(fit, shapes))
+    poses = _realign(fit, shapes, poses)
+    return _maps(fit, _State(fit, params.x0, poses, shapes))[0]

@@ -1,0 +1,191 @@
+"""The parameters a calibration fits: names, units, bounds, and a design built from their values.
+
+Every parameter is positive and fitted as its logarithm (a step is a relative change), clipped to
+its physical bounds. A fitted value applies to a design as ``apply_values``: the material's Young's
+modulus, thickness and bending stiffness, each IPAM's stiffness and area, and the rest-shape scale
+(a uniform mold shrinkage or swelling about the rest centroid).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..design import Design
+from ..errors import DesignError
+
+__all__ = ["CALIBRATION_PARAMETERS", "DEFAULT_WRT", "BOUNDS", "Parameter", "ParameterSet", "apply_values",
+           "check_wrt"]
+
+#: the parameters ``calibrate`` fits, with their units
+CALIBRATION_PARAMETERS = {
+    "youngs_modulus": "Pa: the silicone's Young's modulus E (thickness held: only E t acts on the springs)",
+    "thickness": "m: the load-bearing thickness t (only E t acts: fitted with youngs_modulus it is not separable)",
+    "bending_stiffness": "N m/rad: the hinge bending stiffness k_t",
+    "ipam_stiffness": "N/m, (n_ipam,): each IPAM's stiffness k",
+    "ipam_area": "m^2, (n_ipam,): each IPAM's area A",
+    "rest_scale": "1: the rest shape's scale about its centroid (mold shrinkage < 1)",
+}
+#: what ``calibrate`` fits when ``wrt`` is not given
+DEFAULT_WRT = ("youngs_modulus", "bending_stiffness", "ipam_stiffness", "ipam_area", "rest_scale")
+#: physical bounds (SI) of every parameter; a fit also stays within a factor ``RELATIVE_BOUND`` of its start
+BOUNDS = {
+    "youngs_modulus": (1.0e3, 1.0e8),
+    "thickness": (1.0e-4, 2.0e-2),
+    "bending_stiffness": (1.0e-8, 1.0e-1),
+    "ipam_stiffness": (0.5, 5.0e3),
+    "ipam_area": (1.0e-8, 1.0e-3),
+    "rest_scale": (0.8, 1.25),
+}
+RELATIVE_BOUND = 10.0
+_PER_IPAM = ("ipam_stiffness", "ipam_area")
+
+
+def check_wrt(wrt) -> tuple:
+    """The parameter names asked for, checked against ``CALIBRATION_PARAMETERS``."""
+    names = (wrt,) if isinstance(wrt, str) else tuple(wrt)
+    choices = ", ".join(CALIBRATION_PARAMETERS)
+    if not names:
+        raise DesignError(f"calibrate wrt: no parameter given; choose from {choices}")
+    bad = [n for n in names if n not in CALIBRATION_PARAMETERS]
+    if bad:
+        raise DesignError(f"calibrate wrt: unknown parameter {bad[0]!r}; choose from {choices}")
+    return tuple(dict.fromkeys(names))
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One fitted scalar: ``name`` (a key of ``CALIBRATION_PARAMETERS``), ``index`` (the IPAM, or None),
+    its start value and bounds (SI)."""
+
+    name: str
+    index: int | None
+    start: float
+    lower: float
+    upper: float
+
+    @property
+    def label(self) -> str:
+        """``name`` or ``name[index]``."""
+        return self.name if self.index is None else f"{self.name}[{self.index}]"
+
+
+def design_value(design: Design, name: str, index: int | None) -> float:
+    """The value of parameter ``name`` (IPAM ``index``) in ``design``."""
+    if name == "rest_scale":
+        return 1.0
+    if name in _PER_IPAM:
+        ip = design.ipams[index]
+        return ip.stiffness if name == "ipam_stiffness" else ip.area
+    return float(getattr(design.material, name))
+
+
+class ParameterSet:
+    """The scalars fitted for ``wrt`` on ``design``, as a vector of logarithms."""
+
+    def __init__(self, design: Design, wrt):
+        names = check_wrt(wrt)
+        if any(n in _PER_IPAM for n in names) and not design.n_ipams:
+            raise DesignError("calibrate wrt: the design has no IPAMs; leave ipam_stiffness and ipam_area out")
+        params = []
+        for name in names:
+            for index in (range(design.n_ipams) if name in _PER_IPAM else [None]):
+                v = design_value(design, name, index)
+                if not v > 0:
+                    raise DesignError(f"calibrate wrt: {name} is {v!r} in the design; a fitted parameter must start "
+                                      f"> 0 (set it in the design's material, or leave it out of wrt)")
+                lo, hi = BOUNDS[name]
+                lo, hi = max(lo, v / RELATIVE_BOUND), min(hi, v * RELATIVE_BOUND)
+                if not lo <= v <= hi:
+                    raise DesignError(f"calibrate: {name} = {v:g} lies outside its physical bounds "
+                                      f"[{BOUNDS[name][0]:g}, {BOUNDS[name][1]:g}]")
+                params.append(Parameter(name, index, v, lo, hi))
+        self.names = names
+        self.params = params
+        self.lower = np.log([p.lower for p in params])
+        self.upper = np.log([p.upper for p in params])
+        self.x0 = np.log([p.start for p in params])
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    @property
+    def labels(self) -> list[str]:
+        """``name`` or ``name[i]`` of every scalar."""
+        return [p.label for p in self.params]
+
+    def clip(self, x: np.ndarray) -> np.ndarray:
+        """``x`` held within the bounds."""
+        return np.clip(x, self.lower, self.upper)
+
+    def values(self, x: np.ndarray) -> dict:
+        """{name: float or (n_ipam,) array} of the vector ``x`` (SI)."""
+        out = {}
+        for p, v in zip(self.params, np.exp(x)):
+            if p.index is None:
+                out[p.name] = float(v)
+            else:
+                out.setdefault(p.name, np.zeros(0))
+                out[p.name] = np.append(out[p.name], v)
+        return out
+
+    def per_name(self, vector: np.ndarray) -> dict:
+        """{name: float or array} of any per-scalar vector (standard errors, bounds)."""
+        out = {}
+        for p, v in zip(self.params, vector):
+            out[p.name] = float(v) if p.index is None else np.append(out.get(p.name, np.zeros(0)), v)
+        return out
+
+    def design(self, design: Design, x: np.ndarray) -> Design:
+        """``design`` with the values of ``x``."""
+        return apply_values(design, self.values(x))
+
+
+def apply_values(design: Design, values: dict) -> Design:
+    """A copy of ``design`` with calibrated ``values`` ({name: value}, SI; see ``CALIBRATION_PARAMETERS``):
+    material fields replaced, IPAM stiffness and area replaced (per IPAM), the rest shape scaled about its
+    centroid by ``rest_scale`` (an IPAM whose free length is its rest length keeps following it; another's
+    free length scales with it). Cells keep their faces; other actuator families are copied unchanged."""
+    unknown = sorted(set(values) - set(CALIBRATION_PARAMETERS))
+    if unknown:
+        raise DesignError(f"unknown calibration parameter {unknown[0]!r}; known: {', '.join(CALIBRATION_PARAMETERS)}")
+    mat = replace(design.material, **{k: float(values[k]) for k in ("youngs_modulus", "thickness",
+                                                                      "bending_stiffness") if k in values})
+    scale = float(values.get("rest_scale", 1.0))
+    if not (math.isfinite(scale) and scale > 0):
+        raise DesignError(f"rest_scale must be a positive number, got {scale!r}")
+    rest = design.rest
+    if scale != 1.0:
+        c = rest.centroid()
+        rest = rest.copy_with(c + scale * (rest.vertices - c))
+    out = Design(rest, mat)
+    n = design.n_ipams
+    k = _per_ipam(values, "ipam_stiffness", [ip.stiffness for ip in design.ipams], n)
+    a = _per_ipam(values, "ipam_area", [ip.area for ip in design.ipams], n)
+    for i, ip in enumerate(design.ipams):
+        free = None if ip.free_length_is_rest else ip.free_length * scale
+        out.add_ipam(ip.face_a, ip.face_b, stiffness=float(k[i]), area=float(a[i]), free_length=free,
+                     pressure_limits=ip.pressure_limits, damping=ip.damping)
+    for family, elements in design.actuators.items():
+        if family != "ipam":
+            for e in elements:
+                out.add_element(family, e)
+    shared = bool(design.cells) and np.bincount(np.concatenate([c.faces for c in design.cells])).max() > 1
+    for c in design.cells:
+        out.add_cell(c.faces, shared=shared)
+    return out
+
+
+def _per_ipam(values: dict, name: str, default, n: int) -> np.ndarray:
+    if name not in values:
+        return np.asarray(default, dtype=np.float64)
+    v = np.asarray(values[name], dtype=np.float64).reshape(-1)
+    if v.size == 1 and n != 1:
+        v = np.full(n, float(v[0]))
+    if v.size != n:
+        raise DesignError(f"{name} has {v.size} values but the design has {n} IPAMs: a calibration of another design")
+    if not np.all(np.isfinite(v) & (v > 0)):
+        raise DesignError(f"{name} values must be positive numbers (SI), got {v.tolist()}")
+    return v

@@ -1,0 +1,85 @@
+"""CalibrationResult: fitted values, standard errors, the calibrated design and the residual maps."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..design import Design
+
+__all__ = ["CalibrationResult", "ScanResidual"]
+
+
+@dataclass
+class ScanResidual:
+    """One observation after the fit: ``points`` (N, 3) the scan points used, aligned to the model
+    (m, model frame), ``residual`` (N,) signed point-to-surface distance (m, + outside), ``weight`` (N,)
+    the robust loss's weight (0: rejected as an outlier), ``transform`` 4x4 scan -> model, ``vertices``
+    (V, 3) the replayed membrane (m), ``vertex_residual`` (V,) the mean signed residual of the scan points
+    nearest each vertex (m, NaN where none)."""
+
+    name: str
+    points: np.ndarray = field(repr=False)
+    residual: np.ndarray = field(repr=False)
+    weight: np.ndarray = field(repr=False)
+    transform: np.ndarray = field(repr=False)
+    vertices: np.ndarray = field(repr=False)
+    vertex_residual: np.ndarray = field(repr=False)
+
+    @property
+    def rms_mm(self) -> float:
+        """RMS of the residuals of the points kept (weight > 0), mm."""
+        keep = self.weight > 0
+        return float(np.sqrt(np.mean(self.residual[keep] ** 2)) * 1e3) if keep.any() else float("nan")
+
+
+@dataclass
+class CalibrationResult:
+    """Outcome of ``ws.calibrate`` (SI units).
+
+    ``values`` / ``stderr``: {name: float or (n_ipams,) array} fitted values and their standard errors
+    (inf where the observations do not determine it); ``start``: the values before the fit;
+    ``design``: the calibrated design; ``residual_mm``: per observation the RMS residual after the fit
+    (mm) and ``initial_residual_mm`` before it; ``unidentifiable``: names of the parameters or
+    combinations the observations cannot separate (e.g. ``"youngs_modulus ~ thickness"``, ``"ipam_area[4]"``)
+    with ``notes`` saying why; ``residuals``: the per-scan residual maps (``ScanResidual``);
+    ``labels`` the fitted scalars, ``correlation`` their correlation matrix; ``iterations``,
+    ``jacobians`` (finite-difference Jacobians computed), ``converged``, ``costs`` (robust cost per iteration)."""
+
+    values: dict
+    stderr: dict
+    start: dict
+    design: Design = field(repr=False)
+    residual_mm: list
+    initial_residual_mm: list
+    unidentifiable: list
+    notes: list = field(default_factory=list)
+    residuals: list = field(default_factory=list, repr=False)
+    labels: list = field(default_factory=list)
+    correlation: np.ndarray | None = field(default=None, repr=False)
+    iterations: int = 0
+    jacobians: int = 0
+    converged: bool = False
+    costs: list = field(default_factory=list)
+    wrt: tuple = ()
+    observation_names: list = field(default_factory=list)
+
+    def relative_change(self) -> dict:
+        """{name: value / start - 1}."""
+        return {k: np.asarray(v) / np.asarray(self.start[k]) - 1.0 for k, v in self.values.items()}
+
+    def summary(self) -> dict:
+        """A JSON-ready dict of the values, standard errors and residuals."""
+        def plain(v):
+            a = np.asarray(v, dtype=np.float64)
+            return [None if not np.isfinite(x) else float(x) for x in a.reshape(-1)] if a.ndim else \
+                (None if not np.isfinite(a) else float(a))
+        return dict(values={k: plain(v) for k, v in self.values.items()},
+                    stderr={k: plain(v) for k, v in self.stderr.items()},
+                    start={k: plain(v) for k, v in self.start.items()},
+                    residual_mm=[float(x) for x in self.residual_mm],
+                    initial_residual_mm=[float(x) for x in self.initial_residual_mm],
+                    unidentifiable=list(self.unidentifiable), notes=list(self.notes),
+                    iterations=self.iterations, jacobians=self.jacobians, converged=self.converged,
+                    observations=list(self.observation_names))

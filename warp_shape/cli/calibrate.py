@@ -1,0 +1,80 @@
+"""``warp-shape calibrate``: fit a design's material and IPAM parameters to scans of the built device."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..calibration import CALIBRATION_PARAMETERS, DEFAULT_WRT, calibrate
+from ..calibration.files import (calibration_data, calibration_markdown, read_manifest, write_calibration,
+                                 write_residual_figures)
+from ..calibration.parameters import check_wrt
+from ..errors import DesignError
+from ..io.atomic import atomic_write
+from .options import add_common_args, check_device, check_rerun, open_recorder, resolve_design_and_targets
+
+__all__ = ["register", "run", "CALIBRATION_OUTPUTS"]
+
+#: the files a calibration writes into --out
+CALIBRATION_OUTPUTS = ("calibration.json", "calibration.md")
+
+
+def register(subparsers) -> None:
+    """Add the ``calibrate`` subcommand."""
+    c = subparsers.add_parser(
+        "calibrate", help="fit the model (E t, bending, IPAM k and A, rest scale) to scans of the built device",
+        description="Replay each scan's control state on the design, align the scan (unknown pose, as compare), "
+                    "and fit the chosen parameters by damped Gauss-Newton with a robust loss. Writes "
+                    "calibration.json (the file design, control and export take with --calibration), "
+                    "calibration.md and a residual map per scan.")
+    c.add_argument("manifest", help="manifest (JSON) listing the scans and the control state of each; its paths are "
+                                    "relative to its folder (docs/calibration.md)")
+    c.add_argument("--design", default=None, help="the design that was built: its design.usda, a scene name, or "
+                                                  "cube_fig6 (default)")
+    c.add_argument("--wrt", nargs="+", default=None, choices=list(CALIBRATION_PARAMETERS),
+                   help=f"parameters to fit (default: the manifest's \"wrt\", else {' '.join(DEFAULT_WRT)})")
+    add_common_args(c, out="out/calibration")
+    c.set_defaults(func=run)
+
+
+def _print(result, out: Path, written) -> None:
+    print(calibration_markdown(result))
+    for n in result.notes:
+        print(f"warning: not identifiable: {n}")
+    print(f"wrote {', '.join(Path(p).name for p in written)} to {out}/; use it with "
+          f"warp-shape control DESIGN --calibration {out / 'calibration.json'}")
+
+
+def run(args) -> int:
+    """Read and check every input, fit, then write the calibration file, the report and the figures."""
+    check_device(args.device)
+    check_rerun(args)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise DesignError(f"--out {out} is a file; give a folder")
+    design, _, _ = resolve_design_and_targets(args.design, None)
+    observations, manifest_wrt = read_manifest(args.manifest, design)
+    wrt = check_wrt(args.wrt) if args.wrt else (manifest_wrt or DEFAULT_WRT)
+    result = calibrate(design, observations, wrt=wrt, device=args.device)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [write_calibration(result, design, out / "calibration.json"),
+               atomic_write(out / "calibration.md", calibration_markdown(result))]
+    written += write_residual_figures(result, design.rest.faces, out)
+    with open_recorder(args) as rec:
+        if rec is not None:
+            rec.log_calibration(result)
+    if args.json:
+        data = calibration_data(result, design)
+        data["outputs"] = [str(p) for p in written]
+        print(json.dumps(data, indent=2, default=lambda o: np.asarray(o).tolist()))
+    else:
+        _print(result, out, written)
+    return 0
+
+
+def add_calibration_arg(sp, what: str) -> None:
+    """``--calibration FILE`` (a calibration.json of ``warp-shape calibrate``) on ``design``, ``control``, ``export``."""
+    sp.add_argument("--calibration", default=None, metavar="FILE",
+                    help=f"a calibration.json written by warp-shape calibrate: {what}")
