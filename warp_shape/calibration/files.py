@@ -174,10 +174,23 @@ def _state(entry: dict, what: str) -> ControlState:
                           f"IPAM) and jammed (cell indices)") from None
 
 
+def _reading(entry: dict, what: str) -> dict:
+    """The chamber pressure reading of a manifest entry (``chamber_pressure_kpa``, ``pressure_stderr_kpa``)."""
+    if entry.get("chamber_pressure_kpa") is None:
+        return {}
+    try:
+        return dict(pressure=float(entry["chamber_pressure_kpa"]) * 1e3,
+                    pressure_stderr=float(entry.get("pressure_stderr_kpa", 0.1)) * 1e3)
+    except (TypeError, ValueError):
+        raise DesignError(f"manifest {what}: chamber_pressure_kpa and pressure_stderr_kpa must be numbers (kPa)") \
+            from None
+
+
 def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | None]:
     """(observations, wrt or None) of a manifest file (JSON): ``{"observations": [{"scan": FILE, "units":
-    "auto", and "valve": FILE with "row" or "time_s", or "state": {"air_mol", "ipam_pressures_kpa",
-    "jammed"}}, ...], "wrt": [...]}``. Every path is relative to the manifest's folder and must stay in it;
+    "auto", optionally "chamber_pressure_kpa" (a reading) and "pressure_stderr_kpa" (default 0.1), and
+    "valve": FILE with "row" or "time_s", or "state": {"air_mol", "ipam_pressures_kpa", "jammed"}}, ...],
+    "wrt": [...]}``. Every path is relative to the manifest's folder and must stay in it;
     each observation's state is checked against ``design``. Errors are one line, before any work."""
     path = Path(path)
     if not path.is_file():
@@ -203,7 +216,8 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
         else:
             raise DesignError(f"manifest {what}: give the state the scan was taken at: \"valve\" (with \"row\" or "
                               f"\"time_s\") or \"state\"")
-        o = ScanObservation(str(scan), state, units=e.get("units", "auto"), name=e.get("name", Path(scan).name))
+        o = ScanObservation(str(scan), state, units=e.get("units", "auto"), name=e.get("name", Path(scan).name),
+                            **_reading(e, what))
         o.sequence(design)  # checked against the design here
         obs.append(o)
     wrt = data.get("wrt")
@@ -251,8 +265,10 @@ def write_residual_figures(result: CalibrationResult, faces: np.ndarray, out_dir
         fig = plt.figure(figsize=(5, 4.5))
         ax = fig.add_subplot(projection="3d")
         v = m.vertices * 1e3
-        face_r = np.nanmean(np.where(np.isnan(m.vertex_residual[faces]), np.nan, m.vertex_residual[faces]), axis=1) \
-            if np.any(np.isfinite(m.vertex_residual)) else np.zeros(len(faces))
+        vr = m.vertex_residual[faces]
+        seen = np.isfinite(vr)
+        face_r = np.where(seen.any(axis=1), np.where(seen, vr, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1),
+                          np.nan)
         lim = max(float(np.nanmax(np.abs(face_r))) * 1e3, 1e-3) if np.any(np.isfinite(face_r)) else 1.0
         tri = ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=faces, cmap="coolwarm", vmin=-lim, vmax=lim,
                               linewidth=0.1, edgecolor="0.5")

@@ -54,26 +54,60 @@ class _Fit:
                        for o in observations]
         self.replays = 0
         self.seed = seed
+        self.pressures = {}  # id of a shapes array -> its chamber pressures
+        self.sigma = 3e-4  # m: a scan point's noise, what a pressure reading's row is scaled to (set_sigma)
+
+    def set_sigma(self, r: np.ndarray) -> None:
+        """The scans' robust residual scale (1.4826 median |r| of the scan rows of ``r``), m."""
+        n = sum(len(p) for p in self.points)
+        self.sigma = max(1.4826 * float(np.median(np.abs(r[:n]))), 1e-9)
 
     def shapes(self, x: np.ndarray) -> np.ndarray:
-        """(W, V, 3) the replayed membranes at parameters ``x``."""
+        """(W, V, 3) the replayed membranes at parameters ``x``; their chamber pressures (W,) Pa in
+        ``self.pressures[id of the array]``."""
         self.replays += 1
-        return replay_held(self.params.design(self.design, x), self.seqs, hold_s=self.hold_s, device=self.device)
+        shapes, p = replay_held(self.params.design(self.design, x), self.seqs, hold_s=self.hold_s,
+                                device=self.device, pressures=True)
+        self.pressures[id(shapes)] = p
+        return shapes
 
     def residuals(self, shapes: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(r (M,), aligned points (M, 3), normals (M, 3)) of every scan at its pose on ``shapes``."""
+        """(r (M,), aligned points (M, 3), d r / d point (M, 3)) of every scan at its pose on ``shapes``, then
+        one row per pressure reading: (model - reading) / its standard deviation x ``self.sigma`` (m), so
+        that it weighs as a scan point does (points and normals zero there)."""
         rs, ps, ns = [], [], []
         for x, pts, (rot, t) in zip(shapes, self.points, poses):
             p = pts @ rot.T + t
             q, _, n = closest_points_query((x, self.design.rest.faces), device=self.device)(p, normals=True)
-            rs.append(((p - q) * n).sum(axis=1))
+            r, u = signed_distances(p, q, n)
+            rs.append(r)
             ps.append(p)
-            ns.append(n)
+            ns.append(u)
+        read = [(w, o) for w, o in enumerate(self.obs) if o.pressure is not None]
+        if read:
+            model = self.pressures[id(shapes)]
+            rs.append(np.array([(model[w] - o.pressure) / o.pressure_stderr * self.sigma for w, o in read]))
+            ps.append(np.zeros((len(read), 3)))
+            ns.append(np.zeros((len(read), 3)))
         return np.concatenate(rs), np.concatenate(ps), np.concatenate(ns)
 
 
+def signed_distances(p: np.ndarray, q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(r (N,), u (N, 3)): the distance from each point ``p`` to its closest surface point ``q``, signed by
+    the side of the closest face (normal ``n``): continuous as the closest face changes (n . (p - q) is
+    not: it jumps at the edges of a coarse mesh), and u = d r / d p, the unit vector (p - q) / r (the
+    face normal on the surface)."""
+    v = p - q
+    d = np.linalg.norm(v, axis=1)
+    r = np.where((v * n).sum(axis=1) < 0.0, -d, d)
+    small = d < 1e-12
+    u = np.where(small[:, None], n, v / np.where(small, 1.0, r)[:, None])
+    return r, u
+
+
 def _robust_weights(r: np.ndarray, sizes: list[int]) -> np.ndarray:
-    """Huber IRLS weights per scan (robust scale 1.4826 median |r|), zero beyond ``REJECT_SIGMAS``."""
+    """Huber IRLS weights per scan (robust scale 1.4826 median |r|), zero beyond ``REJECT_SIGMAS``;
+    the rows after the scans' (pressure readings) weigh 1."""
     out, start = [], 0
     for n in sizes:
         a = np.abs(r[start:start + n])
@@ -82,6 +116,7 @@ def _robust_weights(r: np.ndarray, sizes: list[int]) -> np.ndarray:
         w[a > REJECT_SIGMAS * s] = 0.0
         out.append(w)
         start += n
+    out.append(np.ones(len(r) - start))
     return np.concatenate(out)
 
 
@@ -235,7 +270,8 @@ def _step(s: _State, lam: float, n_par: int) -> np.ndarray:
 
 
 def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: float) -> tuple[_State, dict]:
-    """Damped Gauss-Newton with IRLS weights, re-aligning each scan every iteration. A fresh
+    """Damped Gauss-Newton with IRLS weights; every step re-aligns each scan (its pose is an unknown of the
+    step, the closest points recomputed: a point-to-plane ICP update within the fit). A fresh
     finite-difference Jacobian at the start; Broyden updates after each accepted step; a fresh one when
     a step fails or gains less than ``tolerance`` noise variances; converged when a step on a fresh
     Jacobian gains less than that."""
@@ -258,7 +294,7 @@ def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: f
             pred = s.r + s.jacobian() @ dx
             jp = s.jp + np.outer(r1 - pred, (x1 - s.x)) / max(float((x1 - s.x) @ (x1 - s.x)), 1e-30)
             fresh = s.fresh
-            s = _State(fit, x1, _realign(fit, shapes1, poses1), shapes1)
+            s = _State(fit, x1, poses1, shapes1)  # re-aligned: the poses are unknowns of the step (ICP's update)
             s.jp, s.fresh = jp, False
             lam = max(lam / 3.0, 1e-7)
             info["costs"].append(s.cost())
@@ -386,9 +422,17 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, device: str = "c
     fit = _Fit(design, obs, params, device, hold_s, seed)
     shapes = fit.shapes(params.x0)
     s = _State(fit, params.x0.copy(), _initial_poses(fit, shapes), shapes)
+    fit.set_sigma(s.r)
     s = _State(fit, s.x, _realign(fit, shapes, s.poses), shapes)
     initial = [m.rms_mm for m in _maps(fit, s)]
     s, info = _levenberg_marquardt(fit, s, max_iterations, tolerance)
+    if any(o.pressure is not None for o in obs):  # the readings weighed at the final noise
+        jp, sigma0 = s.jp.copy(), fit.sigma
+        fit.set_sigma(s.r)
+        s2 = _State(fit, s.x, s.poses, s.shapes)
+        n = len(s.r) - sum(s.sizes)
+        jp[len(jp) - n:] *= fit.sigma / sigma0
+        s2.jp, s2.fresh, s = jp, s.fresh, s2
     se, names, notes, corr = _identify(s, fit)
     values = params.values(s.x)
     stderr = params.per_name(se * np.exp(s.x))

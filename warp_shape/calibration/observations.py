@@ -122,9 +122,13 @@ class ScanObservation:
     (N, 3) array or a mesh; in metres or millimetres (``units`` "auto" detects which, as ``compare``).
     ``result``: the ``ControlResult`` whose sequence the device played, the scan taken ``time`` s into it
     (None: at its end), after the membrane came to rest; or a ``ControlState`` given directly
-    (``time`` unused). ``name`` labels it in reports. The points are read and checked here."""
+    (``time`` unused). ``name`` labels it in reports. ``pressure``: the chamber's gauge pressure read
+    when the scan was taken (Pa; None: not read), with the sensor's standard deviation
+    ``pressure_stderr`` (Pa): a reading fixes the stiffness scale shape alone leaves loose
+    (docs/calibration.md). The points are read and checked here."""
 
-    def __init__(self, scan, result=None, time: float | None = None, *, units: str = "auto", name: str | None = None):
+    def __init__(self, scan, result=None, time: float | None = None, *, units: str = "auto", name: str | None = None,
+                 pressure: float | None = None, pressure_stderr: float = 100.0):
         if not isinstance(result, (ControlResult, ControlState, Sequence)):
             raise DesignError(f"ScanObservation needs the control result (ws.control returns one) or a ControlState "
                               f"it was taken at, got {type(result).__name__}")
@@ -141,6 +145,11 @@ class ScanObservation:
         check_scan_spread(self.points)
         self.faces = faces
         self.result, self.time = result, time
+        if pressure is not None and not (np.isfinite(pressure) and np.isfinite(pressure_stderr) and pressure_stderr > 0):
+            raise DesignError(f"{self.name}: the chamber pressure reading needs a finite pressure (Pa gauge) and "
+                              f"pressure_stderr > 0 (Pa), got {pressure!r}, {pressure_stderr!r}")
+        self.pressure = None if pressure is None else float(pressure)
+        self.pressure_stderr = float(pressure_stderr)
 
     def sequence(self, design: Design) -> Sequence:
         """The sequence to replay on ``design`` (checked against it: IPAM and cell counts)."""

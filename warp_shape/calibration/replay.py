@@ -31,11 +31,12 @@ def _passive(seqs: list[Sequence], n: int, attr: str) -> np.ndarray:
 
 
 def replay_held(design: Design, seqs: list[Sequence], *, hold_s: float = HOLD_S, precision: str = "float64",
-                device: str = "cpu") -> np.ndarray:
+                device: str = "cpu", pressures: bool = False):
     """(W, V, 3) float64 positions, m: every sequence of ``seqs`` replayed open loop from rest on
     ``design`` (one world each, the first sequence's simulation settings at ``precision``), as
     ``ws.replay`` does, then its last controls held for ``hold_s`` seconds and on until at rest
-    (``SETTLE_SPEED``, at most ``MAX_HOLD_S`` in all)."""
+    (``SETTLE_SPEED``, at most ``MAX_HOLD_S`` in all). With ``pressures`` also (W,) the chamber's
+    gauge pressure at the end, Pa."""
     settings = seqs[0].simulation.replace(precision=precision)
     sim = Simulator(design, device=device, settings=settings, worlds=len(seqs))
     mask_passive(sim, _passive(seqs, design.n_ipams, "passive_ipams"), _passive(seqs, design.n_cells, "passive_cells"))
@@ -57,4 +58,5 @@ def replay_held(design: Design, seqs: list[Sequence], *, hold_s: float = HOLD_S,
     while max_speeds(sim).max() > SETTLE_SPEED and end < limit:
         sim.step(SETTLE_CHUNK)
         end += SETTLE_CHUNK
-    return np.asarray(sim.positions, dtype=np.float64).reshape(len(seqs), -1, 3)
+    x = np.asarray(sim.positions, dtype=np.float64).reshape(len(seqs), -1, 3)
+    return (x, np.atleast_1d(np.asarray(sim.pressure(), dtype=np.float64))) if pressures else x

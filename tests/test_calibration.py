@@ -1,0 +1,220 @@
+"""Calibration from scans on synthetic devices (docs/calibration.md).
+
+The "device" is the 162-vertex Fig. 6 design with its parameters perturbed (E t +25 %, bending -40 %,
+each IPAM's k and A by up to +-20 %, rest scale +1.5 %), driven to four control states, held to rest
+and scanned: 60 % of the surface, 0.3 mm noise, a random rigid pose, one scan in millimetres; the
+chamber pressure is read with each scan (20 Pa noise), which fixes the common scale of E t, k and A
+that shape alone leaves loose (docs/calibration.md). IPAM 4's pressure never changes, so its area
+cannot be fitted: the fit must say so.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from warp_shape.calibration import ControlState, apply_values, replay_held, scan_residuals
+from warp_shape.calibration.files import apply_calibration, read_calibration, write_calibration
+from warp_shape.cli import main
+from warp_shape.model import host_model
+from warp_shape.objective_grad import fit_objective_and_gradient
+from warp_shape.scan import surface_samples
+from warp_shape.scenarios import cube_fig6_design
+
+NOISE = 3e-4  # m, per coordinate
+POINTS = 5000  # per scan
+COVERAGE = 0.6
+PRESSURE_NOISE = 20.0  # Pa, the chamber pressure sensor (0.2 % of a 10 kPa range)
+
+
+def rotation(rng) -> np.ndarray:
+    q = rng.normal(size=4)
+    a, b, c, d = q / np.linalg.norm(q)
+    return np.array([[a*a + b*b - c*c - d*d, 2*(b*c - a*d), 2*(b*d + a*c)],
+                     [2*(b*c + a*d), a*a - b*b + c*c - d*d, 2*(c*d - a*b)],
+                     [2*(b*d - a*c), 2*(c*d + a*b), a*a - b*b - c*c + d*d]])
+
+
+def scan_of(mesh: ws.TriMesh, rng) -> np.ndarray:
+    """A one-sided scan of ``COVERAGE`` of the surface, noisy, in a random pose (m)."""
+    pts = surface_samples(mesh, int(POINTS / COVERAGE), seed=int(rng.integers(1 << 30)))
+    u = rng.normal(size=3)
+    u /= np.linalg.norm(u)
+    dirs = pts - mesh.centroid()
+    pts = pts[(dirs / np.linalg.norm(dirs, axis=1, keepdims=True)) @ u > 1 - 2 * COVERAGE]
+    pts = pts + rng.normal(0.0, NOISE, pts.shape)
+    return pts @ rotation(rng).T + rng.normal(0.0, 0.05, 3)
+
+
+class Device:
+    """The default design, the perturbed "device", its states and their scans."""
+
+    def __init__(self, seed: int = 1):
+        rng = np.random.default_rng(seed)
+        self.design = d = cube_fig6_design(subdivisions=2)
+        k0 = np.array([ip.stiffness for ip in d.ipams])
+        a0 = np.array([ip.area for ip in d.ipams])
+        self.truth = dict(youngs_modulus=d.material.youngs_modulus * 1.25,
+                          bending_stiffness=d.material.bending_stiffness * 0.6,
+                          ipam_stiffness=k0 * rng.uniform(0.8, 1.2, 5), ipam_area=a0 * rng.uniform(0.8, 1.2, 5),
+                          rest_scale=1.015)
+        self.device = apply_values(d, self.truth)
+        n = host_model(d).rest_air
+        self.states = [ControlState(n * 1.6, (200e3, -30e3, 100e3, 0.0, 0.0)),
+                       ControlState(n * 1.9, (0.0, 220e3, -40e3, 150e3, 0.0)),
+                       ControlState(n * 2.2, (250e3, 120e3, 180e3, -40e3, 0.0)),
+                       ControlState(n * 1.8, (80e3, 100e3, 240e3, 60e3, 0.0))]  # held out
+        probe = [ws.ScanObservation(np.random.default_rng(0).random((60, 3)) * 0.05, s) for s in self.states]
+        shapes, pressures = replay_held(self.device, [o.sequence(self.device) for o in probe], pressures=True)
+        self.scans = [scan_of(self.device.rest.copy_with(x), rng) for x in shapes]
+        read = pressures + rng.normal(0.0, PRESSURE_NOISE, len(pressures))  # the chamber's sensor
+        self.obs = [ws.ScanObservation(p * (1e3 if i == 0 else 1.0), s, name=f"s{i}", pressure=r,  # s0 in mm
+                                       pressure_stderr=PRESSURE_NOISE)
+                    for i, (p, s, r) in enumerate(zip(self.scans, self.states, read))]
+        self.cal = ws.calibrate(d, self.obs[:3])
+
+
+@pytest.fixture(scope="module")
+def dev():
+    return Device()
+
+
+def test_units_of_the_scans_are_detected(dev):
+    assert dev.obs[0].units == "mm" and dev.obs[1].units == "m"
+    assert np.allclose(dev.obs[0].points, dev.scans[0])
+
+
+def test_identifiable_parameters_are_recovered_and_their_errors_cover_the_truth(dev):
+    cal = dev.cal
+    assert cal.unidentifiable == ["ipam_area[4]"]
+    assert "pressure never changed" in cal.notes[0]
+    assert not np.isfinite(cal.stderr["ipam_area"][4])
+    for name, truth in dev.truth.items():
+        value, se = np.atleast_1d(cal.values[name]), np.atleast_1d(cal.stderr[name])
+        truth = np.broadcast_to(truth, value.shape)
+        seen = np.isfinite(se)
+        err = np.abs(value / truth - 1.0)
+        assert np.all(np.abs(value - truth)[seen] <= 3.0 * se[seen]), (name, value, truth, se)  # 3 sigma coverage
+        well = seen & (se / value < 0.01)  # determined to 1 %: recovered within 3 %
+        assert np.all(err[well] < 0.03), (name, err, se / value)
+    for name in ("youngs_modulus", "rest_scale"):
+        assert cal.stderr[name] / cal.values[name] < 0.01
+    assert all(r < 1.1 * NOISE * 1e3 for r in cal.residual_mm)
+    assert all(b > a for a, b in zip(cal.residual_mm, cal.initial_residual_mm))
+
+
+def test_a_held_out_scan_is_predicted_within_the_scanner_noise(dev):
+    before = scan_residuals(dev.design, dev.obs[3]).rms_mm
+    after = scan_residuals(dev.cal.design, dev.obs[3]).rms_mm
+    assert after <= 1.2 * NOISE * 1e3 < before
+
+
+def _objective_on(device, result, target) -> float:
+    x = ws.replay(device, result)
+    t = target.centered()
+    return fit_objective_and_gradient(x, ws.RadialSampler(t), 0, device.rest.faces, t.volume())[0]
+
+
+def test_the_calibrated_model_predicts_what_its_sequences_do_on_the_device(dev):
+    """Each target of the default problem controlled on the default and on the calibrated model, every
+    sequence replayed on the device: the calibrated model's own fit objective is the closer prediction
+    of the device's. (Whether the device then fits the target better is measured in docs/calibration.md:
+    at these perturbations the two sequences give the device nearly the same fit.)"""
+    settings = ws.ControlSettings(method="paper")
+    for name in ("oval", "heart"):
+        target = ws.target(name)
+        errors = []
+        for model in (dev.design, dev.cal.design):
+            res = ws.control(model, target, settings=settings)
+            errors.append(abs(_objective_on(dev.device, res, target) - _objective_on(model, res, target)))
+        assert errors[1] < errors[0], (name, errors)
+
+
+def test_the_calibration_file_round_trips_and_is_checked(dev, tmp_path):
+    path = write_calibration(dev.cal, dev.design, tmp_path / "calibration.json")
+    data = json.loads(path.read_text())
+    assert data["version"] == 1 and data["units"]["youngs_modulus"] == "Pa"
+    assert data["stderr"]["ipam_area"][4] is None and data["unidentifiable"] == ["ipam_area[4]"]
+    d = apply_calibration(dev.design, path)
+    assert d.material.youngs_modulus == pytest.approx(dev.cal.values["youngs_modulus"])
+    assert [ip.area for ip in d.ipams] == pytest.approx(list(dev.cal.values["ipam_area"]))
+    assert read_calibration(path)["rest_scale"] == pytest.approx(dev.cal.values["rest_scale"])
+    with pytest.raises(ws.DesignError, match="5 IPAMs"):
+        apply_calibration(ws.Design(dev.design.rest), path)
+    (tmp_path / "bad.json").write_text('{"format": "warp-shape calibration", "version": 1, '
+                                       '"values": {"youngs_modulus": -3}}')
+    with pytest.raises(ws.DesignError, match="positive"):
+        read_calibration(tmp_path / "bad.json")
+
+
+# ------------------------------------------------------------------------------------ the command line
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """A lab folder: the design (162 vertices), a scan of the default device at one state, a manifest."""
+    import trimesh
+
+    root = tmp_path_factory.mktemp("lab")
+    design = cube_fig6_design(subdivisions=2)
+    ws.save_scene(ws.Scene(design=design, targets=[ws.target("oval")], target_names=["oval"]), root / "design.usda")
+    n = host_model(design).rest_air
+    state = {"air_mol": n * 1.8, "ipam_pressures_kpa": [150, 0, 100, 50, 0], "jammed": []}
+    rng = np.random.default_rng(3)
+    shape = replay_held(design, [ws.ScanObservation(rng.random((60, 3)) * 0.05, ControlState(
+        state["air_mol"], tuple(p * 1e3 for p in state["ipam_pressures_kpa"]))).sequence(design)])[0]
+    trimesh.PointCloud(scan_of(design.rest.copy_with(shape), rng) * 1e3).export(root / "scan.ply")
+    trimesh.PointCloud(surface_samples(ws.TriMesh(*_cylinder()), 3000) * 1e3).export(root / "pipe.ply")
+    g = np.stack(np.meshgrid(np.linspace(0, 0.03, 40), np.linspace(0, 0.03, 40)), -1).reshape(-1, 2)
+    trimesh.PointCloud(np.c_[g, np.zeros(len(g))] * 1e3).export(root / "patch.ply")
+    return root, state
+
+
+def _cylinder():
+    import trimesh
+
+    c = trimesh.creation.cylinder(radius=0.01, height=0.15, sections=32)
+    return np.asarray(c.vertices, np.float64), np.asarray(c.faces, np.int32)
+
+
+def _manifest(root, name, observations) -> str:
+    (root / name).write_text(json.dumps({"observations": observations}))
+    return str(root / name)
+
+
+def _calibrate(root, manifest, out, *extra):
+    return main(["calibrate", manifest, "--design", str(root / "design.usda"), "--out", str(out), *extra])
+
+
+@pytest.mark.parametrize("scan,state,message", [
+    ("pipe.ply", None, "does not match the display"),
+    ("patch.ply", None, "no overlap"),
+    ("scan.ply", {"air_mol": 0.01, "ipam_pressures_kpa": [0, 0, 0], "jammed": []}, "has 5 IPAMs"),
+    ("../outside.ply", None, "outside the manifest's folder"),
+])
+def test_bad_input_is_one_line_and_writes_nothing(lab, tmp_path, capsys, scan, state, message):
+    root, good = lab
+    manifest = _manifest(root, f"bad_{scan.strip('./')}.json", [{"scan": scan, "state": state or good}])
+    out = tmp_path / "cal"
+    assert _calibrate(root, manifest, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_calibrate_command_writes_a_file_that_control_takes(lab, tmp_path, capsys):
+    root, state = lab
+    manifest = _manifest(root, "good.json", [{"scan": "scan.ply", "state": state}])
+    out = tmp_path / "cal"
+    assert _calibrate(root, manifest, out, "--wrt", "youngs_modulus", "rest_scale") == 0
+    text = capsys.readouterr().out
+    assert "youngs_modulus" in text and (out / "calibration.md").is_file()
+    data = json.loads((out / "calibration.json").read_text())
+    assert set(data["values"]) == {"youngs_modulus", "rest_scale"}
+    assert abs(data["values"]["rest_scale"] - 1.0) < 0.005  # the scan is of the default device
+    assert main(["control", str(root / "design.usda"), "--calibration", str(out / "calibration.json"),
+                 "--method", "paper", "--max-steps", "5", "--out", str(tmp_path / "ctl")]) == 0
+    assert main(["control", str(root / "design.usda"), "--calibration", str(root / "scan.ply"),
+                 "--out", str(tmp_path / "ctl2")]) == 2
+    assert "is not JSON" in capsys.readouterr().err
