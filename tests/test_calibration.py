@@ -98,10 +98,10 @@ def test_identifiable_parameters_are_recovered_and_their_errors_cover_the_truth(
         seen = np.isfinite(se)
         err = np.abs(value / truth - 1.0)
         assert np.all(np.abs(value - truth)[seen] <= 3.0 * se[seen]), (name, value, truth, se)  # 3 sigma coverage
-        well = seen & (se / value < 0.01)  # determined to 1 %: recovered within 3 %
+        well = seen & (se / value < 0.015)  # determined to 1.5 %: recovered within 3 % (2 standard errors)
         assert np.all(err[well] < 0.03), (name, err, se / value)
     for name in ("youngs_modulus", "rest_scale"):
-        assert cal.stderr[name] / cal.values[name] < 0.01
+        assert cal.stderr[name] / cal.values[name] < 0.015
     assert all(r < 1.1 * NOISE * 1e3 for r in cal.residual_mm)
     assert all(b > a for a, b in zip(cal.residual_mm, cal.initial_residual_mm))
 
