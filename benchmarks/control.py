@@ -9,20 +9,98 @@ paper's law in every round) driven to both its targets in one batch. Each case r
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 
 import numpy as np
 
 from warp_shape.controller import ControlSettings, control_many
+from warp_shape.controller.history import History
+from warp_shape.controller.laws import PaperLaw
+from warp_shape.controller.loop import run_law
+from warp_shape.controller.observe import Observer
 from warp_shape.design import Design
 from warp_shape.designer import design
 from warp_shape.io.scene_read import load_scene
 from warp_shape.scenarios import cube_fig6_design
+from warp_shape.simulator import Simulator
+from warp_shape.step_plan import StepPlan
 from warp_shape.targets import target
 
-__all__ = ["bench_control", "fig6_with_ipams", "CONTROL_COLUMNS"]
+__all__ = ["bench_control", "fig6_with_ipams", "CONTROL_COLUMNS", "control_breakdown", "BREAKDOWN_COLUMNS"]
 
 CONTROL_COLUMNS = ["case", "vertices", "ipams", "targets", "paper_s", "inverse_s", "ratio", "paper_objective",
                    "inverse_objective", "paper_mare_mm", "inverse_mare_mm", "plans", "iterations", "world_steps"]
+
+
+BREAKDOWN_COLUMNS = ["worlds", "vertices", "periods", "period_ms", "device_ms", "host_ms", "host_share",
+                     "observe_ms", "stable_step_ms", "law_ms", "record_ms", "other_host_ms"]
+
+#: the host phases of a control period timed by ``control_breakdown``: (name, owner, method)
+_PHASES = (("observe", Observer, "observe"), ("stable_step", Simulator, "stable_dt"), ("law", PaperLaw, "step"),
+           ("record", History, "record"))
+
+
+@contextmanager
+def _timed(phases):
+    """Wrap each (name, owner, method) of ``phases`` and ``StepPlan.run`` (the step kernels) with a wall
+    clock; yields the {name: seconds} totals (time inside the step kernels is not counted again in
+    the phase that launched it)."""
+    totals = {name: 0.0 for name, _, _ in phases}
+    totals["device"] = 0.0
+    stack = []
+    originals = [(owner, method, getattr(owner, method)) for _, owner, method in phases] + \
+        [(StepPlan, "run", StepPlan.run)]
+
+    def wrap(name, fn):
+        def timed(*args, **kwargs):
+            stack.append(0.0)
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                dt = time.perf_counter() - t0
+                inner = stack.pop()
+                totals[name] += dt - inner
+                if stack:
+                    stack[-1] += dt
+        return timed
+
+    for (name, _, _), (owner, method, fn) in zip(list(phases) + [("device", None, None)], originals):
+        setattr(owner, method, wrap(name, fn))
+    try:
+        yield totals
+    finally:
+        for owner, method, fn in originals:
+            setattr(owner, method, fn)
+
+
+def _differing_targets(worlds: int) -> list:
+    """``worlds`` targets, all different: the four shipped shapes in turn, each scaled a little."""
+    base = [target(n) for n in ("cube", "oval", "pear", "heart")]
+    return [base[w % 4].scaled(1.0 + 0.002 * (w // 4)) for w in range(worlds)]
+
+
+def control_breakdown(worlds: int = 64, periods: int = 20, device: str = "cpu") -> dict:
+    """Where a control period's wall time goes for ``worlds`` differing worlds (the paper's law driving
+    the 642-vertex Fig. 6 device to different targets): the step kernels (device) against the host
+    work (observation, stable-step estimates, the law, the history), per period over ``periods``
+    control periods (``BREAKDOWN_COLUMNS``). On a CPU device the kernels run on the host's core too;
+    "device" is the time inside the captured step kernels."""
+    d = cube_fig6_design()
+    targets = _differing_targets(worlds)
+    settings = ControlSettings(method="paper", max_steps=periods, max_settle_steps=0)
+    run_law(d, targets[:1], PaperLaw, device=device, settings=settings.replace(max_steps=2))  # warm up: kernels loaded
+    with _timed(_PHASES) as totals:
+        t0 = time.perf_counter()
+        results = run_law(d, targets, PaperLaw, device=device, settings=settings)
+        wall = time.perf_counter() - t0
+    n = max(int(max(r.control_steps for r in results)), 1)
+    host = wall - totals["device"]
+    ms = lambda v: round(1e3 * v / n, 2)  # noqa: E731
+    return dict(worlds=worlds, vertices=d.rest.n_vertices, periods=n, period_ms=ms(wall), device_ms=ms(totals["device"]),
+                host_ms=ms(host), host_share=round(host / wall, 3), observe_ms=ms(totals["observe"]),
+                stable_step_ms=ms(totals["stable_step"]), law_ms=ms(totals["law"]), record_ms=ms(totals["record"]),
+                other_host_ms=ms(host - sum(totals[k] for k, _, _ in _PHASES)))
 
 
 def fig6_with_ipams(n: int, subdivisions: int = 3) -> Design:

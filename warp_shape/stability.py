@@ -21,7 +21,8 @@ from .physics.jamming import jammed_factor_np
 from .physics.pressure import pressure_rows_np, volumes_np
 from .physics.springs import spring_operator_terms, spring_rows_np
 
-__all__ = ["stable_dt_estimate", "elastic_omega2_bound", "lanczos_upper_bound", "ElasticOperator", "substeps_for",
+__all__ = ["stable_dt_estimate", "elastic_omega2_bound", "lanczos_upper_bound", "lanczos_upper_bounds", "ElasticOperator",
+           "BatchedElasticOperator", "substeps_for",
            "jammed_stiffness", "gershgorin_rows", "check_fixed_step", "worlds_identical", "LANCZOS_SAFETY",
            "LANCZOS_STEPS", "check_stable_dt", "substeps_error", "check_chamber", "check_storable"]
 
@@ -119,21 +120,113 @@ def jammed_stiffness(model: Model, edge_jammed: np.ndarray):
     return k_edge, kt
 
 
+class BatchedElasticOperator:
+    """The ``ElasticOperator`` of W worlds applied at once: y (W, n) = M^-1/2 K_w M^-1/2 u (W, n) for
+    every world w, with the same arithmetic per world as ``ElasticOperator`` (so the same values, bit
+    for bit): one NumPy pass per term over all worlds instead of one per world. ``ops``: the per-world
+    operators of one model (same springs, hinges and actuator elements; their stiffness and positions
+    may differ)."""
+
+    def __init__(self, ops: list):
+        first = ops[0]
+        self.W, self.V, self.inv_sqrt = len(ops), first.V, first.inv_sqrt
+        self.a, self.b = first.a, first.b
+        self.dir = np.stack([op.dir for op in ops])  # (W, 3, n)
+        self.k_diff = np.stack([op.k_diff for op in ops])[:, None, :]  # (W, 1, n)
+        self.k_tr = np.stack([op.k_tr for op in ops])[:, None, :]
+        self.grad = None
+        base = (np.arange(self.W) * self.V)[:, None]
+        self.idx2 = (base + first.idx2[None]).reshape(-1)
+        if first.grad is not None:
+            self.hinges = first.hinges
+            self.kt = np.stack([op.kt for op in ops])[:, None, :]  # (W, 1, E)
+            self.grad = [np.stack([op.grad[c] for op in ops]) for c in range(4)]  # 4 x (W, 3, E)
+            self.idx4 = (base + first.idx4[None]).reshape(-1)
+
+    def scatter(self, idx: np.ndarray, vals: np.ndarray) -> np.ndarray:
+        """(W, 3, V) sums of vals (W, 3, n) by vertex index; idx (W n,) holds w V + vertex, world-major."""
+        n = self.W * self.V
+        return np.stack([np.bincount(idx, weights=vals[:, c].reshape(-1), minlength=n).reshape(self.W, self.V)
+                         for c in range(3)], axis=1)
+
+    @staticmethod
+    def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Dot products over the coordinate axis of two (W, 3, n) arrays: (W, 1, n)."""
+        return (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2])[:, None, :]
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        u = u.reshape(self.W, 3, -1) * self.inv_sqrt
+        du = u[:, :, self.b] - u[:, :, self.a]
+        ax = self.dot3(du, self.dir)
+        kb = self.dir * (self.k_diff * ax) + du * self.k_tr
+        out = self.scatter(self.idx2, np.concatenate([-kb, kb], axis=2))
+        if self.grad is not None:
+            s = sum(self.dot3(g, u[:, :, hc]) for g, hc in zip(self.grad, self.hinges)) * self.kt
+            out += self.scatter(self.idx4, np.concatenate([g * s for g in self.grad], axis=2))
+        return (out * self.inv_sqrt).reshape(self.W, -1)
+
+
+def lanczos_upper_bounds(op, worlds: int, n: int, steps: int = 12, seed: int = 0) -> np.ndarray:
+    """(W,) ``lanczos_upper_bound`` of every world of a batched operator ``op`` ((W, n) -> (W, n)),
+    all worlds in one pass per step with the same start vector and arithmetic per world as the
+    single-world run (the same values, bit for bit). A world whose Krylov space closes early (tiny
+    beta) keeps its shorter tridiagonal matrix, as the single-world run does."""
+    rng = np.random.default_rng(seed)
+    q1 = rng.standard_normal(n)
+    q1 /= math.sqrt(float(np.sum(q1 * q1)))
+    q = np.tile(q1, (worlds, 1))
+    q_prev = np.zeros((worlds, n))
+    alpha, beta = np.zeros((worlds, steps)), np.zeros((worlds, steps))
+    length = np.full(worlds, steps)
+    b = np.zeros(worlds)
+    live = np.ones(worlds, dtype=bool)
+    for k in range(steps):
+        w = op(q)
+        a = np.sum(q * w, axis=1)
+        w -= a[:, None] * q + b[:, None] * q_prev
+        b = np.sqrt(np.sum(w * w, axis=1))
+        alpha[live, k], beta[live, k] = a[live], b[live]
+        closed = live & (b <= 1e-14 * np.maximum(np.abs(a), 1e-300))
+        length[closed] = k + 1
+        live &= ~closed
+        if not live.any():
+            break
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q_prev, q = q, np.where(live[:, None], w / b[:, None], q)
+    out = np.zeros(worlds)
+    for k in np.unique(length):
+        sel = np.flatnonzero(length == k)
+        T = np.zeros((sel.size, k, k))
+        i = np.arange(k)
+        T[:, i, i] = alpha[sel, :k]
+        T[:, i[:-1], i[1:]] = beta[sel, :k - 1]
+        T[:, i[1:], i[:-1]] = beta[sel, :k - 1]
+        out[sel] = np.linalg.eigvalsh(T).max(axis=1) + beta[sel, k - 1]
+    return out
+
+
+#: worlds per batched Lanczos pass (bounds the scratch memory: about 60 float64 values per vertex per world)
+LANCZOS_BATCH = 256
+
+
 def elastic_omega2_bound(model: Model, edge_jammed: np.ndarray, x: np.ndarray,
                          rest_length: np.ndarray | None = None, steps: int = LANCZOS_STEPS) -> np.ndarray:
     """(W,) bound on the largest eigenvalue of M^-1/2 K M^-1/2 for the elastic stiffness (springs,
     hinges, IPAMs): LANCZOS_SAFETY x a short Lanczos bound. Depends on the jam state and, mildly, on
     positions (directions, tension); the Simulator caches it between jams, position sets and periodic
-    re-estimates, and stable_dt_estimate caps it by the Gershgorin bound."""
+    re-estimates, and stable_dt_estimate caps it by the Gershgorin bound. The worlds run together
+    (``lanczos_upper_bounds``, up to ``LANCZOS_BATCH`` at a time), each with the value a run of its own gives."""
     h = model.host
     W = x.shape[0]
     E = h.hinges.shape[0]
     rest = np.broadcast_to(h.rest_length, (W, E)) if rest_length is None else rest_length
     k_edge, kt = jammed_stiffness(model, edge_jammed)
     out = np.zeros(W)
-    for w in range(W):
-        op = ElasticOperator(model, x[w], k_edge[w], rest[w], None if kt is None else kt[w])
-        out[w] = LANCZOS_SAFETY * lanczos_upper_bound(op, 3 * model.n_vertices, steps)
+    for start in range(0, W, LANCZOS_BATCH):
+        ws = range(start, min(W, start + LANCZOS_BATCH))
+        ops = [ElasticOperator(model, x[w], k_edge[w], rest[w], None if kt is None else kt[w]) for w in ws]
+        out[start:start + len(ops)] = LANCZOS_SAFETY * lanczos_upper_bounds(
+            BatchedElasticOperator(ops), len(ops), 3 * model.n_vertices, steps)
     return out
 
 
