@@ -27,7 +27,7 @@ from .mesh import TriMesh
 
 __all__ = [
     "RadialSampler", "radial_sample", "check_star_shaped", "fibonacci_directions",
-    "pcc", "mare", "mpre", "shape_metrics", "fit_objective", "radial_metrics", "vertex_area_shares",
+    "pcc", "mare", "mpre", "shape_metrics", "fit_objective", "radial_metrics", "vertex_area_shares", "fit_metrics",
 ]
 
 # Tilt (rad) of the retry rays cast when a ray slips between faces at a vertex or edge.
@@ -172,6 +172,9 @@ class RadialSampler:
                          t.vertices[t.faces[:, 2]] - t.vertices[t.faces[:, 0]])
             n /= np.linalg.norm(n, axis=1, keepdims=True)
             self._planes.append((n, np.einsum("ij,ij->i", n, t.vertices[t.faces[:, 0]])))
+        self._plane_offsets = np.cumsum([0] + [len(n) for n, _ in self._planes[:-1]])  # first row of each target
+        self._all_normals = np.concatenate([n for n, _ in self._planes])
+        self._all_offsets = np.concatenate([o for _, o in self._planes])
 
     def mesh_ids(self, world_targets=None) -> wp.array:
         """(W,) uint64 BVH ids on the device: world w samples target ``world_targets[w]``."""
@@ -254,16 +257,16 @@ class RadialSampler:
         on_plane = np.zeros(faces.shape, dtype=bool)
         # Refine in float64: intersect the exact ray with the plane of the face hit (float32 only
         # chose the face). Keeps hits on the original ray and exact at the target's own vertices.
+        # All worlds at once: every target's planes stacked, world w's faces offset to its target's.
         d = p / np.linalg.norm(p, axis=2, keepdims=True)
-        for w in range(p.shape[0]):
-            n, off = self._planes[wt[w]]
-            nf, of = n[faces[w]], off[faces[w]]
-            dn = np.einsum("ij,ij->i", d[w], nf)
-            ok = np.abs(dn) > 1e-3
-            t64 = np.where(ok, of / np.where(ok, dn, 1.0), radii[w])
-            # keep float32 where the plane answer is far off (a retry hit on a neighbouring face)
-            on_plane[w] = ok & (np.abs(t64 - radii[w]) < 1e-3 * self.max_t)
-            radii[w] = np.where(on_plane[w], t64, radii[w])
+        rows = self._plane_offsets[wt][:, None] + faces
+        nf, of = self._all_normals[rows], self._all_offsets[rows]
+        dn = np.einsum("wij,wij->wi", d, nf)
+        ok = np.abs(dn) > 1e-3
+        t64 = np.where(ok, of / np.where(ok, dn, 1.0), radii)
+        # keep float32 where the plane answer is far off (a retry hit on a neighbouring face)
+        on_plane = ok & (np.abs(t64 - radii) < 1e-3 * self.max_t)
+        radii = np.where(on_plane, t64, radii)
         return d * radii[..., None], faces, on_plane
 
     def face_planes(self, target: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -372,6 +375,43 @@ def fit_objective(r, R, target_volume: float, weights=None) -> float:
         raise ShapeError(f"objective: weights must be {r.size} finite non-negative numbers, not all zero")
     e = (R - r) / float(target_volume) ** (1.0 / 3.0)
     return float(np.sqrt(np.sum(w * e * e) / np.sum(w)))
+
+
+def fit_metrics(r: np.ndarray, R: np.ndarray, target_volumes, weights: np.ndarray) -> dict:
+    """Per world the fit of paired radii ``r``, ``R`` (W, N): ``objective`` (``fit_objective`` with
+    ``target_volumes`` (W,) m^3 and ``weights`` (W, N)), ``pcc``, ``mare`` (m) and ``mpre`` (%), each a
+    (W,) array with the values the single-world functions give (the same arithmetic per row), all
+    worlds checked and reduced at once."""
+    r = numeric_array(r, "fit: r (radii, m)", ShapeError)
+    R = numeric_array(R, "fit: R (radii, m)", ShapeError)
+    w = np.asarray(weights, dtype=np.float64)
+    if r.ndim != 2 or r.shape != R.shape or w.shape != r.shape or r.shape[1] < 2:
+        raise ShapeError(f"fit: r, R and weights must be (W, N) arrays of the same shape with N >= 2, got "
+                         f"{r.shape}, {R.shape} and {w.shape}")
+    vols = np.asarray(target_volumes, dtype=np.float64).reshape(-1)
+    if vols.shape != (r.shape[0],) or not np.all(np.isfinite(vols)) or np.any(vols <= 0):
+        raise ShapeError(f"fit: one positive target volume per world needed, got {vols.tolist()} m^3")
+    for arr, nm in ((r, "r"), (R, "R")):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            k = np.argwhere(bad)[0]
+            raise ShapeError(f"fit: {nm}[{k[0]}, {k[1]}] is not finite ({int(bad.sum())} non-finite value(s))")
+    if not np.all(np.isfinite(w)) or np.any(w < 0) or np.any(w.sum(axis=1) <= 0):
+        raise ShapeError("fit: weights must be finite non-negative numbers, not all zero in a world")
+    if np.any(R <= 0):
+        k = np.argwhere(R <= 0)[0]
+        raise ShapeError(f"MPRE: sampled radius R[{k[0]}, {k[1]}] is not positive")
+    scale = np.array([float(v) ** (1.0 / 3.0) for v in vols])[:, None]
+    e = (R - r) / scale
+    objective = np.sqrt(np.sum(w * e * e, axis=1) / np.sum(w, axis=1))
+    flat = (np.std(r, axis=1) <= FLAT_SPREAD * np.mean(np.abs(r), axis=1)) | \
+        (np.std(R, axis=1) <= FLAT_SPREAD * np.mean(np.abs(R), axis=1))
+    dr, dR = r - r.mean(axis=1, keepdims=True), R - R.mean(axis=1, keepdims=True)
+    corr = np.array([0.0 if flat[k] else float(np.dot(dr[k], dR[k]) / np.sqrt(float(np.dot(dr[k], dr[k]))
+                                                                          * float(np.dot(dR[k], dR[k]))))
+                     for k in range(r.shape[0])])
+    err = np.abs(r - R)
+    return dict(objective=objective, pcc=corr, mare=np.mean(err, axis=1), mpre=100.0 * np.mean(err / R, axis=1))
 
 
 def radial_metrics(r, R) -> dict:

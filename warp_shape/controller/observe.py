@@ -17,7 +17,7 @@ import numpy as np
 from ..model import HostModel
 from ..physics.ipam import IPAM
 from ..physics.pressure import volumes_np
-from ..sampling import RadialSampler, fit_objective, mare, mpre, pcc, vertex_area_shares
+from ..sampling import RadialSampler, fit_metrics, vertex_area_shares
 
 __all__ = ["Observation", "Observer", "ipam_lengths_and_forces",
            "ipam_neutral_pressures", "vertex_area_shares", "fit_of"]
@@ -83,12 +83,7 @@ def fit_of(positions: np.ndarray, sampled: np.ndarray, faces: np.ndarray, target
     ``target_volumes`` (W,), the target meshes' own volumes), ``pcc``, ``mare`` (m), ``mpre`` (%), each
     a (W,) array."""
     r, R = np.linalg.norm(positions, axis=2), np.linalg.norm(sampled, axis=2)
-    w = vertex_area_shares(sampled, faces)
-    W = len(r)
-    return dict(objective=np.array([fit_objective(r[k], R[k], target_volumes[k], w[k]) for k in range(W)]),
-                pcc=np.array([pcc(r[k], R[k]) for k in range(W)]),
-                mare=np.array([mare(r[k], R[k]) for k in range(W)]),
-                mpre=np.array([mpre(r[k], R[k]) for k in range(W)]))
+    return fit_metrics(r, R, target_volumes, vertex_area_shares(sampled, faces))
 
 
 class Observer:
@@ -126,5 +121,5 @@ class Observer:
             ipam_target_lengths=ipam["target_lengths"], ipam_forces=ipam["forces"], kappa=_curvatures(np.linalg.norm(cen, axis=2), host),
             kappa_target=_curvatures(np.linalg.norm(cen_t, axis=2), host),
             jammed=np.asarray(sim.jammed).reshape(W, host.n_cells),
-            mean_stretch=np.array([s.mean() for s in stretch]), max_speed=np.linalg.norm(v, axis=2).max(axis=1),
+            mean_stretch=stretch.mean(axis=1), max_speed=np.linalg.norm(v, axis=2).max(axis=1),
             actuators=parts, **fit)
