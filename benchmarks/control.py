@@ -16,11 +16,13 @@ import numpy as np
 from warp_shape.controller import ControlSettings, control_many
 from warp_shape.controller.history import History
 from warp_shape.controller.laws import PaperLaw
+from warp_shape.controller import loop as control_loop
 from warp_shape.controller.loop import run_law
 from warp_shape.controller.observe import Observer
 from warp_shape.design import Design
 from warp_shape.designer import design
 from warp_shape.io.scene_read import load_scene
+from warp_shape.sampling import RadialSampler
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.simulator import Simulator
 from warp_shape.step_plan import StepPlan
@@ -32,28 +34,33 @@ CONTROL_COLUMNS = ["case", "vertices", "ipams", "targets", "paper_s", "inverse_s
                    "inverse_objective", "paper_mare_mm", "inverse_mare_mm", "plans", "iterations", "world_steps"]
 
 
-BREAKDOWN_COLUMNS = ["worlds", "vertices", "periods", "period_ms", "device_ms", "host_ms", "host_share",
-                     "observe_ms", "stable_step_ms", "law_ms", "record_ms", "other_host_ms"]
+BREAKDOWN_COLUMNS = ["worlds", "vertices", "periods", "period_ms", "device_ms", "step_kernels_ms", "ray_kernels_ms",
+                     "host_ms", "host_share", "observe_ms", "stable_step_ms", "law_ms", "record_ms", "other_host_ms"]
 
-#: the host phases of a control period timed by ``control_breakdown``: (name, owner, method)
-_PHASES = (("observe", Observer, "observe"), ("stable_step", Simulator, "stable_dt"), ("law", PaperLaw, "step"),
-           ("record", History, "record"))
+#: the phases of a control period timed by ``control_breakdown``: (name, owner, method); the first two
+#: are kernels (the step, the radial sampling's rays), the others host work
+_PHASES = (("step_kernels", StepPlan, "run"), ("ray_kernels", RadialSampler, "launch"),
+           ("observe", Observer, "observe"), ("stable_step", Simulator, "stable_dt"), ("law", PaperLaw, "step"),
+           ("record", History, "record"), ("loop", control_loop, "_run"))
+_KERNELS = ("step_kernels", "ray_kernels")
 
 
 @contextmanager
 def _timed(phases, clock=time.process_time):
-    """Wrap each (name, owner, method) of ``phases`` and ``StepPlan.run`` (the step kernels) with
-    ``clock`` (default: the process's CPU time, which other jobs on a shared machine do not inflate);
-    yields the {name: seconds} totals (time inside an inner timed call is not counted again in the
-    phase that made it)."""
+    """Wrap each (name, owner, method) of ``phases`` with ``clock`` (default: the process's CPU time,
+    which other jobs on a shared machine do not inflate); yields the {name: seconds} totals, each
+    without the time of the timed calls made inside it. Only the outermost phase (the last) counts
+    calls made outside every timed call (the others, e.g. the sampling of a setup, run untimed)."""
     totals = {name: 0.0 for name, _, _ in phases}
-    totals["device"] = 0.0
     stack = []
-    originals = [(owner, method, getattr(owner, method)) for _, owner, method in phases] + \
-        [(StepPlan, "run", StepPlan.run)]
+    originals = [(owner, method, getattr(owner, method)) for _, owner, method in phases]
+
+    outer = phases[-1][0]
 
     def wrap(name, fn):
         def timed(*args, **kwargs):
+            if not stack and name != outer:
+                return fn(*args, **kwargs)
             stack.append(0.0)
             t0 = clock()
             try:
@@ -66,7 +73,7 @@ def _timed(phases, clock=time.process_time):
                     stack[-1] += dt
         return timed
 
-    for (name, _, _), (owner, method, fn) in zip(list(phases) + [("device", None, None)], originals):
+    for (name, _, _), (owner, method, fn) in zip(phases, originals):
         setattr(owner, method, wrap(name, fn))
     try:
         yield totals
@@ -82,29 +89,31 @@ def _differing_targets(worlds: int) -> list:
 
 
 def control_breakdown(worlds: int = 64, periods: int = 20, device: str = "cpu", subdivisions: int = 3) -> dict:
-    """Where a control period's wall time goes for ``worlds`` differing worlds (the paper's law driving
-    the Fig. 6 device, 642 vertices at ``subdivisions`` 3, to different targets): the step kernels (device) against the host
-    work (observation, stable-step estimates, the law, the history), per period over ``periods``
-    control periods (``BREAKDOWN_COLUMNS``). On a CPU device in CPU time of this process (the kernels run on
-    the host's core too: "device" is the time inside the captured step kernels), on CUDA in wall time
-    ("device": the time the host spends launching and waiting for them). The worlds jam cells in the first periods (each jam re-estimates the
-    stable step), so more ``periods`` weigh the steady state more."""
+    """Where a control period's time goes for ``worlds`` differing worlds (the paper's law driving the
+    Fig. 6 device, 642 vertices at ``subdivisions`` 3, to different targets): the kernels (device: the
+    step, the radial sampling's rays) against the host work (observation, stable-step estimates, the
+    law, the history, the rest of the loop), per period over ``periods`` control periods of the
+    control loop (``BREAKDOWN_COLUMNS``; the setup before the loop is not counted). On a CPU device in
+    CPU time of this process (the kernels run on the host's core too), on CUDA in wall time ("device":
+    the time the host spends launching and waiting for the kernels). The worlds jam cells in the first
+    periods (each jam re-estimates the stable step), so more ``periods`` weigh the steady state more."""
     d = cube_fig6_design(subdivisions=subdivisions)
     targets = _differing_targets(worlds)
     settings = ControlSettings(method="paper", max_steps=periods, max_settle_steps=0)
     run_law(d, targets[:1], PaperLaw, device=device, settings=settings.replace(max_steps=2))  # warm up: kernels loaded
     clock = time.process_time if str(device).startswith("cpu") else time.perf_counter
     with _timed(_PHASES, clock) as totals:
-        t0 = clock()
         results = run_law(d, targets, PaperLaw, device=device, settings=settings)
-        wall = clock() - t0
     n = max(int(max(r.control_steps for r in results)), 1)
-    host = wall - totals["device"]
+    wall = sum(totals.values())  # the control loop (the setup before it is not a control period's)
+    device_s = sum(totals[k] for k in _KERNELS)
+    host = wall - device_s
     ms = lambda v: round(1e3 * v / n, 2)  # noqa: E731
-    return dict(worlds=worlds, vertices=d.rest.n_vertices, periods=n, period_ms=ms(wall), device_ms=ms(totals["device"]),
-                host_ms=ms(host), host_share=round(host / wall, 3), observe_ms=ms(totals["observe"]),
+    return dict(worlds=worlds, vertices=d.rest.n_vertices, periods=n, period_ms=ms(wall), device_ms=ms(device_s),
+                step_kernels_ms=ms(totals["step_kernels"]), ray_kernels_ms=ms(totals["ray_kernels"]), host_ms=ms(host),
+                host_share=round(host / wall, 3), observe_ms=ms(totals["observe"]),
                 stable_step_ms=ms(totals["stable_step"]), law_ms=ms(totals["law"]), record_ms=ms(totals["record"]),
-                other_host_ms=ms(host - sum(totals[k] for k, _, _ in _PHASES)))
+                other_host_ms=ms(totals["loop"]))
 
 
 def fig6_with_ipams(n: int, subdivisions: int = 3) -> Design:

@@ -112,5 +112,21 @@ def test_control_breakdown_splits_a_period_into_device_and_host():
     assert row["device_ms"] > 0 and row["host_ms"] > 0
     assert row["period_ms"] == pytest.approx(row["device_ms"] + row["host_ms"], abs=0.02)
     parts = row["observe_ms"] + row["stable_step_ms"] + row["law_ms"] + row["record_ms"] + row["other_host_ms"]
+    assert row["device_ms"] == pytest.approx(row["step_kernels_ms"] + row["ray_kernels_ms"], abs=0.02)
     assert parts == pytest.approx(row["host_ms"], abs=0.05)
     assert 0 < row["host_share"] < 1
+
+
+def test_pressure_rows_of_many_worlds_equal_one_world_at_a_time():
+    """The stable step's pressure terms (Gershgorin rows, gas eigenvalue) of every world at once equal
+    each world's own, bit for bit."""
+    from warp_shape.physics.pressure import pressure_rows_np
+
+    m, x, _, _ = _differing_state(4)
+    air = m.host.rest_air * np.array([0.9, 1.0, 1.2, 1.5])
+    inv_m = 1.0 / m.host.mass
+    press, gas = pressure_rows_np(x, m.host.faces, air, m.gas_rt, m.atmospheric_pressure, inv_m)
+    for w in range(4):
+        p1, g1 = pressure_rows_np(x[w:w + 1], m.host.faces, air[w:w + 1], m.gas_rt, m.atmospheric_pressure, inv_m)
+        np.testing.assert_array_equal(press[w], p1[0])
+        assert gas[w] == g1[0]
