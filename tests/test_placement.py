@@ -269,3 +269,47 @@ def test_cube_corner_found_by_model_based_rounds_when_the_paper_law_sees_no_gain
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     ip = res.design.ipams[0]
     assert (corners @ u[ip.face_a]).max() > 0.97 and (corners @ u[ip.face_b]).max() > 0.97  # within ~14 deg
+
+
+def test_refinement_screens_the_rest_of_a_targets_holds_only_where_its_first_ones_gain(monkeypatch):
+    """screen_first: each target's first holds are screened in one batch; the rest of its K only
+    where one of those lowered its screened objective by more than min_gain, and the record says
+    which targets' holds were not screened and why (the screen and the controller stubbed here)."""
+    from types import SimpleNamespace
+
+    import warp_shape.designer.per_target as pt
+    from warp_shape.designer.passive import PassiveSets
+
+    holds = {t: [pt.PassiveCandidate(cells=frozenset({c})) for c in range(4)] for t in range(2)}
+    gain = {(0, 0): 0.001, (0, 1): -0.02, (0, 2): 0.3, (0, 3): 0.3,  # target 0: its first two gain nothing
+            (1, 0): 0.01, (1, 1): 0.0, (1, 2): 0.02, (1, 3): -0.1}  # target 1: its first gains, so all run
+    batches = []
+
+    def screen(design, worlds, current, *args, **kwargs):
+        batches.append([(t, min(h.cells)) for t, h in worlds])
+        return [SimpleNamespace(objective=current[t].objective * (1 - gain[t, min(h.cells)])) for t, h in worlds]
+
+    def control_many(design, targets, **kwargs):  # the verification: what the screen said
+        return [SimpleNamespace(objective=0.5 * 0.98) for _ in targets]
+
+    monkeypatch.setattr(pt, "_screen", screen)
+    monkeypatch.setattr(pt, "control_many", control_many)
+    monkeypatch.setattr(pt, "_candidates_for", lambda design, t, *a: holds[t])
+    results = [SimpleNamespace(objective=0.5), SimpleNamespace(objective=0.5)]
+    settings = ws.DesignSettings(refine_rounds=1, screen_first=2)
+    _, records, _ = pt.refine_passive(None, results, PassiveSets(2), [((), ())] * 2, [0, 1], targets=[None, None],
+                                      names=["a", "b"], settings=settings, control_settings=None, device="cpu")
+    assert batches == [[(0, 0), (0, 1), (1, 0), (1, 1)], [(1, 2), (1, 3)]]
+    rec = records[0]
+    assert rec["worlds"] == 6 and list(rec["screened_out"]) == ["a"] and "2 more hold(s) not screened" in \
+        rec["screened_out"]["a"]
+    assert rec["kept"] == {"b": {"ipams": [], "cells": [2]}}  # the best of all four of b's holds
+    batches.clear()
+    _, records, stop = pt.refine_passive(None, results, PassiveSets(2), [((), ())] * 2, [0, 1], targets=[None, None],
+                                         names=["a", "b"], settings=settings.replace(screen_first=0),
+                                         control_settings=None, device="cpu")
+    assert batches == [[(t, c) for t in range(2) for c in range(4)]]  # 0: every hold at once
+    assert "screened_out" not in records[0] and records[0]["kept"] == {"a": {"ipams": [], "cells": [2]},
+                                                                       "b": {"ipams": [], "cells": [2]}}
+    with pytest.raises(ws.DesignError, match="screen_first must be a whole number"):
+        ws.DesignSettings(screen_first=-1)

@@ -1,6 +1,8 @@
 """``placement="simulated"``: Algorithm 1's actuator sets, each passive (neutral) for the
 targets it does not help, then refinement rounds: per target, candidate passive sets screened in one
-batch of worlds per jam plan and verified by the design's controller (``refine_passive``). Targets do
+batch of worlds per jam plan (the first ``screen_first`` of each target, then the rest only for the
+targets whose first ones gained more than ``min_gain``) and verified by the design's controller
+(``refine_passive``). Targets do
 not trade, so no target ends worse than under Algorithm 1. docs/placement.md describes and measures
 it."""
 
@@ -74,7 +76,7 @@ def _passive(passive_sets: PassiveSets, t: int, hold: PassiveCandidate = Passive
 
 
 def _screen(design: Design, worlds: list, current: list, passive_sets: PassiveSets, targets, names, control_settings, *,
-            device, progress, recorder, r: int) -> list:
+            device, progress, recorder, r: int, stage: int = 0) -> list:
     """The candidate worlds (target, hold), grouped by their screening settings (one batch per jam
     plan, usually one or two); their results in ``worlds`` order."""
     groups: dict = {}
@@ -85,7 +87,8 @@ def _screen(design: Design, worlds: list, current: list, passive_sets: PassiveSe
     for g, (s, ks) in enumerate(groups.values()):
         passive = [_passive(passive_sets, worlds[k][0], worlds[k][1]) for k in ks]
         out = control_many(design, [targets[worlds[k][0]] for k in ks], device=device, settings=s, progress=progress,
-                           recorder=recorder, recorder_prefix=f"design/refine_{r}" + (f"_{g}" if g else ""),
+                           recorder=recorder, recorder_prefix=f"design/refine_{r}" + (f"_{g}" if g else "")
+                           + (f"_more{stage}" if stage else ""),
                            passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
                            target_names=[f"{names[worlds[k][0]]}_hold_{worlds[k][1].label()}" for k in ks])
         for k, run in zip(ks, out):
@@ -111,25 +114,44 @@ def refine_passive(design: Design, results: list, passive_sets: PassiveSets, con
             recorder.log_design_refinement(record["round"], record, names)
 
     for r in range(settings.refine_rounds):
-        worlds = [(t, h) for t in active
-                  for h in _candidates_for(design, t, current[t], passive_sets, construction_holds[t], placed_for, K)]
-        if not worlds:
+        holds = {t: _candidates_for(design, t, current[t], passive_sets, construction_holds[t], placed_for, K)
+                 for t in active}
+        if not any(holds.values()):
             stop = "every target already leaves out every actuator it could"
             break
-        runs = _screen(design, worlds, current, passive_sets, targets, names, control_settings, device=device,
-                       progress=progress, recorder=recorder, r=r)
-        record = dict(round=r, worlds=len(worlds), candidates=[], proposed={}, kept={})
+        record = dict(round=r, worlds=0, candidates=[], proposed={}, kept={}, screened_out={})
         best: dict[int, tuple[float, PassiveCandidate]] = {}
-        for (t, h), run in zip(worlds, runs):
-            before = current[t].objective
-            gain = float((before - run.objective) / before) if before > 0 else 0.0
-            record["candidates"].append(dict(target=t, **h.as_record(), objective=run.objective,
-                                             screened_before=float(before), gain=gain, score=run.objective))
-            if gain > settings.min_gain and (t not in best or gain > best[t][0]):
-                best[t] = (gain, h)
+        first = settings.screen_first or K + 1
+        stages = [{t: h[:first] for t, h in holds.items()}, {t: h[first:] for t, h in holds.items()}]
+        for stage, batch in enumerate(stages):
+            if stage:  # the rest of a target's holds only where its first ones gained more than min_gain
+                for t in list(batch):
+                    if batch[t] and t not in best:
+                        record["screened_out"][names[t]] = (
+                            f"{len(batch[t])} more hold(s) not screened: none of its first {first} lowered its "
+                            f"screened objective by more than {100 * settings.min_gain:g} %")
+                        del batch[t]
+            worlds = [(t, h) for t, hs in batch.items() for h in hs]
+            if not worlds:
+                continue
+            runs = _screen(design, worlds, current, passive_sets, targets, names, control_settings, device=device,
+                           progress=progress, recorder=recorder, r=r, stage=stage)
+            record["worlds"] += len(worlds)
+            for (t, h), run in zip(worlds, runs):
+                before = current[t].objective
+                gain = float((before - run.objective) / before) if before > 0 else 0.0
+                record["candidates"].append(dict(target=t, **h.as_record(), objective=run.objective,
+                                                 screened_before=float(before), gain=gain, score=run.objective))
+                if gain > settings.min_gain and (t not in best or gain > best[t][0]):
+                    best[t] = (gain, h)
+        if not record["screened_out"]:
+            del record["screened_out"]
         if not best:
             finish(record)
             stop = (f"no hold lowers a target's screened objective by more than {100 * settings.min_gain:g} %")
+            if record.get("screened_out"):
+                stop += (f" (the first {first} holds of every target screened; the others not, as those first ones "
+                         "gained nothing)")
             break
         order = sorted(best)
         passive = [_passive(passive_sets, t, best[t][1]) for t in order]

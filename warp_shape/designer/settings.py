@@ -55,6 +55,7 @@ class DesignSettings:
     candidates: int = 4  # K: "simulated": holds tried per target per refinement round; "greedy": sets per round
     min_gain: float = 0.005  # a candidate must lower an objective by this fraction ("simulated", "greedy": else stop)
     refine_rounds: int = 5  # "simulated": refinement rounds at most after the last round (0: none)
+    screen_first: int = 2  # "simulated": holds per target screened first; the rest only where those gain (0: all K)
     ipam_stiffness: float = DEFAULT_IPAM_STIFFNESS  # N/m of every added IPAM
     ipam_area: float = DEFAULT_IPAM_AREA  # m^2
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
@@ -86,6 +87,10 @@ class DesignSettings:
                 or self.refine_rounds < 0:
             raise DesignError(f"refine_rounds must be a whole number >= 0 (refinement rounds of simulated placement), "
                               f"got {self.refine_rounds!r}")
+        if isinstance(self.screen_first, bool) or not isinstance(self.screen_first, numbers.Integral) \
+                or self.screen_first < 0:
+            raise DesignError(f"screen_first must be a whole number >= 0 (holds screened first per target; 0: all "
+                              f"K at once), got {self.screen_first!r}")
         if not (0 <= self.min_gain < 1):
             raise DesignError(f"min_gain must be a relative gain in [0, 1) (e.g. 0.005), got {self.min_gain}")
         if not 0 < self.min_angle_deg < 180:

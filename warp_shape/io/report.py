@@ -170,6 +170,8 @@ def _holds_lines(result, info: dict) -> list[str]:
         for c in rnd["candidates"]:
             lines.append(f"| {names[c['target']]} | {_held(c)} | {c['objective']:.4f} | "
                          f"{c['screened_before']:.4f} | {100 * c['gain']:+.2f} % |")
+        for n, why in rnd.get("screened_out", {}).items():
+            lines.append(f"\n{n}: {why}.")
         for n, p in rnd.get("proposed", {}).items():
             kept = "kept" if n in rnd.get("kept", {}) else "not kept"
             lines.append(f"\n{n}: holding {_held(p)} reaches {p['objective']:.4f} (before {p['before']:.4f}) "
