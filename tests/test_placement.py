@@ -272,9 +272,10 @@ def test_cube_corner_found_by_model_based_rounds_when_the_paper_law_sees_no_gain
 
 
 def test_refinement_screens_the_rest_of_a_targets_holds_only_where_its_first_ones_gain(monkeypatch):
-    """screen_first: each target's first holds are screened in one batch; the rest of its K only
-    where one of those lowered its screened objective by more than min_gain, and the record says
-    which targets' holds were not screened and why (the screen and the controller stubbed here)."""
+    """screen_first: each target's first holds are screened in one batch (in a later round those it
+    screened in vain before come last); the rest of its K only where one of those lowered its
+    screened objective by more than min_gain, and the record says which targets' holds were not
+    screened and why (the screen and the controller stubbed here)."""
     from types import SimpleNamespace
 
     import warp_shape.designer.per_target as pt
@@ -296,17 +297,18 @@ def test_refinement_screens_the_rest_of_a_targets_holds_only_where_its_first_one
     monkeypatch.setattr(pt, "control_many", control_many)
     monkeypatch.setattr(pt, "_candidates_for", lambda design, t, *a: holds[t])
     results = [SimpleNamespace(objective=0.5), SimpleNamespace(objective=0.5)]
-    settings = ws.DesignSettings(refine_rounds=1, screen_first=2)
+    settings = ws.DesignSettings(refine_rounds=2, screen_first=2)
     _, records, _ = pt.refine_passive(None, results, PassiveSets(2), [((), ())] * 2, [0, 1], targets=[None, None],
                                       names=["a", "b"], settings=settings, control_settings=None, device="cpu")
-    assert batches == [[(0, 0), (0, 1), (1, 0), (1, 1)], [(1, 2), (1, 3)]]
+    # round 1: only b, which kept a hold; its holds 1 and 3 gained nothing in round 0, so they come last
+    assert batches == [[(0, 0), (0, 1), (1, 0), (1, 1)], [(1, 2), (1, 3)], [(1, 0), (1, 2)], [(1, 1), (1, 3)]]
     rec = records[0]
     assert rec["worlds"] == 6 and list(rec["screened_out"]) == ["a"] and "2 more hold(s) not screened" in \
         rec["screened_out"]["a"]
     assert rec["kept"] == {"b": {"ipams": [], "cells": [2]}}  # the best of all four of b's holds
     batches.clear()
     _, records, stop = pt.refine_passive(None, results, PassiveSets(2), [((), ())] * 2, [0, 1], targets=[None, None],
-                                         names=["a", "b"], settings=settings.replace(screen_first=0),
+                                         names=["a", "b"], settings=settings.replace(screen_first=0, refine_rounds=1),
                                          control_settings=None, device="cpu")
     assert batches == [[(t, c) for t in range(2) for c in range(4)]]  # 0: every hold at once
     assert "screened_out" not in records[0] and records[0]["kept"] == {"a": {"ipams": [], "cells": [2]},

@@ -1,8 +1,8 @@
 """``placement="simulated"``: Algorithm 1's actuator sets, each passive (neutral) for the
 targets it does not help, then refinement rounds: per target, candidate passive sets screened in one
-batch of worlds per jam plan (the first ``screen_first`` of each target, then the rest only for the
-targets whose first ones gained more than ``min_gain``) and verified by the design's controller
-(``refine_passive``). Targets do
+batch of worlds per jam plan (the first ``screen_first`` of each target, those it has not screened in
+vain in an earlier round first, then the rest only for the targets whose first ones gained more than
+``min_gain``) and verified by the design's controller (``refine_passive``). Targets do
 not trade, so no target ends worse than under Algorithm 1. docs/placement.md describes and measures
 it."""
 
@@ -107,6 +107,7 @@ def refine_passive(design: Design, results: list, passive_sets: PassiveSets, con
     current = list(results)
     records, stop = [], f"the round limit ({settings.refine_rounds}) was reached"
     active = list(range(T))  # targets whose holds changed (all at first): the others were tried as they stand
+    failed = [set() for _ in range(T)]  # per target the holds screened without a gain above min_gain
 
     def finish(record):
         records.append(record)
@@ -122,14 +123,19 @@ def refine_passive(design: Design, results: list, passive_sets: PassiveSets, con
         record = dict(round=r, worlds=0, candidates=[], proposed={}, kept={}, screened_out={})
         best: dict[int, tuple[float, PassiveCandidate]] = {}
         first = settings.screen_first or K + 1
-        stages = [{t: h[:first] for t, h in holds.items()}, {t: h[first:] for t, h in holds.items()}]
+        # the first holds of a target, those it did not screen in vain in an earlier round first
+        lead = {t: [h for h in hs if h not in failed[t]][:first] if settings.screen_first else hs
+                for t, hs in holds.items()}
+        stages = [lead, {t: [h for h in hs if h not in lead[t]] for t, hs in holds.items()}]
         for stage, batch in enumerate(stages):
             if stage:  # the rest of a target's holds only where its first ones gained more than min_gain
                 for t in list(batch):
                     if batch[t] and t not in best:
                         record["screened_out"][names[t]] = (
-                            f"{len(batch[t])} more hold(s) not screened: none of its first {first} lowered its "
-                            f"screened objective by more than {100 * settings.min_gain:g} %")
+                            f"{len(batch[t])} more hold(s) not screened: " + (
+                                f"none of its first {len(lead[t])} lowered its screened objective by more than "
+                                f"{100 * settings.min_gain:g} %" if lead[t] else
+                                "each was screened in an earlier round without a gain"))
                         del batch[t]
             worlds = [(t, h) for t, hs in batch.items() for h in hs]
             if not worlds:
@@ -144,6 +150,8 @@ def refine_passive(design: Design, results: list, passive_sets: PassiveSets, con
                                                  screened_before=float(before), gain=gain, score=run.objective))
                 if gain > settings.min_gain and (t not in best or gain > best[t][0]):
                     best[t] = (gain, h)
+                if gain <= settings.min_gain:
+                    failed[t].add(h)
         if not record["screened_out"]:
             del record["screened_out"]
         if not best:
