@@ -130,3 +130,32 @@ def test_pressure_rows_of_many_worlds_equal_one_world_at_a_time():
         p1, g1 = pressure_rows_np(x[w:w + 1], m.host.faces, air[w:w + 1], m.gas_rt, m.atmospheric_pressure, inv_m)
         np.testing.assert_array_equal(press[w], p1[0])
         assert gas[w] == g1[0]
+
+
+def test_a_jam_re_estimates_the_elastic_bound_of_the_jammed_world_only(monkeypatch):
+    """After a jam in one world only that world's Lanczos bound is run again, and it is the bound a
+    full estimate gives that world; the other worlds keep theirs until positions are set."""
+    import warp_shape.simulator as simulator
+
+    d = cube_fig6_design(subdivisions=2)
+    sim = ws.Simulator(d, worlds=3)
+    rng = np.random.default_rng(4)
+    x = np.asarray(sim.positions, dtype=np.float64)
+    sim.positions = x * (1 + 0.02 * rng.standard_normal((3, 1, 1)))
+    sim.step(2)
+    calls = []
+    original = simulator.elastic_omega2_bound
+    monkeypatch.setattr(simulator, "elastic_omega2_bound",
+                        lambda m, jam, *a, **k: calls.append(jam.shape[0]) or original(m, jam, *a, **k))
+    sim.stable_dt()
+    assert calls == []  # cached
+    sim.jam(0, world=1)
+    sim.stable_dt()
+    assert calls == [1]
+    st_ = sim.state
+    full = original(sim.model, st_.jammed.numpy().astype(bool), st_.x.numpy().astype(np.float64),
+                    st_.rest_length.numpy().astype(np.float64))
+    assert sim._elastic_cache[2][1] == full[1]
+    sim.positions = np.asarray(sim.positions)
+    sim.stable_dt()
+    assert calls == [1, 3]  # set positions: every world again

@@ -486,8 +486,9 @@ class Simulator:
         when every world holds the same state).
 
         The elastic part of the bound (a short Lanczos run, see stability.elastic_omega2_bound) is
-        cached until a cell jams, positions are set or ``reestimate_every`` internal steps pass; air
-        changes only re-evaluate the cheap pressure and gas terms."""
+        cached per world until a cell of that world jams (only the worlds that jammed are estimated
+        again), positions are set or ``reestimate_every`` internal steps pass; air changes only
+        re-evaluate the cheap pressure and gas terms."""
         m, st = self.model, self.state
         edge_jam, x, rest = st.jammed.numpy(), st.x.numpy(), st.rest_length.numpy()
         air = self.control.air.numpy()
@@ -495,13 +496,20 @@ class Simulator:
         if uniform:  # identical worlds (a batch as built, before its worlds part): estimate one
             edge_jam, x, rest, air = edge_jam[:1], x[:1], rest[:1], air[:1]
         edge_jam, x, rest = edge_jam.astype(bool), x.astype(np.float64), rest.astype(np.float64)
-        key = (self._geometry_version, int(edge_jam.sum()), self._estimated_at, uniform)
+        key = (self._geometry_version, self._estimated_at, uniform)
+        jams = edge_jam.sum(axis=1)  # (W,) a world's jam state only grows between position sets
         with np.errstate(all="ignore"):
             try:
-                if self._elastic_cache is None or self._elastic_cache[0] != key:
-                    self._elastic_cache = (key, elastic_omega2_bound(m, edge_jam, x, rest))
-                est = stable_dt_estimate(m, type(self.solver), edge_jam, air, x, rest,
-                                         elastic_bound=self._elastic_cache[1])
+                cache = self._elastic_cache
+                if cache is None or cache[0] != key:
+                    cache = (key, jams, elastic_omega2_bound(m, edge_jam, x, rest))
+                elif np.any(jams != cache[1]):  # only the worlds that jammed since: the others keep theirs
+                    changed = np.flatnonzero(jams != cache[1])
+                    bound = cache[2].copy()
+                    bound[changed] = elastic_omega2_bound(m, edge_jam[changed], x[changed], rest[changed])
+                    cache = (key, jams, bound)
+                self._elastic_cache = cache
+                est = stable_dt_estimate(m, type(self.solver), edge_jam, air, x, rest, elastic_bound=cache[2])
             except np.linalg.LinAlgError:  # a non-finite or degenerate state: no estimate
                 est = np.array([np.nan])
         return check_stable_dt(float(est.min()), self.step_count, self.time)
