@@ -96,6 +96,50 @@ def _screen(design: Design, worlds: list, current: list, passive_sets: PassiveSe
     return runs
 
 
+def _screen_round(design: Design, r: int, holds: dict, failed: list, current: list, passive_sets: PassiveSets,
+                  targets, names, settings, control_settings, *, device, progress, recorder):
+    """Round ``r``'s screening of ``holds`` ({target: [PassiveCandidate]}) in two stages (module
+    docstring); ``failed[t]`` (the holds target t screened in vain) is updated. Returns the round's
+    record, {target: (gain, hold)} of the holds that gained more than ``min_gain`` (the best per
+    target) and how many holds a target screens first."""
+    K = settings.candidates
+    record = dict(round=r, worlds=0, candidates=[], proposed={}, kept={}, screened_out={})
+    best: dict[int, tuple[float, PassiveCandidate]] = {}
+    first = settings.screen_first or K + 1
+    # the first holds of a target, those it did not screen in vain in an earlier round first
+    lead = {t: [h for h in hs if h not in failed[t]][:first] if settings.screen_first else hs
+            for t, hs in holds.items()}
+    stages = [lead, {t: [h for h in hs if h not in lead[t]] for t, hs in holds.items()}]
+    for stage, batch in enumerate(stages):
+        if stage:  # the rest of a target's holds only where its first ones gained more than min_gain
+            for t in list(batch):
+                if batch[t] and t not in best:
+                    record["screened_out"][names[t]] = (
+                        f"{len(batch[t])} more hold(s) not screened: " + (
+                            f"none of its first {len(lead[t])} lowered its screened objective by more than "
+                            f"{100 * settings.min_gain:g} %" if lead[t] else
+                            "each was screened in an earlier round without a gain"))
+                    del batch[t]
+        worlds = [(t, h) for t, hs in batch.items() for h in hs]
+        if not worlds:
+            continue
+        runs = _screen(design, worlds, current, passive_sets, targets, names, control_settings, device=device,
+                       progress=progress, recorder=recorder, r=r, stage=stage)
+        record["worlds"] += len(worlds)
+        for (t, h), run in zip(worlds, runs):
+            before = current[t].objective
+            gain = float((before - run.objective) / before) if before > 0 else 0.0
+            record["candidates"].append(dict(target=t, **h.as_record(), objective=run.objective,
+                                             screened_before=float(before), gain=gain, score=run.objective))
+            if gain > settings.min_gain and (t not in best or gain > best[t][0]):
+                best[t] = (gain, h)
+            if gain <= settings.min_gain:
+                failed[t].add(h)
+    if not record["screened_out"]:
+        del record["screened_out"]
+    return record, best, first
+
+
 def refine_passive(design: Design, results: list, passive_sets: PassiveSets, construction_holds: list, placed_for: list, *,
                  targets, names, settings, control_settings, device, progress=None,
                  recorder=None) -> tuple[list, list[dict], str]:
@@ -120,45 +164,13 @@ def refine_passive(design: Design, results: list, passive_sets: PassiveSets, con
         if not any(holds.values()):
             stop = "every target already leaves out every actuator it could"
             break
-        record = dict(round=r, worlds=0, candidates=[], proposed={}, kept={}, screened_out={})
-        best: dict[int, tuple[float, PassiveCandidate]] = {}
-        first = settings.screen_first or K + 1
-        # the first holds of a target, those it did not screen in vain in an earlier round first
-        lead = {t: [h for h in hs if h not in failed[t]][:first] if settings.screen_first else hs
-                for t, hs in holds.items()}
-        stages = [lead, {t: [h for h in hs if h not in lead[t]] for t, hs in holds.items()}]
-        for stage, batch in enumerate(stages):
-            if stage:  # the rest of a target's holds only where its first ones gained more than min_gain
-                for t in list(batch):
-                    if batch[t] and t not in best:
-                        record["screened_out"][names[t]] = (
-                            f"{len(batch[t])} more hold(s) not screened: " + (
-                                f"none of its first {len(lead[t])} lowered its screened objective by more than "
-                                f"{100 * settings.min_gain:g} %" if lead[t] else
-                                "each was screened in an earlier round without a gain"))
-                        del batch[t]
-            worlds = [(t, h) for t, hs in batch.items() for h in hs]
-            if not worlds:
-                continue
-            runs = _screen(design, worlds, current, passive_sets, targets, names, control_settings, device=device,
-                           progress=progress, recorder=recorder, r=r, stage=stage)
-            record["worlds"] += len(worlds)
-            for (t, h), run in zip(worlds, runs):
-                before = current[t].objective
-                gain = float((before - run.objective) / before) if before > 0 else 0.0
-                record["candidates"].append(dict(target=t, **h.as_record(), objective=run.objective,
-                                                 screened_before=float(before), gain=gain, score=run.objective))
-                if gain > settings.min_gain and (t not in best or gain > best[t][0]):
-                    best[t] = (gain, h)
-                if gain <= settings.min_gain:
-                    failed[t].add(h)
-        if not record["screened_out"]:
-            del record["screened_out"]
+        record, best, first = _screen_round(design, r, holds, failed, current, passive_sets, targets, names, settings,
+                                            control_settings, device=device, progress=progress, recorder=recorder)
         if not best:
             finish(record)
             stop = (f"no hold lowers a target's screened objective by more than {100 * settings.min_gain:g} %")
             if record.get("screened_out"):
-                stop += (f" (the first {first} holds of every target screened; the others not, as those first ones "
+                stop += (f" (each target's first {first} holds screened; its others not, as those first ones "
                          "gained nothing)")
             break
         order = sorted(best)
