@@ -34,7 +34,8 @@ def register(subparsers) -> None:
     add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
                    help="icosphere subdivisions for the sim bench (3..6: 642..40962 vertices)")
     add_bounded(b, "--worlds", 1, MAX_WORLDS, type=int, nargs="+", default=[1],
-                   help="sim bench: worlds stepped as one batch, e.g. 1 64 1024 4096 (default 1)")
+                   help="sim bench: worlds stepped as one batch, e.g. 1 64 1024 4096 (default 1); control bench: "
+                        "the breakdown's batch sizes (default 64)")
     add_bounded(b, "--candidates", 1, MAX_CANDIDATES, type=int, nargs="+", default=None,
                    help="design bench: also the default problem by the paper's placement and at each K, e.g. 1 2 4 8")
     add_bounded(b, "--repeats", 1, 100, type=int, default=3, help="timing repeats (the best is kept)")
@@ -70,14 +71,19 @@ def _tradeoff(args, format_rows) -> dict:
     return out
 
 
-def _control(args, format_rows) -> list:
-    from ..benchmarks.control import CONTROL_COLUMNS, bench_control
+def _control(args, format_rows) -> dict:
+    from ..benchmarks.control import BREAKDOWN_COLUMNS, CONTROL_COLUMNS, bench_control, control_breakdown
 
+    worlds = args.worlds if args.worlds != [1] else [64]
+    split = [control_breakdown(worlds=w, device=args.device) for w in worlds]
+    print("control period: host / device breakdown, the paper's law on the 642-vertex Fig. 6 device, differing "
+          "worlds, ms per control period (CPU: CPU time of the process; --worlds sets the batch sizes)")
+    print(format_rows(split, BREAKDOWN_COLUMNS))
     rows = bench_control(device=args.device, repeats=args.repeats)
     print("control: the paper's law vs model-based control (method='inverse'), wall time side by side in one run "
           "(paper: minimum of repeats; inverse: one run); objective = RMS of (R - r) / V_t^(1/3)")
     print(format_rows(rows, CONTROL_COLUMNS))
-    return rows
+    return dict(cases=rows, breakdown=split)
 
 
 def _codesign(args, format_rows) -> list:
@@ -116,7 +122,8 @@ ABOUT = {
     "sim": "internal steps per second of the Fig. 6 device, Warp beside NumPy, per mesh x integrator x precision",
     "tradeoff": "wall time against error of every integrator, step and precision on the Fig. 6 control sequence",
     "design": "wall time and final fit of the design problems",
-    "control": "the paper's control law against model-based control, wall time and objective",
+    "control": "a control period's host / device breakdown (64 differing worlds); the paper's control law against "
+               "model-based control, wall time and objective",
     "peer": "the same membrane in Newton's semi-implicit solver",
     "rays": "radial sampling throughput",
     "gradient": "the adjoint of a replayed Fig. 6 sequence beside the forward replay: wall time and memory",
