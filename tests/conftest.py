@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import warp as wp
 
+# the suite runs in one process unless a test asks for workers (tests/test_shard.py; docs/performance.md)
+os.environ["WARP_SHAPE_WORKERS"] = "1"
 wp.config.quiet = True
 wp.config.log_level = wp.LOG_WARNING
 sys.path.insert(0, os.path.dirname(__file__))

@@ -14,9 +14,9 @@ from ..io.atomic import StagedFolder
 from ..io.outputs import write_control_outputs, write_figures_or_skip
 from ..limits import MAX_CONTROL_STEPS
 from .calibrate import add_calibration_arg
-from .options import (ControlProgress, actuator_selection, add_bounded, add_common_args, add_units_arg, check_device,
-                      check_out, check_rerun, open_recorder, print_outputs, resolve_design_and_targets,
-                      stop_if_interrupted)
+from .options import (ControlProgress, actuator_selection, add_bounded, add_common_args, add_units_arg,
+                      add_workers_arg, check_device, check_out, check_rerun, open_recorder, print_outputs,
+                      resolve_design_and_targets, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -46,6 +46,7 @@ def register(subparsers) -> None:
     add_units_arg(c)
     add_calibration_arg(c, "each target's sequence is controlled on the calibrated model (its fitted "
                            "material, IPAMs and rest scale)")
+    add_workers_arg(c)
     add_common_args(c, out="out/control")
     c.set_defaults(func=run)
 
@@ -89,7 +90,7 @@ def run(args) -> int:
     settings = RunSettings.from_groups(
         scene_settings, simulation=dict(integrator=args.integrator, precision=args.precision),
         controller=dict(max_steps=args.max_steps, method=args.method,
-                        jamming=False if args.no_jamming else None)).control
+                        jamming=False if args.no_jamming else None, workers=args.workers)).control
     with open_recorder(args) as rec, ControlProgress(refine=CONTROL_METHODS[settings.method].refines) as bar:
         results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
                                progress=bar.update, recorder=rec, target_names=names,

@@ -30,8 +30,8 @@ from ..material import Material
 from ..limits import MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS
 from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
-from .options import (add_bounded, add_common_args, add_units_arg, check_device, check_mold_flags, check_out,
-                      check_rerun, load_targets, open_recorder, print_outputs, recording_entry, run_progress,
+from .options import (add_bounded, add_common_args, add_units_arg, add_workers_arg, check_device, check_mold_flags,
+                      check_out, check_rerun, load_targets, open_recorder, print_outputs, recording_entry, run_progress,
                       stop_if_interrupted)
 
 __all__ = ["register", "run"]
@@ -68,6 +68,7 @@ def register(subparsers) -> None:
     d.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
                    help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
     add_units_arg(d)
+    add_workers_arg(d)
     add_timing_args(d)
     add_calibration_arg(d, "the new design's material (E, t, bending) and its IPAMs' stiffness and area (the "
                            "fitted mean) are the calibrated ones")
@@ -80,7 +81,7 @@ def run_settings(scene, args) -> RunSettings:
     material, then the flags; unknown setting names and bad values are errors."""
     designer = dict(actuators=args.actuators, cell_radius=args.cell_radius, placement=args.placement,
                     candidates=args.candidates, refine_rounds=args.refine_rounds, codesign=args.codesign,
-                    initialize=False if args.keep_rest else None)
+                    initialize=False if args.keep_rest else None, workers=args.workers)
     material = scene.design.material if scene.design is not None else None
     if getattr(args, "calibration", None):  # the fitted material, and the fitted IPAMs' mean size for new ones
         material = replace(material or Material(), **material_values(args.calibration))

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
+from ..controller.shard import MAX_WORKERS
 from ..designer import passive_from_settings
 from ..errors import DesignError
 from ..interrupts import release_the_command
@@ -31,7 +32,7 @@ from ..targets import TARGET_NAMES, load_target, target
 from .progress import Bar, ControlProgress, DesignProgress
 
 __all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
-           "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
+           "add_workers_arg", "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
            "ControlProgress",
            "interrupts_noted", "stop_if_interrupted", "write_failure", "add_bounded", "check_bounds"]
@@ -48,6 +49,13 @@ def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:
     sp.add_argument("--verbose", action="store_true", help="show Warp's start-up and compile messages")
     if rerun:
         add_rerun_args(sp)
+
+
+def add_workers_arg(sp) -> None:
+    """``--workers N``: processes a batch of control jobs is sharded over (0: every core, 1: one process)."""
+    add_bounded(sp, "--workers", 1, MAX_WORKERS, zero=True, type=int, default=None,
+                help="worker processes the batches of targets run on, each its own Warp CPU instance (default: "
+                     "every core; 1: one process, as before; WARP_SHAPE_WORKERS sets the default)")
 
 
 def add_bounded(sp, flag: str, lo: float, hi: float, *, zero: bool = False, **kwargs):

@@ -21,6 +21,7 @@ from .laws import PaperLaw
 from .loop import run_law
 from .result import ControlResult
 from .settings import CONTROL_METHODS, LAWS, ControlSettings
+from .shard import control_sharded, shard_modules, worker_pool
 
 __all__ = ["LawMethod", "InverseMethod", "register_law", "register_control_method", "control_many", "control",
            "CONTROL_METHODS"]
@@ -93,6 +94,10 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     recorded pressure tracks its length), a passive cell never jams (paper, section V-C).
     ``progress(step, max_steps, done, worlds)`` is called every control step; ``recorder`` logs the
     run. Keyword overrides go to ``settings``.
+
+    On the CPU, with ``settings.workers`` other than 1 (0, the default: every core) or inside a run's
+    ``worker_pool``, each target is its own job on a worker process (``controller.shard``; not with a
+    ``recorder``): its result is that of ``control_many(design, [target])``, bit for bit.
     """
     if not isinstance(design, Design):
         raise DesignError(f"control needs a ws.Design, got {type(design).__name__}")
@@ -102,10 +107,16 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
         overrides["method"] = method
     if overrides:
         settings = settings.replace(**overrides)
-    return CONTROL_METHODS[settings.method].run(
-        design, targets, settings=settings, device=device, recorder=recorder, progress=progress,
-        passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
-        recorder_prefix=recorder_prefix)
+    with worker_pool(settings.workers) as pool:
+        modules = shard_modules(settings, design) if pool is not None else None
+        if modules is not None and len(targets) > 1 and recorder is None and str(device).startswith("cpu"):
+            return control_sharded(pool, design, targets, settings=settings, device=device, progress=progress,
+                                   passive_ipams=passive_ipams, passive_cells=passive_cells,
+                                   target_names=target_names, modules=modules)
+        return CONTROL_METHODS[settings.method].run(
+            design, targets, settings=settings, device=device, recorder=recorder, progress=progress,
+            passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
+            recorder_prefix=recorder_prefix)
 
 
 def control(design: Design, target: TriMesh, *, device: str = "cpu", settings: ControlSettings | None = None,

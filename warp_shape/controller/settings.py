@@ -45,6 +45,7 @@ class ControlSettings:
     inverse_settle_steps: int = 60  # simulation steps each explored world settles before it is measured
     inverse_plans: str = "warm never overinflate1.3 overinflate1.5"  # jam plans tried (controller.plans)
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
+    workers: int = 0  # processes a batch of targets is sharded over (0: every core, 1: one; controller.shard)
 
     def __post_init__(self):
         check_field_types(self, "ControlSettings")
@@ -59,6 +60,9 @@ class ControlSettings:
                               "inverse_tolerance >= 0")
         if self.control_period < 1 or self.max_steps < 1:
             raise DesignError("ControlSettings needs control_period >= 1 and max_steps >= 1")
+        if self.workers < 0:
+            raise DesignError(f"ControlSettings.workers must be >= 0 (0: every core, 1: one process), "
+                              f"got {self.workers}")
         if self.max_settle_steps < 0:
             raise DesignError(f"ControlSettings.max_settle_steps must be >= 0 (0: never hold to settle), "
                               f"got {self.max_settle_steps}")

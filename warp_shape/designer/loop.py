@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..controller import ControlSettings, control_many
+from ..controller.shard import worker_pool
 from ..controller.checks import check_target_units, check_targets_against_rest, target_labels
 from ..design import Design
 from ..material import Material
@@ -77,6 +78,25 @@ def _codesign(run: DesignRun) -> dict:
     return record.as_dict()
 
 
+def _rounds(run: DesignRun, placement, actuators: int) -> None:
+    """The rounds of Algorithm 1 by ``placement``, then its ``finish``."""
+    i = 0
+    while True:
+        run.final = run.final or i == actuators
+        round_settings = (run.control_settings if run.final
+                          else round_control_settings(run.control_settings, run.round_control))
+        choose = None if run.final else placement.before_round(run, i, round_settings)
+        results = control_round(run, i, round_settings, choose)
+        if run.final:
+            break
+        record = placement.place(run, results, i, round_settings)
+        if record is None:  # the placement asks for this round again (run.final or run.round_control changed)
+            continue
+        run.added.append(check_record(placement, record))
+        i += 1
+    placement.finish(run, i)
+
+
 def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device: str = "cpu", target_names=None,
            settings: DesignSettings | None = None, control_settings: ControlSettings | None = None,
            material: Material | None = None, progress=None, on_round=None, recorder=None,
@@ -90,6 +110,8 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
     ``recorder`` logs every round's control runs under ``design/round_<i>`` and the PCC by round
     (``recorder.log_design_round(round, pcc_row, target_names, design)``).
     Keyword overrides go to ``DesignSettings`` (e.g. ``cell_radius=0.016``, ``initialize=False``).
+    ``workers`` (``DesignSettings.workers``; 0, the default: every core) shards each batch of control
+    jobs over worker processes started once for the run (``controller.shard``; docs/performance.md).
     """
     check_request(base, actuators)
     settings = settings_or_default(settings, DesignSettings, "settings")
@@ -108,23 +130,11 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
                     control_settings=control_settings, device=device, progress=progress, recorder=recorder,
                     on_round=on_round, passive_sets=PassiveSets(len(targets)), round_control=settings.round_control,
                     info=_placement_info(settings, names, _start_pcc(rest, sampler, len(targets))))
-    placement = PLACEMENTS[settings.placement]()
-    i = 0
-    while True:
-        run.final = run.final or i == actuators
-        round_settings = (control_settings if run.final
-                          else round_control_settings(control_settings, run.round_control))
-        choose = None if run.final else placement.before_round(run, i, round_settings)
-        results = control_round(run, i, round_settings, choose)
-        if run.final:
-            break
-        record = placement.place(run, results, i, round_settings)
-        if record is None:  # the placement asks for this round again (run.final or run.round_control changed)
-            continue
-        run.added.append(check_record(placement, record))
-        i += 1
-    placement.finish(run, i)
-    record = _codesign(run)
+    with worker_pool(settings.workers) as pool:  # the run's worker processes, started once (controller.shard)
+        if pool is not None and str(device).startswith("cpu"):
+            pool.start()
+        _rounds(run, PLACEMENTS[settings.placement](), actuators)
+        record = _codesign(run)
     pcc_rows = np.array([[r.pcc for r in rs] for rs in run.rounds])
     return DesignResult(design=run.current, designs=run.designs, rounds=run.rounds, pcc_by_round=pcc_rows,
                         target_names=names, targets=targets, added=run.added, settings=settings,

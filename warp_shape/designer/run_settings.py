@@ -90,10 +90,12 @@ class RunSettings:
                    actuators=actuators, material=material)
 
     def groups(self) -> dict:
-        """The settings as scene groups (``{group: {key: value}}``), as ``from_groups`` reads them."""
+        """The settings as scene groups (``{group: {key: value}}``), as ``from_groups`` reads them. The
+        worker count is the machine's, not the design's: it is not stored."""
         ctl = {f.name: getattr(self.control, f.name) for f in dataclasses.fields(self.control)
-               if f.name != "simulation"}
-        des = {f.name: _stored(getattr(self.designer, f.name)) for f in dataclasses.fields(self.designer)}
+               if f.name not in ("simulation", "workers")}
+        des = {f.name: _stored(getattr(self.designer, f.name)) for f in dataclasses.fields(self.designer)
+               if f.name != "workers"}
         return {"simulation": self.simulation.to_dict(),
                 "controller": {k: v for k, v in ctl.items() if v is not None},
                 "designer": {"actuators": self.actuators, **des}}

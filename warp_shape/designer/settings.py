@@ -63,6 +63,7 @@ class DesignSettings:
     round_control: str = "law"  # control of the rounds before the last: "law", "quick" or "full" (ROUND_CONTROLS)
     codesign: str = "off"  # after placement: "off", "rest" or "rest+ipams" (CODESIGN_MODES, docs/gradients.md)
     codesign_steps: int = 4  # co-design's descent steps at most
+    workers: int = 0  # processes the run's control jobs are sharded over (0: every core, 1: one; controller.shard)
 
     def __post_init__(self):
         check_field_types(self, "DesignSettings")
@@ -79,6 +80,8 @@ class DesignSettings:
         if isinstance(self.codesign_steps, bool) or not isinstance(self.codesign_steps, numbers.Integral) \
                 or not 0 <= self.codesign_steps <= 100:
             raise DesignError(f"codesign_steps must be a whole number in 0..100, got {self.codesign_steps!r}")
+        if self.workers < 0:
+            raise DesignError(f"workers must be >= 0 (0: every core, 1: one process), got {self.workers}")
         whole = isinstance(self.candidates, numbers.Integral) and not isinstance(self.candidates, bool)
         if not whole or self.candidates < 1:
             raise DesignError(f"candidates must be a whole number >= 1 (candidate actuator sets per round), got "

@@ -8,6 +8,7 @@ folder whichever machine the run ran on. A run that fails returns its error in t
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 import time
 import traceback
@@ -96,6 +97,8 @@ def execute(task: RunTask) -> tuple[dict, dict]:
 
     try:
         run, keywords = _settings(task)
+        if run.designer.workers == 0:  # "every core": the sweep runs one design per core already
+            run = dataclasses.replace(run, designer=run.designer.replace(workers=1))
         result = design(task.base, task.targets, actuators=task.actuators, device=task.device,
                         target_names=task.target_names, settings=run.designer, control_settings=run.control,
                         material=run.material, on_round=on_round, **keywords)

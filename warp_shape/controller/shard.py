@@ -1,0 +1,385 @@
+"""Every core: a batch of control jobs sharded over worker processes, each its own Warp CPU instance.
+
+Warp's CPU backend runs a kernel as one serial loop on one thread, so one process uses one core.
+``worker_pool(workers)`` opens a pool of worker processes for a run (a design run, a control run):
+the workers start once, take one job at a time until the run ends, and are ended when it ends, on
+an error and on Ctrl-C. Inside the block, ``control_many`` on the CPU runs each target of a batch
+as its own job (``control_sharded``): one single-world control run per target, its result the one
+``control_many(design, [target])`` gives in one process, bit for bit. docs/performance.md measures
+the unit and says where the results differ from one batch of worlds.
+
+``workers``: 0 means every core this process may use (its affinity mask; the ``WARP_SHAPE_WORKERS``
+variable, where set, replaces that count), 1 the in-process path (no pool), N that many workers.
+A pool of 1 is never started. The workers start with "spawn" (Warp's state is not fork-safe); they
+do not import the caller's ``__main__`` (an unguarded script's body would run again in every
+worker), so a job whose control method, law or actuator family is defined there runs in-process.
+A worker's error is raised here as it was raised there (a warp_shape error keeps its type and
+message); a worker that dies is a ``WorkerError``; either way the pool is ended first.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import dataclasses
+import importlib
+import os
+import pickle
+import signal
+import sys
+import time
+import traceback
+from multiprocessing import get_context
+from multiprocessing.connection import wait
+
+import numpy as np
+import warp as wp
+
+from ..actuators import ACTUATOR_FAMILIES
+from ..errors import DesignError, WarpShapeError
+from ..registry import load_plugins
+from .settings import CONTROL_METHODS, LAWS
+
+__all__ = ["WorkerPool", "WorkerError", "worker_pool", "current_pool", "resolve_workers", "available_cores",
+           "control_sharded", "shard_modules", "WORKERS_VARIABLE", "MAX_WORKERS", "in_worker", "check_workers"]
+
+#: environment variable: the worker count that ``workers = 0`` ("every core") means, e.g. 1 in a test suite
+WORKERS_VARIABLE = "WARP_SHAPE_WORKERS"
+MAX_WORKERS = 1024  # the most worker processes a run may ask for
+PROGRESS_EVERY = 0.25  # s between a worker's progress messages
+JOIN_TIMEOUT = 5.0  # s a worker is given to end before it is killed
+_SERIAL = "serial"  # the current pool of a run that asked for one process
+_CURRENT = contextvars.ContextVar("warp_shape_worker_pool", default=None)
+_STATE = {"worker": False}  # True in a worker process: jobs there never start pools of their own
+
+
+class WorkerError(WarpShapeError, RuntimeError):
+    """A worker process ended while it ran a job (killed, out of memory, a crash in native code)."""
+
+
+def in_worker() -> bool:
+    """Whether this process is a pool's worker."""
+    return _STATE["worker"]
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its affinity mask where the system has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _workers_from_environment() -> int | None:
+    value = os.environ.get(WORKERS_VARIABLE, "").strip()
+    if not value:
+        return None
+    try:
+        n = int(value)
+    except ValueError:
+        n = -1
+    if n < 1:
+        raise DesignError(f"{WORKERS_VARIABLE} must be a whole number >= 1 (worker processes), got {value!r}; "
+                          f"unset it to use every core")
+    return n
+
+
+def check_workers(workers, owner: str) -> None:
+    """Refuse a worker count that is not a whole number >= 0, naming ``owner`` (e.g. "DesignSettings.workers")."""
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 0:
+        raise DesignError(f"{owner} must be a whole number >= 0 (worker processes; 0: every core, 1: one "
+                          f"process), got {workers!r}")
+
+
+def resolve_workers(workers: int = 0) -> int:
+    """The worker processes ``workers`` asks for (module docstring); 1 inside a worker."""
+    check_workers(workers, "workers")
+    if _STATE["worker"]:
+        return 1
+    if workers == 0:
+        return _workers_from_environment() or available_cores()
+    return int(workers)
+
+
+def current_pool():
+    """The pool of the run in progress, or None (no run, or a run in one process)."""
+    pool = _CURRENT.get()
+    return pool if isinstance(pool, WorkerPool) else None
+
+
+@contextlib.contextmanager
+def worker_pool(workers: int = 0):
+    """A run's pool of ``resolve_workers(workers)`` processes (None for one process), ended when the
+    block ends. Inside a run that has one already (an outer ``worker_pool``), that one is used."""
+    outer = _CURRENT.get()
+    if outer is not None:
+        yield current_pool()
+        return
+    n = resolve_workers(workers)
+    pool = WorkerPool(n) if n > 1 else None
+    token = _CURRENT.set(pool if pool is not None else _SERIAL)
+    try:
+        yield pool
+    finally:
+        _CURRENT.reset(token)
+        if pool is not None:
+            pool.close()
+
+
+class _Worker:
+    def __init__(self, process, conn):
+        self.process, self.conn, self.job = process, conn, None
+
+
+class WorkerPool:
+    """``size`` worker processes, started on first use and kept until ``close`` (module docstring)."""
+
+    def __init__(self, size: int):
+        if size < 1:
+            raise DesignError(f"a worker pool needs at least one worker, got {size}")
+        self.size = int(size)
+        self._workers: list[_Worker] = []
+
+    @property
+    def pids(self) -> list[int]:
+        """The worker processes' ids (empty before the pool starts and after it ends)."""
+        return [w.process.pid for w in self._workers]
+
+    def start(self) -> "WorkerPool":
+        """Start the workers (they load the package while the caller goes on); a no-op once started.
+        Ctrl-C is blocked while they start, so none of them inherits a handler; the caller gets the press
+        afterwards."""
+        if self._workers:
+            return self
+        ctx = get_context("spawn")
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            with _main_hidden():
+                for _ in range(self.size):
+                    mine, theirs = ctx.Pipe()
+                    p = ctx.Process(target=_worker_main, args=(theirs,), name="warp-shape-worker", daemon=True)
+                    p.start()
+                    theirs.close()
+                    self._workers.append(_Worker(p, mine))
+        except BaseException:
+            self.close()
+            raise
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+        return self
+
+    def run(self, fn, jobs: list, *, modules=(), progress=None) -> list:
+        """``[fn(*job, progress=...) for job in jobs]``, each job on the next free worker; ``fn`` is a
+        module-level function, ``modules`` are imported in a worker before its job (strategies
+        registered outside the package). ``progress(job, payload)`` gets each job's progress messages
+        (``payload`` None: the job is done).
+        Any error, and Ctrl-C, ends the pool before it is raised."""
+        self.start()
+        out, todo, left = [None] * len(jobs), list(range(len(jobs)))[::-1], len(jobs)
+        try:
+            while left:
+                for w in self._workers:
+                    if w.job is None and todo:
+                        w.job = todo.pop()
+                        w.conn.send((w.job, fn, jobs[w.job], tuple(modules)))
+                left -= self._collect(out, progress)
+        except BaseException:
+            self.close()
+            raise
+        return out
+
+    def _collect(self, out: list, progress) -> int:
+        """Handle what the workers sent (waiting up to a second); the jobs finished."""
+        busy = [w for w in self._workers if w.job is not None]
+        ready = set(wait([w.conn for w in busy] + [w.process.sentinel for w in busy], timeout=1.0))
+        finished = 0
+        for w in busy:
+            if w.conn in ready:
+                kind, job, payload = w.conn.recv()
+                if kind == "progress":
+                    if progress is not None:
+                        progress(job, payload)
+                    continue
+                if kind == "error":
+                    raise _rebuilt(*payload)
+                out[job], w.job = payload, None
+                finished += 1
+                if progress is not None:
+                    progress(job, None)
+            elif w.process.sentinel in ready:
+                w.process.join(JOIN_TIMEOUT)  # its exit code
+                raise WorkerError(f"worker process {w.process.pid} ended (exit code {w.process.exitcode}) while it "
+                                  f"ran job {w.job}: out of memory or killed? Run with --workers 1 (workers=1) "
+                                  f"to run in one process")
+        return finished
+
+    def close(self) -> None:
+        """End every worker: an idle one is asked to stop, a busy one (after an error or Ctrl-C) is
+        killed; waits until they are gone."""
+        workers, self._workers = self._workers, []
+        for w in workers:
+            try:
+                if w.job is None and w.process.is_alive():
+                    w.conn.send(None)
+                else:
+                    w.process.kill()
+            except (OSError, ValueError):
+                w.process.kill()
+        for w in workers:
+            w.process.join(JOIN_TIMEOUT)
+            if w.process.is_alive():
+                w.process.kill()
+                w.process.join()
+            w.conn.close()
+            w.process.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+@contextlib.contextmanager
+def _main_hidden():
+    """The caller's ``__main__`` hidden from "spawn", which would import it in every worker (and run the
+    body of a script without an ``if __name__ == "__main__"`` guard again)."""
+    main = sys.modules.get("__main__")
+    saved = {k: main.__dict__[k] for k in ("__file__", "__spec__") if main is not None and k in main.__dict__}
+    try:
+        for k in saved:
+            if k == "__file__":
+                del main.__file__
+            else:
+                main.__spec__ = None
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(main, k, v)
+
+
+def _rebuilt(exc, text: str) -> BaseException:
+    """The worker's exception, raised here: a warp_shape error as it was; anything else with the
+    worker's traceback as a note (it is a defect to report)."""
+    if exc is None or not isinstance(exc, BaseException):
+        return WorkerError(f"a worker failed: {text.strip().splitlines()[-1]}")
+    if not isinstance(exc, WarpShapeError):
+        exc.add_note(f"in a worker process:\n{text}")
+    return exc
+
+
+def _portable(exc: BaseException, text: str):
+    """``(exc, traceback text)`` if it survives pickling, else ``(None, text)``."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc, text
+    except Exception:  # an exception with unpicklable state: its text goes instead
+        return None, text
+
+
+def _quiet_warp() -> None:
+    """Start Warp without its banner or its note that this machine has no CUDA driver (the caller's
+    process has said what matters)."""
+    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
+    sys.stderr.flush()
+    saved, null = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 2)
+        wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(null)
+
+
+def _worker_main(conn) -> None:
+    """A worker: take jobs ``(id, fn, args, modules)`` until told to stop (None) or the pipe closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle: it ends the pool
+    _STATE["worker"] = True
+    _quiet_warp()
+    load_plugins()
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        job, fn, args, modules = msg
+        last = [0.0]
+
+        def progress(*payload, job=job, last=last):
+            now = time.monotonic()
+            if now - last[0] >= PROGRESS_EVERY:
+                last[0] = now
+                conn.send(("progress", job, payload))
+
+        try:
+            for name in modules:
+                importlib.import_module(name)
+            result = fn(*args, progress=progress)
+        except BaseException as exc:  # every failure goes back to the caller, who ends the pool
+            conn.send(("error", job, _portable(exc, traceback.format_exc())))
+            continue
+        conn.send(("done", job, result))
+
+
+# ---------------------------------------------------------------------------------- control jobs
+def shard_modules(settings, design) -> list[str] | None:
+    """The modules a worker imports to know the strategies a control run of ``design`` uses (its
+    control method, warm-start law and actuator families, where registered outside the package);
+    None when one is defined in ``__main__`` (the job then runs in-process)."""
+    method = CONTROL_METHODS[settings.method]
+    used = [getattr(method, "law", None) or method, LAWS[settings.warm_start]]
+    used += [ACTUATOR_FAMILIES[name] for name, elements in design.actuators.items() if elements
+             and name in ACTUATOR_FAMILIES]
+    modules = []
+    for entry in used:
+        mod = entry.__module__ if isinstance(entry, type) else type(entry).__module__
+        if mod == "__main__":
+            return None
+        if not mod.startswith("warp_shape") and mod not in modules:
+            modules.append(mod)
+    return modules
+
+
+def _per_world(spec, W: int) -> list:
+    """One passive spec per world from the spec of a batch (shared indices, or one list per world), as
+    ``controller.loop`` reads it."""
+    spec = list(spec)
+    per_world = len(spec) == W and all(isinstance(s, (list, tuple, np.ndarray, set)) for s in spec)
+    return [[spec[w]] if per_world else spec for w in range(W)]
+
+
+def control_job(method: str, design, target, settings, device, passive_ipams, passive_cells, name, *, progress=None):
+    """One target's control run (a worker's job): ``CONTROL_METHODS[method].run`` on one world."""
+    return CONTROL_METHODS[method].run(design, [target], settings=settings, device=device, recorder=None,
+                                       progress=progress, passive_ipams=passive_ipams, passive_cells=passive_cells,
+                                       target_names=[name], recorder_prefix="control")[0]
+
+
+def control_sharded(pool: WorkerPool, design, targets: list, *, settings, device: str, progress=None,
+                    passive_ipams=(), passive_cells=(), target_names=None, modules=()) -> list:
+    """``control_many``'s results for the (centred) ``targets``, one job per target on ``pool``'s
+    workers; ``progress(step, max_steps, done, worlds)`` as a batch reports it (the furthest step of the
+    jobs running, the targets done)."""
+    W = len(targets)
+    names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
+    pi, pc = _per_world(passive_ipams, W), _per_world(passive_cells, W)
+    jobs = [(settings.method, design, targets[w], settings, device, pi[w], pc[w], names[w]) for w in range(W)]
+    steps, done = np.zeros(W, dtype=np.int64), np.zeros(W, dtype=bool)
+
+    total = [settings.max_steps + settings.max_settle_steps]
+
+    def relay(job, payload):
+        if payload is None:
+            done[job] = True
+        else:
+            steps[job], total[0], finished, _ = payload
+            done[job] |= finished >= 1
+        if progress is not None:
+            progress(int(steps.max()), total[0], int(done.sum()), W)
+
+    results = pool.run(control_job, jobs, modules=modules, progress=relay)
+    return [dataclasses.replace(r, design=design) for r in results]
