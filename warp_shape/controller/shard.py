@@ -27,6 +27,7 @@ import os
 import pickle
 import signal
 import sys
+import threading
 import time
 import traceback
 from multiprocessing import get_context
@@ -139,6 +140,7 @@ class WorkerPool:
             raise DesignError(f"a worker pool needs at least one worker, got {size}")
         self.size = int(size)
         self._workers: list[_Worker] = []
+        self.job_seconds: list[list[float]] = []  # per ``run``: each job's CPU time in its worker, s
 
     @property
     def pids(self) -> list[int]:
@@ -176,19 +178,21 @@ class WorkerPool:
         Any error, and Ctrl-C, ends the pool before it is raised."""
         self.start()
         out, todo, left = [None] * len(jobs), list(range(len(jobs)))[::-1], len(jobs)
+        seconds = [0.0] * len(jobs)
         try:
             while left:
                 for w in self._workers:
                     if w.job is None and todo:
                         w.job = todo.pop()
                         w.conn.send((w.job, fn, jobs[w.job], tuple(modules)))
-                left -= self._collect(out, progress)
+                left -= self._collect(out, seconds, progress)
         except BaseException:
             self.close()
             raise
+        self.job_seconds.append(seconds)
         return out
 
-    def _collect(self, out: list, progress) -> int:
+    def _collect(self, out: list, seconds: list, progress) -> int:
         """Handle what the workers sent (waiting up to a second); the jobs finished."""
         busy = [w for w in self._workers if w.job is not None]
         ready = set(wait([w.conn for w in busy] + [w.process.sentinel for w in busy], timeout=1.0))
@@ -202,7 +206,7 @@ class WorkerPool:
                     continue
                 if kind == "error":
                     raise _rebuilt(*payload)
-                out[job], w.job = payload, None
+                (out[job], seconds[job]), w.job = payload, None
                 finished += 1
                 if progress is not None:
                     progress(job, None)
@@ -293,10 +297,20 @@ def _quiet_warp() -> None:
         os.close(null)
 
 
+def _end_with_the_caller(parent: int) -> None:
+    """End this worker within a second of its caller's end (killed, say), even in the middle of a job."""
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def _worker_main(conn) -> None:
     """A worker: take jobs ``(id, fn, args, modules)`` until told to stop (None) or the pipe closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle: it ends the pool
     _STATE["worker"] = True
+    _end_with_the_caller(os.getppid())
     _quiet_warp()
     load_plugins()
     while True:
@@ -313,16 +327,23 @@ def _worker_main(conn) -> None:
             now = time.monotonic()
             if now - last[0] >= PROGRESS_EVERY:
                 last[0] = now
-                conn.send(("progress", job, payload))
+                try:
+                    conn.send(("progress", job, payload))
+                except (OSError, ValueError):  # the caller is gone
+                    os._exit(1)
 
+        start = time.process_time()
         try:
             for name in modules:
                 importlib.import_module(name)
             result = fn(*args, progress=progress)
+            reply = ("done", job, (result, time.process_time() - start))
         except BaseException as exc:  # every failure goes back to the caller, who ends the pool
-            conn.send(("error", job, _portable(exc, traceback.format_exc())))
-            continue
-        conn.send(("done", job, result))
+            reply = ("error", job, _portable(exc, traceback.format_exc()))
+        try:
+            conn.send(reply)
+        except (OSError, ValueError):  # the caller is gone
+            return
 
 
 # ---------------------------------------------------------------------------------- control jobs
