@@ -147,17 +147,18 @@ class WorkerPool:
         """The worker processes' ids (empty before the pool starts and after it ends)."""
         return [w.process.pid for w in self._workers]
 
-    def start(self) -> "WorkerPool":
-        """Start the workers (they load the package while the caller goes on); a no-op once started.
-        Ctrl-C is blocked while they start, so none of them inherits a handler; the caller gets the press
-        afterwards."""
-        if self._workers:
+    def start(self, jobs: int | None = None) -> "WorkerPool":
+        """Start workers up to ``min(size, jobs)`` (default ``size``): a pool grows to its largest batch
+        and no further. They load the package while the caller goes on. Ctrl-C is blocked while they
+        start, so none of them inherits a handler; the caller gets the press afterwards."""
+        want = self.size if jobs is None else max(1, min(self.size, int(jobs)))
+        if len(self._workers) >= want:
             return self
         ctx = get_context("spawn")
         blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             with _main_hidden():
-                for _ in range(self.size):
+                for _ in range(want - len(self._workers)):
                     mine, theirs = ctx.Pipe()
                     p = ctx.Process(target=_worker_main, args=(theirs,), name="warp-shape-worker", daemon=True)
                     p.start()
@@ -176,7 +177,7 @@ class WorkerPool:
         registered outside the package). ``progress(job, payload)`` gets each job's progress messages
         (``payload`` None: the job is done).
         Any error, and Ctrl-C, ends the pool before it is raised."""
-        self.start()
+        self.start(len(jobs))
         out, todo, left = [None] * len(jobs), list(range(len(jobs)))[::-1], len(jobs)
         seconds = [0.0] * len(jobs)
         try:
@@ -199,7 +200,10 @@ class WorkerPool:
         finished = 0
         for w in busy:
             if w.conn in ready:
-                kind, job, payload = w.conn.recv()
+                try:
+                    kind, job, payload = w.conn.recv()
+                except (EOFError, OSError):  # it died: its pipe closed
+                    raise _died(w) from None
                 if kind == "progress":
                     if progress is not None:
                         progress(job, payload)
@@ -211,10 +215,7 @@ class WorkerPool:
                 if progress is not None:
                     progress(job, None)
             elif w.process.sentinel in ready:
-                w.process.join(JOIN_TIMEOUT)  # its exit code
-                raise WorkerError(f"worker process {w.process.pid} ended (exit code {w.process.exitcode}) while it "
-                                  f"ran job {w.job}: out of memory or killed? Run with --workers 1 (workers=1) "
-                                  f"to run in one process")
+                raise _died(w)
         return finished
 
     def close(self) -> None:
@@ -242,6 +243,12 @@ class WorkerPool:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _died(w: _Worker) -> WorkerError:
+    w.process.join(JOIN_TIMEOUT)  # its exit code
+    return WorkerError(f"worker process {w.process.pid} ended (exit code {w.process.exitcode}) while it ran job "
+                       f"{w.job}: out of memory or killed? Run with --workers 1 (workers=1) to run in one process")
 
 
 @contextlib.contextmanager

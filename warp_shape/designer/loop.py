@@ -132,7 +132,7 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
                     info=_placement_info(settings, names, _start_pcc(rest, sampler, len(targets))))
     with worker_pool(settings.workers) as pool:  # the run's worker processes, started once (controller.shard)
         if pool is not None and str(device).startswith("cpu"):
-            pool.start()
+            pool.start(len(targets))  # more join when a batch has more jobs (refinement screens)
         _rounds(run, PLACEMENTS[settings.placement](), actuators)
         record = _codesign(run)
     pcc_rows = np.array([[r.pcc for r in rs] for rs in run.rounds])
