@@ -151,7 +151,7 @@ def test_worlds_settle_independently_bit_for_bit():
 
 def test_guards_and_settings():
     d = cube_fig6_design(subdivisions=2)
-    assert SimulationSettings().settle == "dynamic"  # today's behaviour stays the default
+    assert SimulationSettings().settle == "static"  # the scratch batches settle statically by default
     with pytest.raises(DesignError, match="settle must be one of"):
         SimulationSettings(settle="quasi")
     with pytest.raises(DesignError, match="bending='exact'"):

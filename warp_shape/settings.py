@@ -121,7 +121,7 @@ class SimulationSettings:
     launch_mode: str = "graph"
     reestimate_every: int = 1000
     max_substeps: int = DEFAULT_MAX_SUBSTEPS
-    settle: str = "dynamic"
+    settle: str = "static"
 
     def __post_init__(self):
         key = str(self.integrator).lower().replace("-", "_") if isinstance(self.integrator, str) else None
