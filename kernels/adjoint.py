@@ -15,16 +15,176 @@ from typing import Any
 
 import warp as wp
 
-from .bending import dihedral_angle
+from .bending import dihedral_angle, hinge_angle
+from .common import world_and_index
 from .hinge import make_hinge_kernel
 from .ipam import ipam_natural_length
 from .pressure import gauge_pressure
-from .springs import spring_damper_force
+from .springs import edge_frame, spring_damper_force
 
 MODULE = "warp_shape.kernels.adjoint"
 
-#: the fused hinge pass (spring + damper, bending, volume and dV/dx), backward-enabled
-hinge_grad_kernel = make_hinge_kernel("hinge_grad_kernel", True, module=MODULE)
+#: the fused hinge pass (spring + damper, bending, volume and dV/dx); its adjoint is
+#: ``hinge_adjoint_kernel`` (written by hand), so Warp generates none
+hinge_grad_kernel = make_hinge_kernel("hinge_grad_kernel", True, module=MODULE, backward=False)
+
+
+@wp.func
+def edge_frame_adjoint(edge: Any, inv_len: Any, len_bar: Any, dhat_bar: Any, inv_bar: Any):
+    """The adjoint of springs.edge_frame: d(loss)/d(edge) from the adjoints of |e|, e / |e| and 1 / |e|
+    (below the floor on |e|^2 the length's adjoint does not reach e . e, as the floor's max has it)."""
+    ee = wp.dot(edge, edge)
+    floor = type(ee)(1.0e-30)
+    inv_bar = inv_bar + len_bar * ee + wp.dot(dhat_bar, edge)
+    ee_bar = len_bar * inv_len
+    if ee > floor:
+        ee_bar = ee_bar - type(ee)(0.5) * inv_bar * inv_len / ee
+    return dhat_bar * inv_len + edge * (type(ee)(2.0) * ee_bar)
+
+
+@wp.func
+def stretch_adjoint(mu: Any, dhat: Any, length: Any, rest: Any, k: Any, damping: Any, dv: Any):
+    """The adjoint of springs.spring_stretch_force with mu the adjoint of the force on the first end
+    (minus that of the second): (d/d dhat, d/d length, d/d dv, d/d rest, d/d k)."""
+    s = k * (length - rest) + damping * wp.dot(dv, dhat)
+    sigma = wp.dot(mu, dhat)
+    return mu * s + dv * (sigma * damping), sigma * k, dhat * (sigma * damping), -sigma * k, sigma * (length - rest)
+
+
+@wp.func
+def wing_force_adjoint(mu: Any, n: Any, torque_l: Any):
+    """The adjoint of a wing force n torque_l / max(|n|^2, tiny) with mu its adjoint: (d/dn, d/d torque_l)."""
+    nn = wp.dot(n, n)
+    tiny = type(nn)(1.0e-30)
+    inv = type(nn)(1.0) / wp.max(nn, tiny)
+    p = wp.dot(mu, n)
+    n_bar = mu * (torque_l * inv)
+    if nn > tiny:
+        n_bar = n_bar - n * (type(nn)(2.0) * p * torque_l * inv * inv)
+    return n_bar, p * inv
+
+
+@wp.func
+def angle_adjoint(theta_bar: Any, n_a: Any, n_b: Any, wing_b: Any, len_e: Any):
+    """The adjoint of bending.hinge_angle, atan2(-(n_a . wing_b) |e|, n_a . n_b): (d/d n_a, d/d n_b,
+    d/d wing_b, d/d |e|); the float32 polynomial atan2 is differentiated as atan2."""
+    c = wp.dot(n_a, wing_b)
+    y = -c * len_e
+    x = wp.dot(n_a, n_b)
+    r2 = x * x + y * y
+    y_bar = type(x)(0.0)
+    x_bar = type(x)(0.0)
+    if r2 > type(x)(0.0):
+        y_bar = theta_bar * x / r2
+        x_bar = -theta_bar * y / r2
+    return n_b * x_bar - wing_b * (y_bar * len_e), n_a * x_bar, n_a * (-y_bar * len_e), -y_bar * c
+
+
+@wp.func
+def bending_adjoint(l0: Any, l1: Any, l2: Any, l3: Any, edge: Any, wing_a: Any, wing_b: Any, n_a: Any, n_b: Any,
+                    inv_len: Any, len_e: Any, kt: Any, rest_angle: Any, paper_variant: int):
+    """The adjoint of bending.hinge_bending_forces with l0..l3 the adjoints of the four forces:
+    (d/d edge, d/d wing_a, d/d wing_b, d/d n_a, d/d n_b, d/d inv_len, d/d len_e, d/d rest angle, d/d k_t),
+    n_a and n_b taken as independent inputs (their dependence on the edge and wings is the caller's)."""
+    zero = type(len_e)(0.0)
+    theta = hinge_angle(n_a, n_b, wing_b, len_e)
+    torque_l = kt * (theta - rest_angle) * len_e
+    m1 = l1 - l0
+    ta = type(len_e)(0.5)
+    tb = ta
+    il2 = inv_len * inv_len
+    if paper_variant == 0:
+        ta = wp.dot(wing_a, edge) * il2
+        tb = wp.dot(wing_b, edge) * il2
+    na_bar, t_bar_a = wing_force_adjoint(l2 - l0 - m1 * ta, n_a, torque_l)
+    nb_bar, t_bar_b = wing_force_adjoint(l3 - l0 - m1 * tb, n_b, torque_l)
+    t_bar = t_bar_a + t_bar_b
+    e_bar = edge * zero
+    wa_bar = edge * zero
+    wb_bar = edge * zero
+    inv_bar = zero
+    if paper_variant == 0:
+        ta_bar = -wp.dot(m1, n_a) * (torque_l / wp.max(wp.dot(n_a, n_a), type(len_e)(1.0e-30)))
+        tb_bar = -wp.dot(m1, n_b) * (torque_l / wp.max(wp.dot(n_b, n_b), type(len_e)(1.0e-30)))
+        e_bar = (wing_a * ta_bar + wing_b * tb_bar) * il2
+        wa_bar = edge * (ta_bar * il2)
+        wb_bar = edge * (tb_bar * il2)
+        inv_bar = type(len_e)(2.0) * inv_len * (ta_bar * wp.dot(wing_a, edge) + tb_bar * wp.dot(wing_b, edge))
+    theta_bar = t_bar * kt * len_e
+    na2, nb2, wb2, len_bar = angle_adjoint(theta_bar, n_a, n_b, wing_b, len_e)
+    len_bar = len_bar + t_bar * kt * (theta - rest_angle)
+    return (e_bar, wa_bar, wb_bar + wb2, na_bar + na2, nb_bar + nb2, inv_bar, len_bar, -theta_bar,
+            t_bar * (theta - rest_angle) * len_e)
+
+
+@wp.kernel(enable_backward=False, module=MODULE)
+def hinge_adjoint_kernel(
+    # Model:
+    hinges: wp.array(dtype=wp.vec4i),  # (E,) v0, v1 (edge), v2, v3 (wings)
+    owns: wp.array(dtype=wp.int32),  # (E,) bit 0 / 1: the hinge owns face A / B
+    damping: Any,  # c_s, N s/m
+    paper_variant: int,  # 0: exact gradient; 1: paper eq. (9) edge forces
+    n_worlds: int,
+    n_edges: int,
+    # State in (the forward pass's inputs):
+    edge_in: wp.array3d(dtype=Any),  # (4, W, E) rest length, rest angle, stretch and bending stiffness
+    xv_in: wp.array3d(dtype=Any),  # (2, W, V) positions and velocities at the evaluation point
+    vslot: int,  # column of the volume
+    # State in (adjoints of the forward pass's outputs):
+    fg_adj: wp.array3d(dtype=Any),  # (2, W, V) adjoint of the forces (per N) and of dV/dx (per m^2)
+    volume_adj: wp.array2d(dtype=wp.float64),  # (W, slots) adjoint of the volume, per m^3
+    # Out (accumulated):
+    edge_adj: wp.array3d(dtype=Any),  # (4, W, E) adjoint of the edge fields
+    xv_adj: wp.array3d(dtype=Any),  # (2, W, V) adjoint of the positions and velocities
+):
+    """The vector-Jacobian product of hinge.make_hinge_kernel's pass (with bending): the adjoints of
+    its inputs from those of its outputs, in one pass over the hinges as the forward's."""
+    w, e = world_and_index(wp.tid(), n_edges, n_worlds)
+    h = hinges[e]
+    x0 = xv_in[0, w, h[0]]
+    x1 = xv_in[0, w, h[1]]
+    edge = x1 - x0
+    wing_a = xv_in[0, w, h[2]] - x0
+    wing_b = xv_in[0, w, h[3]] - x0
+    n_a = wp.cross(edge, wing_a)
+    n_b = wp.cross(wing_b, edge)
+    inv_len, len_e, dhat = edge_frame(edge)
+    l0 = fg_adj[0, w, h[0]]
+    l1 = fg_adj[0, w, h[1]]
+    dv = xv_in[1, w, h[1]] - xv_in[1, w, h[0]]
+    dhat_bar, len_s, dv_bar, rest_bar, k_bar = stretch_adjoint(l0 - l1, dhat, len_e, edge_in[0, w, e],
+                                                               edge_in[2, w, e], damping, dv)
+    e_bar, wa_bar, wb_bar, na_bar, nb_bar, inv_bar, len_b, angle_bar, kt_bar = bending_adjoint(
+        l0, l1, fg_adj[0, w, h[2]], fg_adj[0, w, h[3]], edge, wing_a, wing_b, n_a, n_b, inv_len, len_e,
+        edge_in[3, w, e], edge_in[1, w, e], paper_variant)
+    # the faces' volume and dV/dx = n / 6 on their three vertices
+    sixth = type(len_e)(1.0) / type(len_e)(6.0)
+    lv = type(len_e)(volume_adj[w, vslot])
+    x0_bar = edge * type(len_e)(0.0)
+    x1_bar = x0_bar
+    own = owns[e]
+    g01 = fg_adj[1, w, h[0]] + fg_adj[1, w, h[1]]
+    if own & 1:
+        na_bar = na_bar + (g01 + fg_adj[1, w, h[2]] + x0 * lv) * sixth
+        x0_bar = n_a * (lv * sixth)
+    if own & 2:
+        nb_bar = nb_bar + (g01 + fg_adj[1, w, h[3]] + x1 * lv) * sixth
+        x1_bar = n_b * (lv * sixth)
+    # n_a = edge x wing_a, n_b = wing_b x edge
+    e_bar = e_bar + wp.cross(wing_a, na_bar) + wp.cross(nb_bar, wing_b)
+    wa_bar = wa_bar + wp.cross(na_bar, edge)
+    wb_bar = wb_bar + wp.cross(edge, nb_bar)
+    e_bar = e_bar + edge_frame_adjoint(edge, inv_len, len_s + len_b, dhat_bar, inv_bar)
+    wp.atomic_add(xv_adj, 0, w, h[0], x0_bar - e_bar - wa_bar - wb_bar)
+    wp.atomic_add(xv_adj, 0, w, h[1], x1_bar + e_bar)
+    wp.atomic_add(xv_adj, 0, w, h[2], wa_bar)
+    wp.atomic_add(xv_adj, 0, w, h[3], wb_bar)
+    wp.atomic_sub(xv_adj, 1, w, h[0], dv_bar)
+    wp.atomic_add(xv_adj, 1, w, h[1], dv_bar)
+    edge_adj[0, w, e] = edge_adj[0, w, e] + rest_bar
+    edge_adj[1, w, e] = edge_adj[1, w, e] + angle_bar
+    edge_adj[2, w, e] = edge_adj[2, w, e] + k_bar
+    edge_adj[3, w, e] = edge_adj[3, w, e] + kt_bar
 
 
 @wp.kernel(module=MODULE)

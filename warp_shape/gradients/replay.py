@@ -281,8 +281,9 @@ class DifferentiableReplay:
     def kernel_launches(self, h: float = 1.0e-4) -> list:
         """(kernel, dim, inputs) of every launch the adjoint's forward makes: the build, one internal
         step h and a jam event (their adjoints take the same arguments); e.g. to compile them."""
-        return (self._record(self._build) + self._record(lambda launch: self._step(h, self.single, launch))
-                + [self._jam_launch()])
+        step = self._record(lambda launch: self._step(h, self.single, launch))
+        hinge = [_hinge_adjoint(dim, inputs) for kernel, dim, inputs in step if kernel is ka.hinge_grad_kernel]
+        return self._record(self._build) + step + hinge[:1] + [self._jam_launch()]
 
     # ------------------------------------------------------------------ recorded launches and graphs
     def _record(self, fill) -> list:
@@ -298,6 +299,9 @@ class DifferentiableReplay:
                 wp.launch(kernel, dim, inputs, device=self.device, record_tape=False)
             return
         for kernel, dim, inputs in reversed(launches):
+            if kernel is ka.hinge_grad_kernel:  # its adjoint is written by hand
+                wp.launch(*_hinge_adjoint(dim, inputs), device=self.device, record_tape=False)
+                continue
             wp.launch(kernel, dim, inputs, adj_inputs=[_adjoint(a) for a in inputs], device=self.device,
                       adjoint=True, record_tape=False)
 
@@ -510,6 +514,13 @@ def _adjoint(a):
     if wp.types.is_value(a) and not isinstance(a, (int, float, bool)):
         return type(a)()
     return None
+
+
+def _hinge_adjoint(dim: int, inputs: list) -> tuple:
+    """(kernel, dim, inputs) of the hinge pass's adjoint for a recorded hinge_grad_kernel launch: its
+    inputs, the adjoints of its outputs (forces and dV/dx, volume) in, of the edges and state out."""
+    *model, edge, xv, vslot, fg, volume = inputs
+    return ka.hinge_adjoint_kernel, dim, [*model, edge, xv, vslot, fg.grad, volume.grad, edge.grad, xv.grad]
 
 
 def _add(dst: wp.array, src: wp.array) -> None:
