@@ -361,7 +361,8 @@ def rk4_point_kernel(
     inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
     gas_rt: wp.float64,  # R T, J/mol
     p_atm: wp.float64,  # Pa absolute
-    c: Any,  # the step to the next stage point, s (h/2, h/2, h)
+    step_in: wp.array(dtype=Any),  # (1,) internal step h, s
+    fraction: Any,  # the next stage point's share of h (1/2, 1/2, 1)
     # Control:
     air_in: wp.array(dtype=wp.float64),  # (1,) mol
     # State in:
@@ -376,6 +377,7 @@ def rk4_point_kernel(
     """One RK4 stage: its slope (v, a) and the next point start + c (v, a)."""
     i = wp.tid()
     a = acceleration(fg_in, volume_in, air_in, gas_rt, p_atm, inv_mass[i], i)
+    c = fraction * step_in[0]
     accel_out[0, i] = a
     xv_next[0, 0, i] = xv_start[0, 0, i] + xv_stage[1, 0, i] * c
     xv_next[1, 0, i] = xv_start[1, 0, i] + a * c
@@ -387,7 +389,7 @@ def rk4_combine_kernel(
     inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
     gas_rt: wp.float64,  # R T, J/mol
     p_atm: wp.float64,  # Pa absolute
-    h: Any,  # internal step, s
+    step_in: wp.array(dtype=Any),  # (1,) internal step h, s
     # Control:
     air_in: wp.array(dtype=wp.float64),  # (1,) mol
     # State in:
@@ -405,6 +407,7 @@ def rk4_combine_kernel(
 ):
     """The RK4 step: start + h/6 (k0 + 2 k1 + 2 k2 + k3)."""
     i = wp.tid()
+    h = step_in[0]
     a3 = acceleration(fg_3, volume_3, air_in, gas_rt, p_atm, inv_mass[i], i)
     two = type(h)(2.0)
     sixth = h / type(h)(6.0)
@@ -420,7 +423,7 @@ def semi_implicit_grad_kernel(
     inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
     gas_rt: wp.float64,  # R T, J/mol
     p_atm: wp.float64,  # Pa absolute
-    h: Any,  # internal step, s
+    step_in: wp.array(dtype=Any),  # (1,) internal step h, s
     # Control:
     air_in: wp.array(dtype=wp.float64),  # (1,) mol
     # State in:
@@ -432,6 +435,7 @@ def semi_implicit_grad_kernel(
 ):
     """Semi-implicit Euler as kernels/integrate.integrate_semi_implicit_fused."""
     i = wp.tid()
+    h = step_in[0]
     v_new = xv_in[1, 0, i] + acceleration(fg_in, volume_in, air_in, gas_rt, p_atm, inv_mass[i], i) * h
     xv_out[1, 0, i] = v_new
     xv_out[0, 0, i] = xv_in[0, 0, i] + v_new * h
@@ -464,3 +468,52 @@ def jam_grad_kernel(
     edge_out[1, 0, e] = dihedral_angle(x0, x1, xv_in[0, 0, h[2]], xv_in[0, 0, h[3]])
     edge_out[2, 0, e] = edge_in[2, 0, e] * jam_stretch
     edge_out[3, 0, e] = edge_in[3, 0, e] * jam_bend
+
+
+@wp.kernel(enable_backward=False, module=MODULE)
+def tape_store_kernel(
+    # Control:
+    slot_in: wp.array(dtype=wp.int32),  # (1,) the tape slot to write
+    # State in:
+    rows_in: wp.array3d(dtype=Any),  # (R, 1, V) one internal step's state in and intermediates
+    volumes_in: wp.array3d(dtype=wp.float64),  # (S, 1, 1) its stages' volumes, m^3
+    # Out:
+    rows_out: wp.array3d(dtype=Any),  # (slots, >= R, V) the tape
+    volumes_out: wp.array2d(dtype=wp.float64),  # (slots, S)
+):
+    """Keep one internal step's intermediates on the tape (launched over R x V)."""
+    r, i = wp.tid()
+    s = slot_in[0]
+    rows_out[s, r, i] = rows_in[r, 0, i]
+    if i == 0 and r < volumes_in.shape[0]:
+        volumes_out[s, r] = volumes_in[r, 0, 0]
+
+
+@wp.kernel(enable_backward=False, module=MODULE)
+def tape_load_kernel(
+    # Control:
+    slot_in: wp.array(dtype=wp.int32),  # (1,) the tape slot to read
+    # State in:
+    rows_in: wp.array3d(dtype=Any),  # (slots, >= R, V) the tape
+    volumes_in: wp.array2d(dtype=wp.float64),  # (slots, S)
+    # Out:
+    rows_out: wp.array3d(dtype=Any),  # (R, 1, V) the internal step's state in and intermediates
+    volumes_out: wp.array3d(dtype=wp.float64),  # (S, 1, 1) m^3
+):
+    """Restore one internal step's intermediates from the tape (launched over R x V)."""
+    r, i = wp.tid()
+    s = slot_in[0]
+    rows_out[r, 0, i] = rows_in[s, r, i]
+    if i == 0 and r < volumes_out.shape[0]:
+        volumes_out[r, 0, 0] = volumes_in[s, r]
+
+
+@wp.kernel(enable_backward=False, module=MODULE)
+def advance_slot_kernel(
+    # Control:
+    delta: int,  # +1 after a recorded step, -1 before an adjoint step
+    # Out:
+    slot_out: wp.array(dtype=wp.int32),  # (1,) the tape slot, updated
+):
+    """Move the tape's slot index (inside the captured graphs, so they serve every slot)."""
+    slot_out[0] = slot_out[0] + delta

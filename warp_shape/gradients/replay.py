@@ -3,8 +3,8 @@
 The forward replay is ``controller.replay``'s, on the simulator's own fused step; it fixes the
 schedule (the internal step of every output step, the jam events) and keeps checkpoints every
 ``segment`` internal steps at most. The adjoint runs backwards over segments: each is recomputed from
-its checkpoint with the backward-enabled kernels (``kernels/adjoint.py``) along a chain of slots that
-keep every internal step's intermediates, then every internal step's adjoint is taken in reverse,
+its checkpoint with the backward-enabled kernels (``kernels/adjoint.py``), every internal step's
+intermediates kept on a tape, then every internal step's adjoint is taken in reverse,
 through the jam events (the frozen rest lengths and angles depend on the state they froze at) down to
 the model's parameters and the rest shape.
 docs/gradients.md gives the algorithm and its cost.
@@ -126,7 +126,10 @@ def _state_of(sim) -> np.ndarray:
 @dataclass
 class StepBuffers:
     """One internal step's arrays: the state in and out (2, 1, V) and the intermediates (per stage the
-    forces without pressure and dV/dx, the volume; the RK4 stage points and accelerations)."""
+    forces without pressure and dV/dx, the volume; the RK4 stage points and accelerations). ``rows``
+    (R, 1, V) and ``volumes`` (S, 1, 1), where given, hold xv_in, fg, points and accel (in this order)
+    and the volumes as views: the tape keeps the first ``kept`` rows (accel, which no adjoint reads,
+    is left out)."""
 
     xv_in: wp.array
     xv_out: wp.array
@@ -134,6 +137,9 @@ class StepBuffers:
     volume: list
     points: list
     accel: list
+    rows: wp.array | None = None
+    volumes: wp.array | None = None
+    kept: int = 0
 
 
 @dataclass
@@ -210,10 +216,14 @@ class DifferentiableReplay:
         self.pressure = sc(max(n, 1))
         self.enabled = wp.ones(max(n, 1), dtype=wp.int32, device=self.device)
         self._vec, self._stages = vec, 4 if self.integrator == "rk4" else 1
-        # one step's buffers for the forward on the kernels alone; a segment's chain of slots for the adjoint
+        # one step's buffers for the forward on the kernels alone; the adjoint's work buffers, whose
+        # intermediates every recomputed internal step leaves on the tape (slot index on the device, so
+        # one captured graph serves every slot and every internal step h)
         self.single = self._buffers(vec((2, 1, V)), vec((2, 1, V)))
-        self.chain = [vec((2, 1, V))]  # slot i steps chain[i] into chain[i + 1]
-        self.slots: list[StepBuffers] = []
+        self.work = self._work_buffers()
+        self.step_h = wp.zeros(1, dtype=self.scalar, device=self.device)
+        self.tape_slot = wp.zeros(1, dtype=wp.int32, device=self.device)
+        self.tape_rows = self.tape_volumes = None
         # jam event buffers
         self.jam_now = wp.zeros(E, dtype=wp.int32, device=self.device)
         self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
@@ -227,12 +237,26 @@ class DifferentiableReplay:
                            points=[vec((2, 1, V)) for _ in range(stages - 1)],
                            accel=[vec((1, V)) for _ in range(stages - 1)])
 
-    def _slot(self, i: int) -> StepBuffers:
-        """Slot i of the chain (allocated on first use)."""
-        while len(self.slots) <= i:
-            self.chain.append(self._vec((2, 1, len(self.host.rest_vertices))))
-            self.slots.append(self._buffers(self.chain[-2], self.chain[-1]))
-        return self.slots[i]
+    def _work_buffers(self) -> StepBuffers:
+        """One internal step's buffers as views of one rows array and one volumes array."""
+        V, stages = len(self.host.rest_vertices), self._stages
+        rows = self._vec((5 * stages - 1, 1, V))
+        volumes = wp.zeros((stages, 1, 1), dtype=wp.float64, device=self.device, requires_grad=True)
+        fg0, pts0, acc0 = 2, 2 + 2 * stages, 4 * stages
+        return StepBuffers(xv_in=rows[0:2], xv_out=self._vec((2, 1, V)),
+                           fg=[rows[fg0 + 2 * s:fg0 + 2 * s + 2] for s in range(stages)],
+                           volume=[volumes[s] for s in range(stages)],
+                           points=[rows[pts0 + 2 * s:pts0 + 2 * s + 2] for s in range(stages - 1)],
+                           accel=[rows[acc0 + s] for s in range(stages - 1)], rows=rows, volumes=volumes,
+                           kept=4 * stages)
+
+    def _tape(self, slots: int) -> None:
+        """A tape of at least ``slots`` internal steps (a new one drops the graphs of the old)."""
+        if self.tape_rows is None or self.tape_rows.shape[0] < slots:
+            self._graphs.pop("tape", None)
+            V, w = len(self.host.rest_vertices), self.work
+            self.tape_rows = wp.zeros((slots, w.kept, V), dtype=self.vec3, device=self.device)
+            self.tape_volumes = wp.zeros((slots, self._stages), dtype=wp.float64, device=self.device)
 
     # ------------------------------------------------------------------ launches
     def _build(self, launch) -> None:
@@ -260,30 +284,45 @@ class DifferentiableReplay:
                    [self.sub_pairs, self.offsets, self.ipam_stiffness, self.area_over_k, self.free_length,
                     self.ipam_damping, xv, self.pressure, self.enabled, fg])
 
-    def _step(self, h: float, b: StepBuffers, launch) -> None:
-        """One internal step h from b.xv_in into b.xv_out."""
+    def _step(self, b: StepBuffers, launch) -> None:
+        """One internal step (h: ``step_h``) from b.xv_in into b.xv_out."""
         V = len(self.host.rest_vertices)
         gas = (wp.float64(self.host.gas_rt), wp.float64(self.host.atmospheric_pressure))
         if self.integrator != "rk4":
             self._forces(b.xv_in, b.fg[0], b.volume[0], launch)
-            launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, b.xv_in,
+            launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, self.step_h, self.air, b.xv_in,
                                                       b.fg[0], b.volume[0], b.xv_out])
             return
         points = [b.xv_in] + b.points
-        for s, c in enumerate((0.5 * h, 0.5 * h, h)):
+        for s, c in enumerate((0.5, 0.5, 1.0)):
             self._forces(points[s], b.fg[s], b.volume[s], launch)
-            launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, self.scalar(c), self.air, b.xv_in, points[s],
+            launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, self.step_h, self.scalar(c), self.air, b.xv_in,
+                                             points[s],
                                              b.fg[s], b.volume[s], b.accel[s], points[s + 1]])
         self._forces(points[3], b.fg[3], b.volume[3], launch)
-        launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.scalar(h), self.air, b.xv_in, *b.points,
+        launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.step_h, self.air, b.xv_in, *b.points,
                                            *b.accel, b.fg[3], b.volume[3], b.xv_out])
 
-    def kernel_launches(self, h: float = 1.0e-4) -> list:
+    def kernel_launches(self) -> list:
         """(kernel, dim, inputs) of every launch the adjoint's forward makes: the build, one internal
-        step h and a jam event (their adjoints take the same arguments); e.g. to compile them."""
-        step = self._record(lambda launch: self._step(h, self.single, launch))
+        step, the tape's and a jam event (their adjoints take the same arguments), and the hinge pass's
+        hand-written adjoint; e.g. to compile them."""
+        self._tape(1)
+        step = self._record(lambda launch: self._step(self.single, launch))
         hinge = [_hinge_adjoint(dim, inputs) for kernel, dim, inputs in step if kernel is ka.hinge_grad_kernel]
-        return self._record(self._build) + step + hinge[:1] + [self._jam_launch()]
+        return (self._record(self._build) + step + self._tape_launches(store=True) + self._tape_launches(store=False)
+                + hinge[:1] + [self._jam_launch()])
+
+    def _tape_launches(self, store: bool) -> list:
+        """Store the work buffers' intermediates in the tape's current slot and move to the next, or
+        move back and load them."""
+        w, V = self.work, len(self.host.rest_vertices)
+        tape = [self.tape_slot, self.tape_rows, self.tape_volumes]
+        if store:
+            return [(ka.tape_store_kernel, (w.kept, V), [self.tape_slot, w.rows, w.volumes, *tape[1:]]),
+                    (ka.advance_slot_kernel, 1, [1, self.tape_slot])]
+        return [(ka.advance_slot_kernel, 1, [-1, self.tape_slot]),
+                (ka.tape_load_kernel, (w.kept, V), [*tape, w.rows, w.volumes])]
 
     # ------------------------------------------------------------------ recorded launches and graphs
     def _record(self, fill) -> list:
@@ -310,31 +349,37 @@ class DifferentiableReplay:
             fill()
         return capture.graph
 
-    def _single_graph(self, h: float):
-        """The captured forward of one internal step h on the single buffers."""
-        key = ("single", h)
-        if key not in self._graphs:
-            launches = self._record(lambda launch: self._step(h, self.single, launch))
-            self._graphs[key] = self._capture(lambda: self._run(launches))
-        return self._graphs[key]
+    def _single_graph(self):
+        """The captured forward of one internal step on the single buffers."""
+        if "single" not in self._graphs:
+            launches = self._record(lambda launch: self._step(self.single, launch))
+            self._graphs["single"] = self._capture(lambda: self._run(launches))
+        return self._graphs["single"]
 
-    def _slot_graphs(self, i: int, h: float):
-        """(forward, adjoint) graphs of slot i stepping h: the forward from chain[i] into chain[i + 1]
-        keeping its intermediates; the adjoint zeroes the adjoints of chain[i] and of the intermediates
-        and runs the step's adjoints (chain[i + 1].grad in, chain[i].grad out; the adjoints of the
-        parameters, edge fields and controls add up)."""
-        key = (i, h)
-        if key not in self._graphs:
-            b = self._slot(i)
-            launches = self._record(lambda launch: self._step(h, b, launch))
-            scratch = [b.xv_in, *b.fg, *b.volume, *b.points, *b.accel]
+    def _tape_graphs(self):
+        """(forward, adjoint) graphs of one internal step on the work buffers: the forward steps
+        work.xv_in into work.xv_out, leaves its intermediates in the tape's slot, moves to the next
+        slot and makes xv_out the next step's xv_in; the adjoint moves back a slot, loads its
+        intermediates, zeroes their adjoints, runs the step's adjoints (work.xv_out.grad in; the
+        adjoints of the parameters, edge fields and controls add up) and leaves the adjoint of the state
+        before the step in work.xv_out.grad, for the step before."""
+        if "tape" not in self._graphs:
+            w = self.work
+            launches = self._record(lambda launch: self._step(w, launch))
+            store, load = self._tape_launches(store=True), self._tape_launches(store=False)
+
+            def forward():
+                self._run(launches + store)
+                wp.copy(w.xv_in, w.xv_out)
 
             def adjoint():
-                for a in scratch:
-                    a.grad.zero_()
+                self._run(load)
+                w.rows.grad.zero_()
+                w.volumes.grad.zero_()
                 self._run(launches, adjoint=True)
-            self._graphs[key] = (self._capture(lambda: self._run(launches)), self._capture(adjoint))
-        return self._graphs[key]
+                wp.copy(w.xv_out.grad, w.xv_in.grad)
+            self._graphs["tape"] = (self._capture(forward), self._capture(adjoint))
+        return self._graphs["tape"]
 
     # ------------------------------------------------------------------ forward and backward
     def forward(self) -> ReplayPlan:
@@ -353,20 +398,25 @@ class DifferentiableReplay:
             self._set(self.pressure, p.pressures[row])
             self._set(self.enabled, p.enabled)
 
-    def _recompute(self, start: int, stop: int) -> list:
-        """Output steps start..stop-1 recomputed from the checkpoint at start along the chain of slots
-        (intermediates kept); per output step the slot of its first substep."""
+    def _recompute(self, start: int, stop: int) -> None:
+        """Output steps start..stop-1 recomputed from the checkpoint at start, every internal step's
+        intermediates left on the tape (slots 0, 1, ...)."""
         p = self.plan
-        self._set(self.chain[0], p.checkpoints[start].reshape(2, 1, -1, 3))
-        firsts, i = [], 0
+        self._tape(int(p.substeps[start:stop].sum()))
+        forward = self._tape_graphs()[0]
+        self._set(self.work.xv_in, p.checkpoints[start].reshape(2, 1, -1, 3))
+        self.tape_slot.zero_()
         for k in range(start, stop):
-            self._load_edges(self._phase_of(k))
-            self._controls(int(p.row[k]))
-            firsts.append(i)
+            self._load_step(k)
             for _ in range(int(p.substeps[k])):
-                wp.capture_launch(self._slot_graphs(i, float(p.h[k]))[0])
-                i += 1
-        return firsts
+                wp.capture_launch(forward)
+
+    def _load_step(self, k: int) -> None:
+        """The edge fields, controls and internal step of output step k."""
+        p = self.plan
+        self._load_edges(self._phase_of(k))
+        self._controls(int(p.row[k]))
+        self.step_h.fill_(float(p.h[k]))
 
     def _phase_of(self, k: int) -> int:
         """The jam phase of output step k (0 before the first jam event)."""
@@ -427,24 +477,24 @@ class DifferentiableReplay:
         adj_air, adj_p = np.zeros(len(p.air)), np.zeros(p.pressures.shape)
         starts = sorted(p.checkpoints)
         events = {s: j for j, s in enumerate(p.jam_steps)}
-        for start, stop in reversed(list(zip(starts, starts[1:] + [p.n_steps]))):
-            firsts = self._recompute(start, stop)
-            i = firsts[-1] + int(p.substeps[stop - 1])
-            wp.copy(self.chain[i].grad, lam)
+        segments = list(zip(starts, starts[1:] + [p.n_steps]))
+        self._tape(max(int(p.substeps[a:b].sum()) for a, b in segments))
+        adjoint = self._tape_graphs()[1]
+        for start, stop in reversed(segments):
+            self._recompute(start, stop)
+            wp.copy(self.work.xv_out.grad, lam)
             for k in reversed(range(start, stop)):
-                self._load_edges(self._phase_of(k))
-                self._controls(int(p.row[k]))
+                self._load_step(k)
                 for _ in range(int(p.substeps[k])):
-                    i -= 1
-                    wp.capture_launch(self._slot_graphs(i, float(p.h[k]))[1])
+                    wp.capture_launch(adjoint)
                 adj_air[p.row[k]] += float(self.air.grad.numpy()[0])
                 self.air.grad.zero_()
                 if n:
                     adj_p[p.row[k]] += self.pressure.grad.numpy()[:n].astype(np.float64)
                     self.pressure.grad.zero_()
                 if k in events:
-                    self._jam_adjoint(events[k], self.chain[i].grad)
-            wp.copy(lam, self.chain[0].grad)
+                    self._jam_adjoint(events[k], self.work.xv_out.grad)
+            wp.copy(lam, self.work.xv_out.grad)
         wp.copy(self.edge0.grad, self.edge.grad)
         wp.copy(self.xv0.grad, lam)
         self._run(build, adjoint=True)
@@ -499,7 +549,8 @@ class DifferentiableReplay:
             if n:
                 self._set(self.pressure, rows_p[row])
                 self._set(self.enabled, p.enabled)
-            fwd = self._single_graph(float(p.h[k]))
+            self.step_h.fill_(float(p.h[k]))
+            fwd = self._single_graph()
             for _ in range(int(p.substeps[k])):
                 wp.copy(b.xv_in, b.xv_out)
                 wp.capture_launch(fwd)
