@@ -15,18 +15,64 @@ from typing import Any
 
 import warp as wp
 
-from .bending import dihedral_angle, hinge_angle
+from .bending import bending_forces_at, dihedral_angle, hinge_angle
 from .common import world_and_index
-from .hinge import make_hinge_kernel
 from .ipam import ipam_natural_length
-from .pressure import gauge_pressure
-from .springs import edge_frame, spring_damper_force
+from .pressure import add_face_volume, gauge_pressure
+from .springs import edge_frame, spring_damper_force, spring_stretch_force
 
 MODULE = "warp_shape.kernels.adjoint"
 
-#: the fused hinge pass (spring + damper, bending, volume and dV/dx); its adjoint is
-#: ``hinge_adjoint_kernel`` (written by hand), so Warp generates none
-hinge_grad_kernel = make_hinge_kernel("hinge_grad_kernel", True, module=MODULE, backward=False)
+
+
+@wp.kernel(enable_backward=False, module=MODULE)
+def hinge_grad_kernel(
+    # Model:
+    hinges: wp.array(dtype=wp.vec4i),  # (E,) v0, v1 (edge), v2, v3 (wings)
+    owns: wp.array(dtype=wp.int32),  # (E,) bit 0 / 1: the hinge owns face A / B
+    damping: Any,  # c_s, N s/m
+    paper_variant: int,  # 0: exact gradient; 1: paper eq. (9) edge forces
+    n_worlds: int,
+    n_edges: int,
+    # State in:
+    edge_in: wp.array3d(dtype=Any),  # (4, W, E) rest length, rest angle, stretch and bending stiffness
+    xv_in: wp.array3d(dtype=Any),  # (2, W, V) positions and velocities at the evaluation point
+    vslot: int,  # column of volume_out to accumulate into
+    # Out (accumulated):
+    fg_out: wp.array3d(dtype=Any),  # (2, W, V) every force but pressure (N); dV/dx (m^2)
+    volume_out: wp.array2d(dtype=wp.float64),  # (W, slots) m^3
+    # Out (the tape):
+    angle_out: wp.array3d(dtype=Any),  # (slots, stages, E) the hinges' angles, rad
+    slot_in: wp.array(dtype=wp.int32),  # (1,) the tape slot
+    stage: int,  # the evaluation's stage in the step
+):
+    """The step's fused hinge pass (hinge.make_hinge_kernel with bending, W = 1) that also leaves each
+    hinge's angle on the tape for ``hinge_adjoint_kernel`` (which then needs no atan2)."""
+    e = wp.tid()
+    h = hinges[e]
+    x0 = xv_in[0, 0, h[0]]
+    x1 = xv_in[0, 0, h[1]]
+    edge = x1 - x0
+    wing_a = xv_in[0, 0, h[2]] - x0
+    wing_b = xv_in[0, 0, h[3]] - x0
+    n_a = wp.cross(edge, wing_a)  # face A (v0, v1, v2): 2 area n_hat
+    n_b = wp.cross(wing_b, edge)  # face B (v1, v0, v3)
+    inv_len, len_e, dhat = edge_frame(edge)
+    fs = spring_stretch_force(dhat, len_e, edge_in[0, 0, e], edge_in[2, 0, e], damping,
+                              xv_in[1, 0, h[1]] - xv_in[1, 0, h[0]])
+    theta = hinge_angle(n_a, n_b, wing_b, len_e)
+    angle_out[slot_in[0], stage, e] = theta
+    fb0, fb1, f2, f3 = bending_forces_at(theta, edge, wing_a, wing_b, n_a, n_b, inv_len, len_e, edge_in[3, 0, e],
+                                         edge_in[1, 0, e], paper_variant)
+    wp.atomic_add(fg_out, 0, 0, h[0], fs + fb0)
+    wp.atomic_add(fg_out, 0, 0, h[1], fb1 - fs)
+    wp.atomic_add(fg_out, 0, 0, h[2], f2)
+    wp.atomic_add(fg_out, 0, 0, h[3], f3)
+    own = owns[e]
+    if own & 1:
+        add_face_volume(n_a, x0, h[0], h[1], h[2], 0, vslot, fg_out, volume_out)
+    if own & 2:
+        add_face_volume(n_b, x1, h[0], h[1], h[3], 0, vslot, fg_out, volume_out)
 
 
 @wp.func
@@ -38,7 +84,7 @@ def edge_frame_adjoint(edge: Any, inv_len: Any, len_bar: Any, dhat_bar: Any, inv
     inv_bar = inv_bar + len_bar * ee + wp.dot(dhat_bar, edge)
     ee_bar = len_bar * inv_len
     if ee > floor:
-        ee_bar = ee_bar - type(ee)(0.5) * inv_bar * inv_len / ee
+        ee_bar = ee_bar - type(ee)(0.5) * inv_bar * (inv_len * inv_len * inv_len)  # d(ee^-1/2)/d(ee)
     return dhat_bar * inv_len + edge * (type(ee)(2.0) * ee_bar)
 
 
@@ -53,7 +99,8 @@ def stretch_adjoint(mu: Any, dhat: Any, length: Any, rest: Any, k: Any, damping:
 
 @wp.func
 def wing_force_adjoint(mu: Any, n: Any, torque_l: Any):
-    """The adjoint of a wing force n torque_l / max(|n|^2, tiny) with mu its adjoint: (d/dn, d/d torque_l)."""
+    """The adjoint of a wing force n torque_l / max(|n|^2, tiny) with mu its adjoint: (d/dn, d/d torque_l,
+    1 / max(|n|^2, tiny))."""
     nn = wp.dot(n, n)
     tiny = type(nn)(1.0e-30)
     inv = type(nn)(1.0) / wp.max(nn, tiny)
@@ -61,7 +108,7 @@ def wing_force_adjoint(mu: Any, n: Any, torque_l: Any):
     n_bar = mu * (torque_l * inv)
     if nn > tiny:
         n_bar = n_bar - n * (type(nn)(2.0) * p * torque_l * inv * inv)
-    return n_bar, p * inv
+    return n_bar, p * inv, inv
 
 
 @wp.func
@@ -75,19 +122,19 @@ def angle_adjoint(theta_bar: Any, n_a: Any, n_b: Any, wing_b: Any, len_e: Any):
     y_bar = type(x)(0.0)
     x_bar = type(x)(0.0)
     if r2 > type(x)(0.0):
-        y_bar = theta_bar * x / r2
-        x_bar = -theta_bar * y / r2
+        s = theta_bar / r2
+        y_bar = s * x
+        x_bar = -s * y
     return n_b * x_bar - wing_b * (y_bar * len_e), n_a * x_bar, n_a * (-y_bar * len_e), -y_bar * c
 
 
 @wp.func
-def bending_adjoint(l0: Any, l1: Any, l2: Any, l3: Any, edge: Any, wing_a: Any, wing_b: Any, n_a: Any, n_b: Any,
-                    inv_len: Any, len_e: Any, kt: Any, rest_angle: Any, paper_variant: int):
-    """The adjoint of bending.hinge_bending_forces with l0..l3 the adjoints of the four forces:
+def bending_adjoint(theta: Any, l0: Any, l1: Any, l2: Any, l3: Any, edge: Any, wing_a: Any, wing_b: Any, n_a: Any,
+                    n_b: Any, inv_len: Any, len_e: Any, kt: Any, rest_angle: Any, paper_variant: int):
+    """The adjoint of bending.hinge_bending_forces at angle theta with l0..l3 the adjoints of the four forces:
     (d/d edge, d/d wing_a, d/d wing_b, d/d n_a, d/d n_b, d/d inv_len, d/d len_e, d/d rest angle, d/d k_t),
     n_a and n_b taken as independent inputs (their dependence on the edge and wings is the caller's)."""
     zero = type(len_e)(0.0)
-    theta = hinge_angle(n_a, n_b, wing_b, len_e)
     torque_l = kt * (theta - rest_angle) * len_e
     m1 = l1 - l0
     ta = type(len_e)(0.5)
@@ -96,16 +143,16 @@ def bending_adjoint(l0: Any, l1: Any, l2: Any, l3: Any, edge: Any, wing_a: Any, 
     if paper_variant == 0:
         ta = wp.dot(wing_a, edge) * il2
         tb = wp.dot(wing_b, edge) * il2
-    na_bar, t_bar_a = wing_force_adjoint(l2 - l0 - m1 * ta, n_a, torque_l)
-    nb_bar, t_bar_b = wing_force_adjoint(l3 - l0 - m1 * tb, n_b, torque_l)
+    na_bar, t_bar_a, inv_a = wing_force_adjoint(l2 - l0 - m1 * ta, n_a, torque_l)
+    nb_bar, t_bar_b, inv_b = wing_force_adjoint(l3 - l0 - m1 * tb, n_b, torque_l)
     t_bar = t_bar_a + t_bar_b
     e_bar = edge * zero
     wa_bar = edge * zero
     wb_bar = edge * zero
     inv_bar = zero
     if paper_variant == 0:
-        ta_bar = -wp.dot(m1, n_a) * (torque_l / wp.max(wp.dot(n_a, n_a), type(len_e)(1.0e-30)))
-        tb_bar = -wp.dot(m1, n_b) * (torque_l / wp.max(wp.dot(n_b, n_b), type(len_e)(1.0e-30)))
+        ta_bar = -wp.dot(m1, n_a) * (torque_l * inv_a)
+        tb_bar = -wp.dot(m1, n_b) * (torque_l * inv_b)
         e_bar = (wing_a * ta_bar + wing_b * tb_bar) * il2
         wa_bar = edge * (ta_bar * il2)
         wb_bar = edge * (tb_bar * il2)
@@ -136,9 +183,13 @@ def hinge_adjoint_kernel(
     # Out (accumulated):
     edge_adj: wp.array3d(dtype=Any),  # (4, W, E) adjoint of the edge fields
     xv_adj: wp.array3d(dtype=Any),  # (2, W, V) adjoint of the positions and velocities
+    # State in (the tape):
+    angle_in: wp.array3d(dtype=Any),  # (slots, stages, E) the hinges' angles, rad
+    slot_in: wp.array(dtype=wp.int32),  # (1,) the tape slot
+    stage: int,  # the evaluation's stage in the step
 ):
-    """The vector-Jacobian product of hinge.make_hinge_kernel's pass (with bending): the adjoints of
-    its inputs from those of its outputs, in one pass over the hinges as the forward's."""
+    """The vector-Jacobian product of ``hinge_grad_kernel``'s pass: the adjoints of its inputs from
+    those of its outputs, in one pass over the hinges as the forward's."""
     w, e = world_and_index(wp.tid(), n_edges, n_worlds)
     h = hinges[e]
     x0 = xv_in[0, w, h[0]]
@@ -155,7 +206,7 @@ def hinge_adjoint_kernel(
     dhat_bar, len_s, dv_bar, rest_bar, k_bar = stretch_adjoint(l0 - l1, dhat, len_e, edge_in[0, w, e],
                                                                edge_in[2, w, e], damping, dv)
     e_bar, wa_bar, wb_bar, na_bar, nb_bar, inv_bar, len_b, angle_bar, kt_bar = bending_adjoint(
-        l0, l1, fg_adj[0, w, h[2]], fg_adj[0, w, h[3]], edge, wing_a, wing_b, n_a, n_b, inv_len, len_e,
+        angle_in[slot_in[0], stage, e], l0, l1, fg_adj[0, w, h[2]], fg_adj[0, w, h[3]], edge, wing_a, wing_b, n_a, n_b, inv_len, len_e,
         edge_in[3, w, e], edge_in[1, w, e], paper_variant)
     # the faces' volume and dV/dx = n / 6 on their three vertices
     sixth = type(len_e)(1.0) / type(len_e)(6.0)
@@ -481,12 +532,14 @@ def tape_store_kernel(
     rows_out: wp.array3d(dtype=Any),  # (slots, >= R, V) the tape
     volumes_out: wp.array2d(dtype=wp.float64),  # (slots, S)
 ):
-    """Keep one internal step's intermediates on the tape (launched over R x V)."""
-    r, i = wp.tid()
+    """Keep one internal step's intermediates (rows_out's R rows) on the tape (launched over V)."""
+    i = wp.tid()
     s = slot_in[0]
-    rows_out[s, r, i] = rows_in[r, 0, i]
-    if i == 0 and r < volumes_in.shape[0]:
-        volumes_out[s, r] = volumes_in[r, 0, 0]
+    for r in range(rows_out.shape[1]):
+        rows_out[s, r, i] = rows_in[r, 0, i]
+    if i == 0:
+        for r in range(volumes_in.shape[0]):
+            volumes_out[s, r] = volumes_in[r, 0, 0]
 
 
 @wp.kernel(enable_backward=False, module=MODULE)
@@ -500,12 +553,14 @@ def tape_load_kernel(
     rows_out: wp.array3d(dtype=Any),  # (R, 1, V) the internal step's state in and intermediates
     volumes_out: wp.array3d(dtype=wp.float64),  # (S, 1, 1) m^3
 ):
-    """Restore one internal step's intermediates from the tape (launched over R x V)."""
-    r, i = wp.tid()
+    """Restore one internal step's intermediates (rows_in's R rows) from the tape (launched over V)."""
+    i = wp.tid()
     s = slot_in[0]
-    rows_out[r, 0, i] = rows_in[s, r, i]
-    if i == 0 and r < volumes_out.shape[0]:
-        volumes_out[r, 0, 0] = volumes_in[s, r]
+    for r in range(rows_in.shape[1]):
+        rows_out[r, 0, i] = rows_in[s, r, i]
+    if i == 0:
+        for r in range(volumes_out.shape[0]):
+            volumes_out[r, 0, 0] = volumes_in[s, r]
 
 
 @wp.kernel(enable_backward=False, module=MODULE)

@@ -84,8 +84,16 @@ def hinge_bending_forces(edge: Any, wing_a: Any, wing_b: Any, n_a: Any, n_b: Any
     torque d(theta)/d(wing); the edge vertices take the lever-rule split of the wings' reactions
     (exact gradient) or, with ``paper_variant``, -(f2 + f3) / 2 each (paper eq. 9). f0 closes the sum,
     so the four forces sum to zero."""
+    return bending_forces_at(hinge_angle(n_a, n_b, wing_b, len_e), edge, wing_a, wing_b, n_a, n_b, inv_len, len_e,
+                             kt, rest_angle, paper_variant)
+
+
+@wp.func
+def bending_forces_at(theta: Any, edge: Any, wing_a: Any, wing_b: Any, n_a: Any, n_b: Any, inv_len: Any,
+                      len_e: Any, kt: Any, rest_angle: Any, paper_variant: int):
+    """``hinge_bending_forces`` at the hinge's angle theta (rad), given."""
     tiny = type(len_e)(1.0e-30)
-    torque_l = kt * (hinge_angle(n_a, n_b, wing_b, len_e) - rest_angle) * len_e  # -torque |e|
+    torque_l = kt * (theta - rest_angle) * len_e  # -torque |e|
     f2 = n_a * (torque_l / wp.max(wp.dot(n_a, n_a), tiny))
     f3 = n_b * (torque_l / wp.max(wp.dot(n_b, n_b), tiny))
     if paper_variant != 0:

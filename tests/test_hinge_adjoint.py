@@ -1,5 +1,8 @@
 """The hand-written adjoint of the fused hinge pass against central finite differences (float64).
 
+The replay's pass is the step's (hinge.make_hinge_kernel): the same forces, volume and dV/dx, bit for
+bit, checked here too.
+
 ``kernels/adjoint.hinge_adjoint_kernel`` is the vector-Jacobian product of the pass the differentiable
 replay runs (``hinge_grad_kernel``: spring + damper, bending, the faces' volume and dV/dx). For random
 adjoints of its outputs (forces, dV/dx, volume) on a perturbed, moving 42-vertex icosphere, the product
@@ -15,6 +18,7 @@ import warp as wp
 
 import warp_shape as ws
 from warp_shape.kernels import adjoint as ka
+from warp_shape.kernels.hinge import eval_hinge_bending_kernel
 from warp_shape.model import host_model
 
 DAMPING = 0.05
@@ -44,24 +48,28 @@ class Pass:
     def _inputs(self, xv, edge):
         fg = wp.zeros((2, 1, self.V), dtype=wp.vec3d, requires_grad=True)
         vol = wp.zeros((1, 1), dtype=wp.float64, requires_grad=True)
+        angles = wp.zeros((2, 1, self.E), dtype=wp.float64)  # a tape of two slots, the second one used
         return [self.hinges, self.owns, wp.float64(DAMPING), self.paper, 1, self.E,
                 wp.array(edge.reshape(4, 1, -1), dtype=wp.float64, requires_grad=True),
-                wp.array(xv.reshape(2, 1, -1, 3), dtype=wp.vec3d, requires_grad=True), 0, fg, vol]
+                wp.array(xv.reshape(2, 1, -1, 3), dtype=wp.vec3d, requires_grad=True), 0, fg, vol, angles,
+                wp.array([1], dtype=wp.int32), 0]
 
     def weighted(self, xv, edge) -> float:
         """sum of the outputs weighted by their adjoints."""
         inputs = self._inputs(xv, edge)
         wp.launch(ka.hinge_grad_kernel, self.E, inputs)
-        fg, vol = inputs[-2].numpy()[:, 0], float(inputs[-1].numpy()[0, 0])
+        fg, vol = inputs[9].numpy()[:, 0], float(inputs[10].numpy()[0, 0])
         return float(np.sum(fg * self.fg_bar)) + vol * self.vol_bar
 
     def adjoint(self):
-        """(d/d xv (2, V, 3), d/d edge (4, E)) of ``weighted`` from the hand-written kernel."""
+        """(d/d xv (2, V, 3), d/d edge (4, E)) of ``weighted`` from the hand-written kernel (after the
+        forward pass, which leaves the hinges' angles on the tape)."""
         inputs = self._inputs(self.xv, self.edge)
-        fg, vol, edge, xv = inputs[-2], inputs[-1], inputs[6], inputs[7]
+        wp.launch(ka.hinge_grad_kernel, self.E, inputs)
+        fg, vol, edge, xv = inputs[9], inputs[10], inputs[6], inputs[7]
         fg.grad.assign(self.fg_bar.reshape(2, 1, -1, 3))
         vol.grad.assign(np.array([[self.vol_bar]]))
-        wp.launch(ka.hinge_adjoint_kernel, self.E, [*inputs[:9], fg.grad, vol.grad, edge.grad, xv.grad])
+        wp.launch(ka.hinge_adjoint_kernel, self.E, [*inputs[:9], fg.grad, vol.grad, edge.grad, xv.grad, *inputs[11:]])
         return xv.grad.numpy()[:, 0], edge.grad.numpy()[:, 0]
 
 
@@ -90,6 +98,19 @@ def test_hinge_adjoint_matches_central_differences(paper_variant, outputs):
             assert adj == 0.0 and abs(fd) < 1e-12, f"{outputs} does not depend on the {name}"
             continue
         assert abs(adj - fd) <= 1e-7 * abs(fd), f"{name}: adjoint {adj:.12e}, central difference {fd:.12e}"
+
+
+def test_the_replays_hinge_pass_is_the_steps():
+    """kernels/adjoint.hinge_grad_kernel (which also keeps the angles) gives the step's fused pass's
+    outputs bit for bit."""
+    for paper in (0, 1):
+        p = Pass(paper)
+        ours = p._inputs(p.xv, p.edge)
+        step = p._inputs(p.xv, p.edge)[:11]
+        wp.launch(ka.hinge_grad_kernel, p.E, ours)
+        wp.launch(eval_hinge_bending_kernel, p.E, step)
+        assert np.array_equal(ours[9].numpy(), step[9].numpy()) and np.array_equal(ours[10].numpy(), step[10].numpy())
+        assert np.abs(ours[11].numpy()[1]).max() > 0.05  # the angles are on the tape's slot 1
 
 
 def test_every_input_receives_an_adjoint():

@@ -223,7 +223,8 @@ class DifferentiableReplay:
         self.work = self._work_buffers()
         self.step_h = wp.zeros(1, dtype=self.scalar, device=self.device)
         self.tape_slot = wp.zeros(1, dtype=wp.int32, device=self.device)
-        self.tape_rows = self.tape_volumes = None
+        self.tape_rows = self.tape_volumes = self.tape_angles = None
+        self._tape(1)
         # jam event buffers
         self.jam_now = wp.zeros(E, dtype=wp.int32, device=self.device)
         self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
@@ -253,10 +254,11 @@ class DifferentiableReplay:
     def _tape(self, slots: int) -> None:
         """A tape of at least ``slots`` internal steps (a new one drops the graphs of the old)."""
         if self.tape_rows is None or self.tape_rows.shape[0] < slots:
-            self._graphs.pop("tape", None)
-            V, w = len(self.host.rest_vertices), self.work
+            self._graphs.clear()
+            V, E, w = len(self.host.rest_vertices), len(self.host.hinges), self.work
             self.tape_rows = wp.zeros((slots, w.kept, V), dtype=self.vec3, device=self.device)
             self.tape_volumes = wp.zeros((slots, self._stages), dtype=wp.float64, device=self.device)
+            self.tape_angles = wp.zeros((slots, self._stages, E), dtype=self.scalar, device=self.device)
 
     # ------------------------------------------------------------------ launches
     def _build(self, launch) -> None:
@@ -274,11 +276,11 @@ class DifferentiableReplay:
                                                   self.offsets, self.free_length, self.area_over_k])
         launch(ka.start_state_kernel, V, [self.rest, self.xv0])
 
-    def _forces(self, xv, fg, volume, launch) -> None:
+    def _forces(self, xv, fg, volume, stage: int, launch) -> None:
         m, V, E = self.design.material, len(self.host.rest_vertices), len(self.host.hinges)
         launch(ka.start_forces_kernel, V, [self.scalar(m.viscous_damping), xv, fg, volume])
         launch(ka.hinge_grad_kernel, E, [self.hinges, self.owns, self.scalar(m.spring_damping), self.paper_bending,
-                                         1, E, self.edge, xv, 0, fg, volume])
+                                         1, E, self.edge, xv, 0, fg, volume, self.tape_angles, self.tape_slot, stage])
         if self.host.n_ipams:
             launch(ka.ipam_grad_kernel, 3 * self.host.n_ipams,
                    [self.sub_pairs, self.offsets, self.ipam_stiffness, self.area_over_k, self.free_length,
@@ -289,17 +291,17 @@ class DifferentiableReplay:
         V = len(self.host.rest_vertices)
         gas = (wp.float64(self.host.gas_rt), wp.float64(self.host.atmospheric_pressure))
         if self.integrator != "rk4":
-            self._forces(b.xv_in, b.fg[0], b.volume[0], launch)
+            self._forces(b.xv_in, b.fg[0], b.volume[0], 0, launch)
             launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, self.step_h, self.air, b.xv_in,
                                                       b.fg[0], b.volume[0], b.xv_out])
             return
         points = [b.xv_in] + b.points
         for s, c in enumerate((0.5, 0.5, 1.0)):
-            self._forces(points[s], b.fg[s], b.volume[s], launch)
+            self._forces(points[s], b.fg[s], b.volume[s], s, launch)
             launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, self.step_h, self.scalar(c), self.air, b.xv_in,
                                              points[s],
                                              b.fg[s], b.volume[s], b.accel[s], points[s + 1]])
-        self._forces(points[3], b.fg[3], b.volume[3], launch)
+        self._forces(points[3], b.fg[3], b.volume[3], 3, launch)
         launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.step_h, self.air, b.xv_in, *b.points,
                                            *b.accel, b.fg[3], b.volume[3], b.xv_out])
 
@@ -307,7 +309,6 @@ class DifferentiableReplay:
         """(kernel, dim, inputs) of every launch the adjoint's forward makes: the build, one internal
         step, the tape's and a jam event (their adjoints take the same arguments), and the hinge pass's
         hand-written adjoint; e.g. to compile them."""
-        self._tape(1)
         step = self._record(lambda launch: self._step(self.single, launch))
         hinge = [_hinge_adjoint(dim, inputs) for kernel, dim, inputs in step if kernel is ka.hinge_grad_kernel]
         return (self._record(self._build) + step + self._tape_launches(store=True) + self._tape_launches(store=False)
@@ -319,10 +320,10 @@ class DifferentiableReplay:
         w, V = self.work, len(self.host.rest_vertices)
         tape = [self.tape_slot, self.tape_rows, self.tape_volumes]
         if store:
-            return [(ka.tape_store_kernel, (w.kept, V), [self.tape_slot, w.rows, w.volumes, *tape[1:]]),
+            return [(ka.tape_store_kernel, V, [self.tape_slot, w.rows, w.volumes, *tape[1:]]),
                     (ka.advance_slot_kernel, 1, [1, self.tape_slot])]
         return [(ka.advance_slot_kernel, 1, [-1, self.tape_slot]),
-                (ka.tape_load_kernel, (w.kept, V), [*tape, w.rows, w.volumes])]
+                (ka.tape_load_kernel, V, [*tape, w.rows, w.volumes])]
 
     # ------------------------------------------------------------------ recorded launches and graphs
     def _record(self, fill) -> list:
@@ -532,6 +533,7 @@ class DifferentiableReplay:
         rows_air = p.air if air is None else np.asarray(air, dtype=np.float64)
         rows_p = p.pressures if ipam_pressures is None else np.asarray(ipam_pressures, dtype=np.float64)
         self._run(self._record(self._build))
+        self.tape_slot.zero_()
         b = self.single
         wp.copy(b.xv_out, self.xv0)
         wp.copy(self.edge, self.edge0)
@@ -570,8 +572,9 @@ def _adjoint(a):
 def _hinge_adjoint(dim: int, inputs: list) -> tuple:
     """(kernel, dim, inputs) of the hinge pass's adjoint for a recorded hinge_grad_kernel launch: its
     inputs, the adjoints of its outputs (forces and dV/dx, volume) in, of the edges and state out."""
-    *model, edge, xv, vslot, fg, volume = inputs
-    return ka.hinge_adjoint_kernel, dim, [*model, edge, xv, vslot, fg.grad, volume.grad, edge.grad, xv.grad]
+    *model, edge, xv, vslot, fg, volume, angles, slot, stage = inputs
+    return ka.hinge_adjoint_kernel, dim, [*model, edge, xv, vslot, fg.grad, volume.grad, edge.grad, xv.grad, angles,
+                                          slot, stage]
 
 
 def _add(dst: wp.array, src: wp.array) -> None:
