@@ -387,17 +387,22 @@ class DifferentiableReplay:
         """Replay on the simulator and keep the plan (schedule, checkpoints, jam phases)."""
         self.plan = plan_replay(self.design, self.result, precision=self.precision, device=self.device,
                                 segment=self.segment)
+        self._loaded_phase = self._loaded_row = self._loaded_h = None
         return self.plan
 
     def _set(self, arr: wp.array, value) -> None:
         arr.assign(np.asarray(value, dtype=arr.numpy().dtype).reshape(arr.numpy().shape))
 
     def _controls(self, row: int) -> None:
+        """The controls of history row ``row`` (nothing to do where they are loaded already)."""
+        if getattr(self, "_loaded_row", None) == row:
+            return
         p = self.plan
-        self.air.assign(np.array([p.air[row]]))
+        self.air.fill_(float(p.air[row]))
         if self.host.n_ipams:
             self._set(self.pressure, p.pressures[row])
             self._set(self.enabled, p.enabled)
+        self._loaded_row = row
 
     def _recompute(self, start: int, stop: int) -> None:
         """Output steps start..stop-1 recomputed from the checkpoint at start, every internal step's
@@ -417,7 +422,9 @@ class DifferentiableReplay:
         p = self.plan
         self._load_edges(self._phase_of(k))
         self._controls(int(p.row[k]))
-        self.step_h.fill_(float(p.h[k]))
+        if getattr(self, "_loaded_h", None) != p.h[k]:
+            self.step_h.fill_(float(p.h[k]))
+            self._loaded_h = p.h[k]
 
     def _phase_of(self, k: int) -> int:
         """The jam phase of output step k (0 before the first jam event)."""
@@ -556,7 +563,7 @@ class DifferentiableReplay:
             for _ in range(int(p.substeps[k])):
                 wp.copy(b.xv_in, b.xv_out)
                 wp.capture_launch(fwd)
-        self._loaded_phase = None
+        self._loaded_phase = self._loaded_row = self._loaded_h = None
         return b.xv_out.numpy()[0, 0].astype(np.float64)
 
 
