@@ -3,8 +3,10 @@
 The step's own kernels (hinge, integrate, ipam, jamming) are forward-only and update scratch in
 place, which an adjoint cannot run through. These kernels compute the same physics from the same
 ``@wp.func`` laws, each writing fresh output arrays (a kernel only accumulates into or overwrites
-arrays it does not read), so Warp's generated adjoints give exact vector-Jacobian products. They
-live in their own Warp module: the forward step's module and its build are unchanged.
+arrays it does not read), so Warp's generated adjoints give exact vector-Jacobian products; the fused
+hinge pass's adjoint is written by hand (``hinge_adjoint_kernel``), and the tape kernels keep and
+restore one internal step's intermediates. They live in their own Warp module: the forward step's
+module and its build are unchanged.
 
 One world (W = 1) per replay; arrays keep the world axis of the step's layout so the fused hinge
 pass is shared. The model's parameters are built here too (edge rest values and stiffness, masses,
@@ -206,8 +208,8 @@ def hinge_adjoint_kernel(
     dhat_bar, len_s, dv_bar, rest_bar, k_bar = stretch_adjoint(l0 - l1, dhat, len_e, edge_in[0, w, e],
                                                                edge_in[2, w, e], damping, dv)
     e_bar, wa_bar, wb_bar, na_bar, nb_bar, inv_bar, len_b, angle_bar, kt_bar = bending_adjoint(
-        angle_in[slot_in[0], stage, e], l0, l1, fg_adj[0, w, h[2]], fg_adj[0, w, h[3]], edge, wing_a, wing_b, n_a, n_b, inv_len, len_e,
-        edge_in[3, w, e], edge_in[1, w, e], paper_variant)
+        angle_in[slot_in[0], stage, e], l0, l1, fg_adj[0, w, h[2]], fg_adj[0, w, h[3]], edge, wing_a, wing_b, n_a,
+        n_b, inv_len, len_e, edge_in[3, w, e], edge_in[1, w, e], paper_variant)
     # the faces' volume and dV/dx = n / 6 on their three vertices
     sixth = type(len_e)(1.0) / type(len_e)(6.0)
     lv = type(len_e)(volume_adj[w, vslot])

@@ -18,11 +18,11 @@ from .pressure import add_face_volume
 from .springs import edge_frame, spring_stretch_force
 
 
-def make_hinge_kernel(name: str, with_bending: bool, module: str | None = None, backward: bool = True):
+def make_hinge_kernel(name: str, with_bending: bool, module: str | None = None):
     """The fused per-hinge kernel, specialised at compile time with or without bending (k_t = 0
     designs launch the kernel whose name carries no 'bending' and that holds no bending code).
-    ``module`` given: a build in that Warp module (the differentiable replay's), backward-enabled
-    unless ``backward`` is False, so the step's own module keeps its forward-only build."""
+    ``module`` given: a backward-enabled build in that Warp module, so the step's own module keeps
+    its forward-only build."""
 
     def kernel(
         # Model:
@@ -74,7 +74,7 @@ def make_hinge_kernel(name: str, with_bending: bool, module: str | None = None, 
     kernel.__name__ = kernel.__qualname__ = name
     if module is None:
         return wp.kernel(kernel, enable_backward=False)
-    return wp.kernel(kernel, enable_backward=backward, module=module)
+    return wp.kernel(kernel, enable_backward=True, module=module)
 
 
 #: fused pass without bending (k_t = 0): spring + damper, volume and dV/dx
