@@ -1,6 +1,6 @@
 """The figures of docs/calibration.md: the synthetic device of tests/test_calibration.py calibrated,
-its held-out scan predicted, and each target of the default problem controlled on the default and
-the calibrated model and replayed on the device.
+its held-out scan predicted, and each target of the default problem controlled on the default, the
+calibrated and the true model and replayed on the device.
 
     .venv/bin/python scripts/measure_calibration.py [--seed 1] [--noise-mm 0.3] [--method paper|inverse]
 """
@@ -26,7 +26,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--noise-mm", type=float, default=0.3)
-    ap.add_argument("--method", default="paper")
+    ap.add_argument("--method", default="inverse")
     args = ap.parse_args()
     tc.NOISE = args.noise_mm * 1e-3
     t = time.perf_counter()
@@ -48,13 +48,15 @@ def main() -> None:
     after = scan_residuals(dev.cal.design, dev.obs[3]).rms_mm
     print(f"held-out scan: {before:.3f} mm default, {after:.3f} mm calibrated ({after / args.noise_mm:.2f} x noise)")
     settings = ws.ControlSettings(method=args.method)
+    models = (("default", dev.design), ("calibrated", dev.cal.design), ("true", dev.device))
     for name in ("oval", "heart"):
         target = ws.target(name)
-        d = tc._objective_on(dev.device, ws.control(dev.design, target, settings=settings), target)
-        c = tc._objective_on(dev.device, ws.control(dev.cal.design, target, settings=settings), target)
-        print(f"{name}: objective on the device, {args.method} control on the default model {d:.5f}, "
-              f"on the calibrated model {c:.5f}")
-
+        row = []
+        for label, model in models:
+            res = ws.control(model, target, settings=settings)
+            plan = (res.refinement or {}).get("plan", "-")
+            row.append(f"{label} {tc._objective_on(dev.device, res, target):.5f} (plan {plan})")
+        print(f"{name}: objective on the device of the {args.method} sequence controlled on the " + ", ".join(row))
 
 if __name__ == "__main__":
     main()

@@ -1,11 +1,13 @@
 """Calibration from scans on synthetic devices (docs/calibration.md).
 
-The "device" is the 162-vertex Fig. 6 design with its parameters perturbed (E t +25 %, bending -40 %,
-each IPAM's k and A by up to +-20 %, rest scale +1.5 %), driven to four control states, held to rest
-and scanned: 60 % of the surface, 0.3 mm noise, a random rigid pose, one scan in millimetres; the
-chamber pressure is read with each scan (20 Pa noise), which fixes the common scale of E t, k and A
-that shape alone leaves loose (docs/calibration.md). IPAM 4's pressure never changes, so its area
-cannot be fitted: the fit must say so.
+The "device" is the 162-vertex Fig. 6 design with its parameters perturbed near the issue's extremes
+in the direction that moves the shape most (E t +30 %, bending -50 %, each IPAM's k -10..-20 % and A
++10..+20 %: each IPAM strokes 1.3-1.5 x the model's per unit pressure; rest scale +2 %), driven to
+four control states that use every IPAM, held to rest and scanned: 60 % of the surface, 0.3 mm noise,
+a random rigid pose, one scan in millimetres; the chamber pressure is read with each scan (20 Pa
+noise), which fixes the common scale of E t, k and A that shape alone leaves loose
+(docs/calibration.md). A scan at a state where an IPAM's pressure is zero cannot fit its area, and
+E with t is one product: the fit must say so.
 """
 
 from __future__ import annotations
@@ -57,16 +59,16 @@ class Device:
         self.design = d = cube_fig6_design(subdivisions=2)
         k0 = np.array([ip.stiffness for ip in d.ipams])
         a0 = np.array([ip.area for ip in d.ipams])
-        self.truth = dict(youngs_modulus=d.material.youngs_modulus * 1.25,
-                          bending_stiffness=d.material.bending_stiffness * 0.6,
-                          ipam_stiffness=k0 * rng.uniform(0.8, 1.2, 5), ipam_area=a0 * rng.uniform(0.8, 1.2, 5),
-                          rest_scale=1.015)
+        self.truth = dict(youngs_modulus=d.material.youngs_modulus * 1.3,
+                          bending_stiffness=d.material.bending_stiffness * 0.5,
+                          ipam_stiffness=k0 * rng.uniform(0.8, 0.9, 5), ipam_area=a0 * rng.uniform(1.1, 1.2, 5),
+                          rest_scale=1.02)
         self.device = apply_values(d, self.truth)
         n = host_model(d).rest_air
-        self.states = [ControlState(n * 1.6, (200e3, -30e3, 100e3, 0.0, 0.0)),
-                       ControlState(n * 1.9, (0.0, 220e3, -40e3, 150e3, 0.0)),
-                       ControlState(n * 2.2, (250e3, 120e3, 180e3, -40e3, 0.0)),
-                       ControlState(n * 1.8, (80e3, 100e3, 240e3, 60e3, 0.0))]  # held out
+        self.states = [ControlState(n * 1.6, (200e3, -30e3, 100e3, 0.0, 150e3)),
+                       ControlState(n * 1.9, (0.0, 220e3, -40e3, 150e3, 280e3)),
+                       ControlState(n * 2.2, (250e3, 120e3, 180e3, -40e3, 60e3)),
+                       ControlState(n * 1.8, (120e3, 60e3, 140e3, 40e3, 200e3))]  # held out
         probe = [ws.ScanObservation(np.random.default_rng(0).random((60, 3)) * 0.05, s) for s in self.states]
         shapes, pressures = replay_held(self.device, [o.sequence(self.device) for o in probe], pressures=True)
         self.scans = [scan_of(self.device.rest.copy_with(x), rng) for x in shapes]
@@ -89,9 +91,7 @@ def test_units_of_the_scans_are_detected(dev):
 
 def test_identifiable_parameters_are_recovered_and_their_errors_cover_the_truth(dev):
     cal = dev.cal
-    assert cal.unidentifiable == ["ipam_area[4]"]
-    assert "pressure never changed" in cal.notes[0]
-    assert not np.isfinite(cal.stderr["ipam_area"][4])
+    assert cal.unidentifiable == [] and np.all(np.isfinite(cal.stderr["ipam_area"]))
     for name, truth in dev.truth.items():
         value, se = np.atleast_1d(cal.values[name]), np.atleast_1d(cal.stderr[name])
         truth = np.broadcast_to(truth, value.shape)
@@ -112,32 +112,57 @@ def test_a_held_out_scan_is_predicted_within_the_scanner_noise(dev):
     assert after <= 1.2 * NOISE * 1e3 < before
 
 
+def test_what_the_scans_cannot_separate_is_named(dev):
+    """One scan at a state where IPAM 4 is unpressurised, E and t both fitted (one Gauss-Newton step):
+    IPAM 4's area and the pair E ~ t are named not identifiable, their standard errors infinite."""
+    state = ControlState(dev.states[0].air_moles, (200e3, -30e3, 100e3, 0.0, 0.0))
+    shape = replay_held(dev.device, [ws.ScanObservation(dev.scans[0], state).sequence(dev.device)])[0]
+    obs = ws.ScanObservation(scan_of(dev.device.rest.copy_with(shape), np.random.default_rng(5)), state)
+    cal = ws.calibrate(dev.design, [obs], wrt=("youngs_modulus", "thickness", "ipam_area"), max_iterations=1)
+    assert "ipam_area[4]" in cal.unidentifiable and "youngs_modulus ~ thickness" in cal.unidentifiable
+    assert any("pressure never changed" in n for n in cal.notes)
+    assert not np.isfinite(cal.stderr["ipam_area"][4]) and not np.isfinite(cal.stderr["youngs_modulus"])
+
+
 def _objective_on(device, result, target) -> float:
     x = ws.replay(device, result)
     t = target.centered()
     return fit_objective_and_gradient(x, ws.RadialSampler(t), 0, device.rest.faces, t.volume())[0]
 
 
-def test_the_calibrated_model_predicts_what_its_sequences_do_on_the_device(dev):
-    """Each target of the default problem controlled on the default and on the calibrated model, every
-    sequence replayed on the device: the calibrated model's own fit objective is the closer prediction
-    of the device's. (Whether the device then fits the target better is measured in docs/calibration.md:
-    at these perturbations the two sequences give the device nearly the same fit.)"""
-    settings = ws.ControlSettings(method="paper")
+@pytest.fixture(scope="module")
+def loop(dev):
+    """{(target, model): (objective on the device, on the model)}: each target of the default problem
+    controlled (method inverse) on the default and on the calibrated model, replayed on the device."""
+    out = {}
     for name in ("oval", "heart"):
         target = ws.target(name)
-        errors = []
-        for model in (dev.design, dev.cal.design):
-            res = ws.control(model, target, settings=settings)
-            errors.append(abs(_objective_on(dev.device, res, target) - _objective_on(model, res, target)))
-        assert errors[1] < errors[0], (name, errors)
+        for label, model in (("default", dev.design), ("calibrated", dev.cal.design)):
+            res = ws.control(model, target, settings=ws.ControlSettings(method="inverse"))
+            out[name, label] = (_objective_on(dev.device, res, target), _objective_on(model, res, target))
+    return out
+
+
+def test_sequences_controlled_on_the_calibrated_model_fit_the_device_better(loop):
+    """The sim-to-real loop: on every target of the default problem the sequence controlled on the
+    calibrated model fits the device better than the one controlled on the default model (the default
+    model's IPAMs stroke 1.3-1.5 x less than the device's; docs/calibration.md has the figures)."""
+    for name in ("oval", "heart"):
+        assert loop[name, "calibrated"][0] < loop[name, "default"][0], (name, loop)
+
+
+def test_the_calibrated_model_predicts_what_its_sequences_do_on_the_device(loop):
+    """The calibrated model's own fit objective of its sequence is the closer prediction of the device's."""
+    for name in ("oval", "heart"):
+        errors = [abs(loop[name, m][0] - loop[name, m][1]) for m in ("default", "calibrated")]
+        assert errors[1] < errors[0], (name, loop)
 
 
 def test_the_calibration_file_round_trips_and_is_checked(dev, tmp_path):
     path = write_calibration(dev.cal, dev.design, tmp_path / "calibration.json")
     data = json.loads(path.read_text())
     assert data["version"] == 1 and data["units"]["youngs_modulus"] == "Pa"
-    assert data["stderr"]["ipam_area"][4] is None and data["unidentifiable"] == ["ipam_area[4]"]
+    assert data["stderr"]["ipam_area"][4] is not None and data["unidentifiable"] == []
     d = apply_calibration(dev.design, path)
     assert d.material.youngs_modulus == pytest.approx(dev.cal.values["youngs_modulus"])
     assert [ip.area for ip in d.ipams] == pytest.approx(list(dev.cal.values["ipam_area"]))
