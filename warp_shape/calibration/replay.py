@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..controller.replay import drive_schedules
 from ..controller.worlds import mask_passive, max_speeds
 from ..design import Design
 from ..simulator import Simulator
@@ -41,20 +42,10 @@ def replay_held(design: Design, seqs: list[Sequence], *, hold_s: float = HOLD_S,
     sim = Simulator(design, device=device, settings=settings, worlds=len(seqs))
     mask_passive(sim, _passive(seqs, design.n_ipams, "passive_ipams"), _passive(seqs, design.n_cells, "passive_cells"))
     dt = sim.dt
-    steps = [np.rint(s.times / dt).astype(np.int64) for s in seqs]
-    end = max(int(st[-1]) for st in steps) + int(round(hold_s / dt))
+    sched = [(np.rint(s.times / dt).astype(np.int64), s.air, s.pressures, s.jammed) for s in seqs]
+    end = max(int(st[0][-1]) for st in sched) + int(round(hold_s / dt))
     limit = end + int(round(max(MAX_HOLD_S - hold_s, 0.0) / dt))
-    marks = np.unique(np.concatenate([*steps, [end]]))
-    for a, b in zip(marks[:-1], marks[1:]):
-        rows = [min(int(np.searchsorted(st, b)), len(st) - 1) for st in steps]
-        jammed = np.asarray(sim.jammed).reshape(len(seqs), -1)
-        for w, (s, k) in enumerate(zip(seqs, rows)):
-            for j in np.flatnonzero(s.jammed[k] & ~jammed[w]):
-                sim.jam(int(j), world=w)
-        sim.air_moles = np.array([s.air[k] for s, k in zip(seqs, rows)])
-        if design.n_ipams:
-            sim.ipam_pressures = np.stack([s.pressures[k] for s, k in zip(seqs, rows)])
-        sim.step(int(b - a))
+    drive_schedules(sim, sched, end)
     while max_speeds(sim).max() > SETTLE_SPEED and end < limit:
         sim.step(SETTLE_CHUNK)
         end += SETTLE_CHUNK

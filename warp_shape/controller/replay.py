@@ -23,7 +23,7 @@ from ..simulator import Simulator
 from .result import ControlResult
 from .worlds import mask_passive, passive_masks
 
-__all__ = ["replay", "replay_simulator", "control_schedule"]
+__all__ = ["replay", "replay_simulator", "control_schedule", "drive_schedules"]
 
 
 def control_schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -60,20 +60,28 @@ def replay_simulator(design: Design, results, *, device: str = "cpu"):
         raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
     # actuators a sequence left out are masked out, as when it was recorded
     mask_passive(sim, *passive_masks(results, design.n_ipams, design.n_cells))
-    marks = np.unique(np.concatenate([s[0] for s in sched]))
-    rows = [0] * len(results)
-    for a, b in zip(marks[:-1], marks[1:]):
-        for w, (steps, air, p, jam) in enumerate(sched):  # the row that ends at b (or the last row)
-            rows[w] = min(int(np.searchsorted(steps, b)), len(steps) - 1)
-        for w, (steps, air, p, jam) in enumerate(sched):
-            k = rows[w]
-            for j in np.flatnonzero(jam[k] & ~np.asarray(sim.jammed).reshape(len(results), -1)[w]):
-                sim.jam(int(j), world=w)
-        sim.air_moles = np.array([s[1][k] for s, k in zip(sched, rows)])
-        if design.n_ipams:
-            sim.ipam_pressures = np.stack([s[2][k] for s, k in zip(sched, rows)])
-        sim.step(int(b - a))
+    drive_schedules(sim, sched)
     return sim
+
+
+def drive_schedules(sim, schedules, end: int | None = None) -> None:
+    """Step ``sim`` (one world per schedule, from its state at step 0) through ``schedules``, each
+    (steps, air, pressures, jammed) as ``control_schedule`` gives them: before each row's step, the
+    cells the row shows newly jammed are jammed and its controls set, then the simulator steps to the
+    next row of any world; a world whose schedule ended holds its last controls. ``end``: on to that
+    step, every world holding its last controls."""
+    n = len(schedules)
+    marks = np.unique(np.concatenate([s[0] for s in schedules] + ([[end]] if end is not None else [])))
+    for a, b in zip(marks[:-1], marks[1:]):
+        rows = [min(int(np.searchsorted(s[0], b)), len(s[0]) - 1) for s in schedules]  # the row ending at b
+        jammed = np.asarray(sim.jammed).reshape(n, -1)
+        for w, (s, k) in enumerate(zip(schedules, rows)):
+            for j in np.flatnonzero(s[3][k] & ~jammed[w]):
+                sim.jam(int(j), world=w)
+        sim.air_moles = np.array([s[1][k] for s, k in zip(schedules, rows)])
+        if schedules[0][2].shape[1]:
+            sim.ipam_pressures = np.stack([s[2][k] for s, k in zip(schedules, rows)])
+        sim.step(int(b - a))
 
 
 def replay(design: Design, result, *, device: str = "cpu") -> np.ndarray:
