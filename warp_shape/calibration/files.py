@@ -62,17 +62,23 @@ def write_calibration(result: CalibrationResult, design: Design, path) -> Path:
     return write_json(Path(path), calibration_data(result, design))
 
 
+def _json_file(path: Path, what: str, missing: str = "", bad: str = ""):
+    """The JSON content of ``path``; a missing or unreadable file is a one-line ``DesignError`` naming
+    ``what`` it should be, ``missing`` / ``bad`` appended (what to do instead)."""
+    if not path.is_file():
+        raise DesignError(f"{what} {path} does not exist{missing}")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DesignError(f"{what} {path} is not JSON ({exc}){bad}") from None
+
+
 def read_calibration(path) -> dict:
     """{name: value} of a calibration file, checked (format, version, known parameters, positive
     numbers); a bad file is a one-line ``DesignError``."""
     path = Path(path)
-    if not path.is_file():
-        raise DesignError(f"calibration file {path} does not exist; write one with warp-shape calibrate")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DesignError(f"calibration file {path} is not JSON ({exc}); give a file warp-shape calibrate wrote") \
-            from None
+    data = _json_file(path, "calibration file", missing="; write one with warp-shape calibrate",
+                      bad="; give a file warp-shape calibrate wrote")
     if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
         raise DesignError(f"{path} is not a calibration file (no \"format\": \"{CALIBRATION_FORMAT}\")")
     if data.get("version") != CALIBRATION_VERSION:
@@ -193,12 +199,7 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
     "wrt": [...]}``. Every path is relative to the manifest's folder and must stay in it;
     each observation's state is checked against ``design``. Errors are one line, before any work."""
     path = Path(path)
-    if not path.is_file():
-        raise DesignError(f"manifest {path} does not exist")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DesignError(f"manifest {path} is not JSON: {exc}") from None
+    data = _json_file(path, "manifest")
     entries = data.get("observations") if isinstance(data, dict) else None
     if not isinstance(entries, list) or not entries:
         raise DesignError(f"manifest {path} lists no observations (\"observations\": [{{\"scan\": ..., ...}}])")
