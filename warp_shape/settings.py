@@ -109,7 +109,7 @@ class SimulationSettings:
         work on a 642-vertex membrane); an automatic split beyond it raises ``StabilityError`` naming the
         material or state value that made the stable step so small.
     settle: how a run that only holds its controls until rest finds the rest state: ``"dynamic"`` (the
-        damped dynamics, the reference) or ``"static"`` (the equilibrium of the potential energy,
+        damped dynamics, the reference) or ``"static"`` (the default: the equilibrium of the potential energy,
         ``Simulator.settle_static``; docs/equilibria.md says where it is used and where not).
     """
 

@@ -62,7 +62,7 @@ class Simulator:
 
     The simulation options come from ``settings`` (a ``SimulationSettings``; its defaults when None:
     integrator "rk4", dt 1e-3 s, precision "float32", bending "exact", automatic substeps, launch mode
-    "graph", re-estimate every 1000 internal steps, settle "dynamic"); each keyword given explicitly overrides the
+    "graph", re-estimate every 1000 internal steps, settle "static"); each keyword given explicitly overrides the
     matching setting. ``worlds`` > 1 runs that many independent copies of the design in one batch
     (one launch per kernel); array properties then carry a leading world axis.
     """
