@@ -101,6 +101,15 @@ class Explorer:
         self.evaluations += int(out.iterations)
         return True
 
+    def jammed(self, states: list[WorldRef], cells: np.ndarray) -> list[WorldRef]:
+        """``states`` with the cells ``cells`` (B, n_cell) bool of each jammed where they are now."""
+        sim = self._sim(len(states))
+        sim.load_worlds(states)
+        done = np.asarray(sim.jammed).reshape(len(states), -1)
+        for b, j in zip(*np.nonzero(np.asarray(cells, dtype=bool) & ~done)):
+            sim.jam(int(j), world=int(b))
+        return sim.snapshot()
+
     def measure(self, sim, targets: np.ndarray) -> Settled:
         """The fit of every world of ``sim`` (world b measured on target ``targets[b]``)."""
         x = np.asarray(sim.positions, dtype=np.float64).reshape(sim.worlds, -1, 3)

@@ -3,7 +3,8 @@
 1. Warm start: the paper's law (``method="paper"``), as it is.
 2. Jam plans (``controller.plans``, setting ``inverse_plans``): the warm start's jam times, never jamming,
    over-inflating and jamming every cell; each plan's main trajectory runs in its own simulator
-   (one world per target) and records every control step.
+   (one world per target) and records every control step. With static scratch settles a plan that
+   starts from rest is screened from its equilibria and runs its trajectory only if a target keeps it.
 3. Screening: every plan's state settled and measured (all plans and targets in one batch); the
    ``PLANS_REFINED`` best plans of each target go on.
 4. Refinement (``controller.refine``): bounded damped Gauss-Newton on the fit objective's residual
@@ -29,7 +30,7 @@ from ..design import Design
 from ..model import HostModel, host_model
 from ..sampling import RadialSampler
 from .explore import Explorer
-from .plans import parse_plans, start_plan
+from .plans import parse_plans, plan_starts, plan_trajectory
 from .refine import STOP_LIMIT, Refined, refine
 from .result import ControlResult
 from .settings import ControlSettings
@@ -69,18 +70,22 @@ def _screen(start: np.ndarray, keep: int) -> np.ndarray:
     return out
 
 
-def _refine_all(ctx: _Run, trajs: list, warm) -> tuple[list[Refined], int]:
+def _explorer(ctx: _Run, warm) -> Explorer:
+    s = ctx.settings
+    volumes = np.array([r.target.volume() for r in warm])
+    return Explorer(ctx.design, s.simulation, ctx.device, ctx.sampler, ctx.host, volumes, ctx.passive_ipams,
+                    s.inverse_settle_steps, s.control_period)
+
+
+def _refine_all(ctx: _Run, ex: Explorer, starts: list, warm) -> tuple[list[Refined], int]:
     """Screen every (plan, target) pair in one batch (its start settled and measured), then refine the
     ``PLANS_REFINED`` best plans of every target in one set of batches; one ``Refined`` per plan, and
     the world-steps simulated for it."""
-    W, P, s, n = len(warm), len(trajs), ctx.settings, ctx.host.n_ipams
-    volumes = np.array([r.target.volume() for r in warm])
-    ex = Explorer(ctx.design, s.simulation, ctx.device, ctx.sampler, ctx.host, volumes, ctx.passive_ipams,
-                  s.inverse_settle_steps, s.control_period)
-    air = np.concatenate([t.controls.air for t in trajs])
-    press = np.concatenate([t.controls.pressures for t in trajs]).reshape(P * W, n)
+    W, P, s, n = len(warm), len(starts), ctx.settings, ctx.host.n_ipams
+    air = np.concatenate([t.controls.air for t in starts])
+    press = np.concatenate([t.controls.pressures for t in starts]).reshape(P * W, n)
     targets = np.tile(np.arange(W), P)
-    S = ex.settle([st for t in trajs for st in t.states()], air, press, targets)
+    S = ex.settle([st for t in starts for st in t.states], air, press, targets)
     keep = _screen(S.objective.reshape(P, W), PLANS_REFINED).reshape(-1)
     idx = np.flatnonzero(keep)
     ref = refine(ex, [S.states[c] for c in idx], air[idx], press[idx], targets[idx],
@@ -140,14 +145,20 @@ def _info(w: int, names: list, refined: list, best: int, warm_obj: float, object
                 plans_mare_before={n: float(r.start_mare[w]) for n, r in zip(names, refined)})
 
 
-def _finish_and_choose(trajs: list, names: list, refined: list, warm: list) -> list[ControlResult]:
-    """Per target the plan whose refined controls fit best: its trajectory ramps to them and holds
-    them until at rest, and the fit measured there is kept unless it does not beat the warm start."""
+def _finish_and_choose(ctx: _Run, starts: list, names: list, refined: list, warm: list) -> list[ControlResult]:
+    """Per target the plan whose refined controls fit best: its trajectory (run now where it was not
+    yet) ramps to them and holds them until at rest, and the fit measured there is kept unless it does
+    not beat the warm start."""
     pred = np.array([r.objective for r in refined])  # (P, W)
     best = np.argmin(pred, axis=0)
+    trajs = {}
     for p in sorted(set(best.tolist())):
-        trajs[p].ramp(refined[p].air, refined[p].pressures)
-        trajs[p].settle()
+        t = trajs[p] = plan_trajectory(starts[p], ctx, warm)
+        press = refined[p].pressures
+        if ctx.host.n_ipams:  # passive IPAMs: from where the trajectory holds them (neutral), as they started
+            press = np.where(ctx.passive_ipams, t.controls.pressures, press)
+        t.ramp(refined[p].air, press)
+        t.settle()
     out = []
     for w, base in enumerate(warm):
         p = int(best[w])
@@ -185,11 +196,13 @@ def _log(recorder, prefix: str, design: Design, results: list, names, settings, 
 
 
 def control_inverse(design: Design, targets, *, device: str, settings: ControlSettings, warm_start: list,
-                    progress=None, recorder=None, recorder_prefix: str = "control", passive_ipams=(), passive_cells=(),
-                    target_names=None) -> list[ControlResult]:
+                    warm_simulator=None, progress=None, recorder=None, recorder_prefix: str = "control",
+                    passive_ipams=(), passive_cells=(), target_names=None) -> list[ControlResult]:
     """Drive ``design`` to every target with the model-based controller (module docstring), starting
-    from ``warm_start``, a control law's results for the same targets and passive actuators; the other
-    arguments are those of ``control_many`` (the recorder logs the final sequences once they are chosen)."""
+    from ``warm_start``, a control law's results for the same targets and passive actuators, and
+    ``warm_simulator``, the law's simulator at the end of that run (None: the results are replayed;
+    ``controller.loop.run_law(..., keep_simulator=True)`` gives both); the other arguments are those
+    of ``control_many`` (the recorder logs the final sequences once they are chosen)."""
     t0 = time.perf_counter()
     plans = parse_plans(settings.inverse_plans)
     warm = warm_start
@@ -200,10 +213,11 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     ctx = dataclasses.replace(probe, host=host, passive_ipams=pi, passive_cells=pc)
     if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
         plans = [p for p in plans if p[0] != "overinflate"] or plans
-    trajs = [start_plan(p, ctx, warm) for p in plans]
-    refined, world_steps = _refine_all(ctx, trajs, warm)
+    ex = _explorer(ctx, warm)
+    starts = plan_starts(plans, ctx, warm, ex, warm_simulator)
+    refined, world_steps = _refine_all(ctx, ex, starts, warm)
     names = [f"{n}{f:g}" if n == "overinflate" else n for n, f in plans]
-    results = _finish_and_choose(trajs, names, refined, warm)
+    results = _finish_and_choose(ctx, starts, names, refined, warm)
     for res in results:
         res.refinement.update(wall_s=time.perf_counter() - t0, world_steps=int(world_steps))
     if recorder is not None:

@@ -224,9 +224,11 @@ def _result(w: int, ending: _Ending, history: History, jam_steps: np.ndarray, de
 
 def run_law(design: Design, targets: list[TriMesh], law, *, device: str, settings: ControlSettings, recorder=None,
             progress=None, passive_ipams=(), passive_cells=(), target_names=None,
-            recorder_prefix: str = "control") -> list[ControlResult]:
+            recorder_prefix: str = "control", keep_simulator: bool = False):
     """Drive ``design`` to every (centred) target at once with the control law ``law`` (a class of
-    ``LAWS``), one simulated world per target; the arguments are those of ``control_many``."""
+    ``LAWS``), one simulated world per target; the arguments are those of ``control_many``.
+    Returns the results, and with ``keep_simulator`` also the simulator at the end of the run (every
+    world where ``controller.replay.replay_simulator`` of the results puts it, bit for bit)."""
     W = len(targets)
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
     sampler = RadialSampler(targets, device=device, names=names)  # checks star-shape, naming the directions
@@ -246,4 +248,4 @@ def run_law(design: Design, targets: list[TriMesh], law, *, device: str, setting
     results = [_result(w, ending, history, jam_steps, design, targets[w], passive_i, passive_c) for w in range(W)]
     if recorder is not None:
         recorder.end_run(results)
-    return results
+    return (results, sim) if keep_simulator else results

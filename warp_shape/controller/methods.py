@@ -49,13 +49,13 @@ class InverseMethod:
 
     def run(self, design, targets, *, settings, device, progress=None, passive_ipams=(), passive_cells=(),
             target_names=None, **kwargs) -> list[ControlResult]:
-        warm = run_law(design, targets, LAWS[settings.warm_start], settings=settings.replace(method=settings.warm_start),
-                       device=device,
-                       progress=progress, passive_ipams=passive_ipams, passive_cells=passive_cells,
-                       target_names=target_names)
+        warm, sim = run_law(design, targets, LAWS[settings.warm_start],
+                            settings=settings.replace(method=settings.warm_start), device=device, progress=progress,
+                            passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
+                            keep_simulator=True)
         return control_inverse(design, targets, device=device, settings=settings, progress=progress,
                                passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
-                               warm_start=warm, **kwargs)
+                               warm_start=warm, warm_simulator=sim, **kwargs)
 
 
 def register_control_method(method, *, replace: bool = False):

@@ -8,9 +8,18 @@ and IPAM pressures of each, and keeps the best per target. A plan names the star
   final air with its final IPAM pressures, hold until at rest, jam every (non-passive) cell there,
   ramp back to the warm start's final controls and hold. The cells keep the larger, smoother shape
   they had when inflated; shrinking the rest pulls the free membrane in between them.
+
+Where scratch batches settle statically (``SimulationSettings.settle == "static"``), the plans that
+start from rest are screened from their equilibria (``plan_starts``): without a jam the ramp's path
+does not matter, and ``overinflate`` jams at the equilibrium of its larger air, where its hold comes to
+rest. Only a plan that some target keeps runs its trajectory (``plan_trajectory``), so every result
+still comes from a recorded, stepped sequence. The warm start's trajectory is the law's own
+simulator where it is given (the state a replay of the law's results reaches, bit for bit).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,7 +30,7 @@ from .observe import Observer
 from .replay import replay_simulator
 from .trajectory import Trajectory
 
-__all__ = ["parse_plans", "start_plan", "PLAN_HELP"]
+__all__ = ["parse_plans", "start_plan", "PlanStart", "plan_starts", "plan_trajectory", "PLAN_HELP"]
 
 PLAN_HELP = "'warm' (the warm start's jam times), 'never' or 'overinflate<f>' with f >= 1 (e.g. 'overinflate1.5')"
 PLAN_ALIASES = {"paper": "warm"}  # the former name of the warm start's jam times
@@ -60,18 +69,26 @@ def _history_from_results(results, host) -> History:
     return hist
 
 
-def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
+def _warm_controls(warm, host) -> Controls:
+    """The warm start's final controls, (W,) mol and (W, n_ipam) Pa."""
+    air = np.array([r.air_moles for r in warm])
+    press = np.stack([r.ipam_pressures for r in warm]) if host.n_ipams else np.zeros((len(warm), 0))
+    return Controls(air, press)
+
+
+def start_plan(plan: tuple[str, float], ctx, warm, warm_simulator=None) -> Trajectory:
     """The main trajectory of ``plan`` at the state its refinement starts from. ``ctx``: the run
     (design, settings, device, sampler, device constants, passive masks); ``warm``: the warm start's
-    results (one per target)."""
+    results (one per target); ``warm_simulator``: the law's simulator at the end of its run (taken
+    over by the ``warm`` plan; None: the results are replayed)."""
     name, factor = plan
     W = len(warm)
     host = ctx.host
-    air = np.array([r.air_moles for r in warm])
-    press = np.stack([r.ipam_pressures for r in warm]) if host.n_ipams else np.zeros((W, 0))
+    c = _warm_controls(warm, host)
+    air, press = c.air, c.pressures
     observer = Observer(host, ctx.sampler, W, [r.target.volume() for r in warm])
     if name == "warm":
-        sim = replay_simulator(ctx.design, warm, device=ctx.device)
+        sim = warm_simulator if warm_simulator is not None else replay_simulator(ctx.design, warm, device=ctx.device)
         hist = _history_from_results(warm, host)
         step = max(int(r.history["step"][-1]) for r in warm)
         jam_steps = np.stack([r.jam_steps for r in warm]).astype(np.int64).reshape(W, host.n_cells)
@@ -91,3 +108,51 @@ def start_plan(plan: tuple[str, float], ctx, warm) -> Trajectory:
     traj.ramp(air, press)
     traj.settle()
     return traj
+
+
+@dataclass
+class PlanStart:
+    """Where the screen of one plan starts: every target's state and controls, and the plan's
+    trajectory (None until a target keeps the plan: ``plan_trajectory`` runs it then)."""
+
+    plan: tuple[str, float]
+    states: list  # (W,) model.WorldRef
+    controls: Controls
+    trajectory: Trajectory | None
+
+
+def plan_starts(plans: list, ctx, warm, explorer, warm_simulator=None) -> list[PlanStart]:
+    """One ``PlanStart`` per plan (module docstring): every trajectory run, or, where scratch batches
+    settle statically, the warm start's alone and the others' starts settled (``explorer``, the
+    run's ``controller.explore.Explorer``; all ``overinflate`` plans in one batch)."""
+    if ctx.settings.simulation.settle != "static":
+        trajs = [start_plan(p, ctx, warm, warm_simulator) for p in plans]
+        return [PlanStart(p, t.states(), t.controls, t) for p, t in zip(plans, trajs)]
+    W, host = len(warm), ctx.host
+    warm_controls = _warm_controls(warm, host)
+    rest = ctx.new_simulator(W).snapshot()
+    over = [p for p in plans if p[0] == "overinflate"]
+    jammed = {}
+    if over:
+        targets = np.tile(np.arange(W), len(over))
+        air = np.concatenate([f * warm_controls.air for _, f in over])
+        press = np.tile(warm_controls.pressures, (len(over), 1))
+        settled = explorer.settle(rest * len(over), air, press, targets)
+        cells = np.tile(~ctx.passive_cells, (len(over), 1))
+        states = explorer.jammed(settled.states, cells)
+        jammed = {p: states[k * W:(k + 1) * W] for k, p in enumerate(over)}
+    out = []
+    for p in plans:
+        if p[0] == "warm":
+            t = start_plan(p, ctx, warm, warm_simulator)
+            out.append(PlanStart(p, t.states(), t.controls, t))
+        else:
+            out.append(PlanStart(p, jammed.get(p, rest), warm_controls, None))
+    return out
+
+
+def plan_trajectory(start: PlanStart, ctx, warm) -> Trajectory:
+    """The trajectory of ``start``'s plan, run now where it was not yet."""
+    if start.trajectory is None:
+        start.trajectory = start_plan(start.plan, ctx, warm)
+    return start.trajectory
