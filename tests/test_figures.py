@@ -192,3 +192,19 @@ def test_line_colours_are_distinct_and_never_grey():
         rgb = np.array([to_rgba(c)[:3] for c in ws.io.figures.line_colors(n)])
         assert len(np.unique(np.round(rgb, 3), axis=0)) == n, n
         assert np.all(np.ptp(rgb, axis=1) > 0.1), n  # not a grey (grey is for passive IPAMs)
+
+
+def test_figures_drawn_by_a_runs_workers_are_the_ones_drawn_here(small_design, tmp_path):
+    """Inside a run whose workers are running, every figure is one job on them: the same files in
+    the same order, each PNG byte for byte the one drawn in this process."""
+    from warp_shape.controller.shard import worker_pool
+
+    here = write_figures(small_design, tmp_path / "here")
+    with worker_pool(2) as pool:
+        pool.start()
+        there = write_figures(small_design, tmp_path / "there")
+        assert len(pool.job_seconds) == 1 and len(pool.job_seconds[0]) == len(here) // 2
+    assert [p.name for p in there] == [p.name for p in here]
+    for a, b in zip(here, there):
+        if a.suffix == ".png":
+            assert a.read_bytes() == b.read_bytes(), a.name

@@ -187,3 +187,43 @@ def test_designer_rounds_before_the_last_use_a_cheaper_control():
     assert round_control_settings(full.replace(method="paper"), "quick").method == "paper"
     with pytest.raises(ws.DesignError, match="round_control"):
         DesignSettings(round_control="cheap")
+
+
+def _law(fig6, targets):
+    from warp_shape.controller.laws import PaperLaw
+    from warp_shape.controller.loop import run_law
+
+    return run_law(fig6, targets, PaperLaw, device="cpu", settings=ControlSettings(method="paper"),
+                   keep_simulator=True)
+
+
+def test_plans_from_rest_run_only_where_kept_and_fit_as_when_every_plan_runs(fig6, monkeypatch):
+    """The warm plan taken over from the law's simulator is the replayed one bit for bit; plans from
+    rest screened from equilibria fit within 1e-4 of running every plan's sequence first."""
+    import warp_shape.controller.inverse as inv
+    from warp_shape.controller.plans import PlanStart, start_plan
+
+    targets = _targets(["cube", "oval", "egg"])
+    s = ControlSettings()
+    warm, sim = _law(fig6, targets)
+    lazy = control_inverse(fig6, targets, device="cpu", settings=s, warm_start=warm, warm_simulator=sim)
+    replayed = control_inverse(fig6, targets, device="cpu", settings=s, warm_start=_law(fig6, targets)[0])
+    for a, b in zip(lazy, replayed):
+        assert a.objective == b.objective and np.array_equal(a.achieved.vertices, b.achieved.vertices)
+        assert all(np.array_equal(a.history[c], b.history[c]) for c in a.history)
+
+    def every_plan(plans, ctx, warm, explorer, warm_simulator=None):
+        return [PlanStart(p, t.states(), t.controls, t) for p in plans
+                for t in [start_plan(p, ctx, warm, warm_simulator)]]
+
+    monkeypatch.setattr(inv, "plan_starts", every_plan)
+    eager = control_inverse(fig6, targets, device="cpu", settings=s, warm_start=_law(fig6, targets)[0])
+    names = set(eager[0].refinement["plans"])
+    assert set(eager[0].refinement["trajectories"]) == names
+    kept = {r.refinement["plan"] for r in lazy}
+    assert set(lazy[0].refinement["trajectories"]) == {"warm"} | kept < names  # some plan never ran
+    for a, b in zip(lazy, eager):
+        assert a.refinement["plan"] == b.refinement["plan"]
+        assert abs(a.objective - b.objective) < 1e-4, (a.objective, b.objective)
+        for n in names:
+            assert abs(a.refinement["plans_before"][n] - b.refinement["plans_before"][n]) < 1e-4

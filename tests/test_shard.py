@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import pytest
 import warp_shape as ws
 from warp_shape.cli import main
 from warp_shape.controller import ControlSettings
-from warp_shape.controller.shard import (WORKERS_VARIABLE, WorkerError, WorkerPool, available_cores, current_pool,
+from warp_shape.controller.shard import (IDLE_AFTER, WORKERS_VARIABLE, WorkerError, WorkerPool, available_cores, current_pool,
                                          resolve_workers, worker_pool)
 
 #: the model-based controller cut short: every stage of it runs, in seconds on 162 vertices
@@ -137,3 +138,36 @@ def test_worker_counts(monkeypatch):
 def test_cli_workers_flag_is_bounded(capsys):
     assert main(["design", "--workers", "-2", "--out", "unused"]) == 2
     assert "--workers takes 0 or 1..1024" in capsys.readouterr().err
+
+
+IDLE_DIR = "WARP_SHAPE_TEST_IDLE_DIR"
+
+
+def _mark_idle():
+    """An idle task: a file named by the worker's pid, in the folder the test names."""
+    (Path(os.environ[IDLE_DIR]) / str(os.getpid())).write_text("idle")
+
+
+def _fail_idle():
+    raise RuntimeError("an idle task that fails")
+
+
+def test_idle_tasks_run_once_in_every_worker_while_it_waits(tmp_path, monkeypatch):
+    monkeypatch.setenv(IDLE_DIR, str(tmp_path))
+    pool = WorkerPool(2)
+    pool.when_idle(_fail_idle)  # its failure is ignored: the worker goes on
+    pool.when_idle(_mark_idle)
+    try:
+        pids = pool.start().pids
+        deadline = time.monotonic() + 60
+        while len(list(tmp_path.iterdir())) < 2 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(str(p) for p in pids)
+        assert sorted(pool.run(_sleep, [(0.01,), (0.01,)])) == sorted(pids)  # both alive, both work
+        for p in tmp_path.iterdir():
+            p.unlink()
+        time.sleep(3 * IDLE_AFTER)
+        assert not list(tmp_path.iterdir())  # once per worker
+    finally:
+        pool.close()
+    assert _gone(pids)

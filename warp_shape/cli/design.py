@@ -16,12 +16,14 @@ import time
 from dataclasses import replace
 
 from ..calibration.files import ipam_values, material_values
+from ..controller.shard import worker_pool
 from ..designer import PLACEMENTS, design
 from ..designer.settings import CODESIGN_MODES
 from ..designer.run_settings import RunSettings
 from ..errors import DesignError
 from ..interrupts import held_interrupts
 from ..io.atomic import StagedFolder
+from ..io.figures import prepare_drawing
 from ..io.outputs import is_run_output, record_round, write_design_outputs, write_round_outputs
 from ..io.report import design_markdown
 from ..io.scene_read import load_scene
@@ -222,7 +224,11 @@ def run(args) -> int:
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     timing = timing_from_args(args)
     t0 = time.perf_counter()
-    with run_progress(run_opts.actuators + 1, [n for n, _ in named], run_opts.designer, run_opts.control) as bar:
+    with run_progress(run_opts.actuators + 1, [n for n, _ in named], run_opts.designer, run_opts.control) as bar, \
+            worker_pool(run_opts.designer.workers) as pool:  # the run's workers, who draw the figures too
+        if pool is not None and str(args.device).startswith("cpu"):
+            pool.when_idle(prepare_drawing)
+            pool.start(len(named))  # they start while the designer sets up
         with open_recorder(args) as rec:
             res = _run_designer(args, base, named, run_opts, staged, bar, rec)
             wall = time.perf_counter() - t0

@@ -160,11 +160,13 @@ def _finish_and_choose(ctx: _Run, starts: list, names: list, refined: list, warm
         t.ramp(refined[p].air, press)
         t.settle()
     out = []
+    ran = [n for n, st in zip(names, starts) if st.trajectory is not None]
     for w, base in enumerate(warm):
         p = int(best[w])
         cand = _result(trajs[p], w, base, names[p], refined[p], w)
         obj, warm_obj = cand.objective, base.objective
         info = _info(w, names, refined, p, warm_obj, obj)
+        info["trajectories"] = ran  # the plans whose trajectories ran (the others: screened from equilibria)
         if obj < warm_obj:
             out.append(dataclasses.replace(cand, refinement=info))
             continue

@@ -49,6 +49,7 @@ WORKERS_VARIABLE = "WARP_SHAPE_WORKERS"
 MAX_WORKERS = 1024  # the most worker processes a run may ask for
 PROGRESS_EVERY = 0.25  # s between a worker's progress messages
 JOIN_TIMEOUT = 5.0  # s a worker is given to end before it is killed
+IDLE_AFTER = 0.3  # s without a job after which a worker runs its idle tasks (``WorkerPool.when_idle``)
 _SERIAL = "serial"  # the current pool of a run that asked for one process
 _CURRENT = contextvars.ContextVar("warp_shape_worker_pool", default=None)
 _STATE = {"worker": False}  # True in a worker process: jobs there never start pools of their own
@@ -140,6 +141,7 @@ class WorkerPool:
             raise DesignError(f"a worker pool needs at least one worker, got {size}")
         self.size = int(size)
         self._workers: list[_Worker] = []
+        self._idle: list = []  # ``when_idle`` tasks, sent to every worker
         self.job_seconds: list[list[float]] = []  # per ``run``: each job's CPU time in its worker, s
 
     @property
@@ -164,12 +166,22 @@ class WorkerPool:
                     p.start()
                     theirs.close()
                     self._workers.append(_Worker(p, mine))
+                    for task in self._idle:
+                        mine.send(("when_idle", task))
         except BaseException:
             self.close()
             raise
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         return self
+
+    def when_idle(self, task) -> None:
+        """Have every worker, now and started later, call ``task()`` (a module-level function, once) the
+        first time it has waited ``IDLE_AFTER`` s for a job: work a later job needs (say, loading a
+        library) done while the worker would wait. A task's failure is ignored."""
+        self._idle.append(task)
+        for w in self._workers:
+            w.conn.send(("when_idle", task))
 
     def run(self, fn, jobs: list, *, modules=(), progress=None) -> list:
         """``[fn(*job, progress=...) for job in jobs]``, each job on the next free worker; ``fn`` is a
@@ -320,13 +332,22 @@ def _worker_main(conn) -> None:
     _end_with_the_caller(os.getppid())
     _quiet_warp()
     load_plugins()
+    idle = []
     while True:
         try:
+            if idle and not conn.poll(IDLE_AFTER):
+                _run_idle_task(idle.pop(0))
+                continue
             msg = conn.recv()
         except (EOFError, OSError):
             return
-        if msg is None:
-            return
+        if msg is None:  # the pool ends: nothing is left to send or keep, so skip the interpreter's teardown
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(0)
+        if msg[0] == "when_idle":
+            idle.append(msg[1])
+            continue
         job, fn, args, modules = msg
         last = [0.0]
 
@@ -351,6 +372,13 @@ def _worker_main(conn) -> None:
             conn.send(reply)
         except (OSError, ValueError):  # the caller is gone
             return
+
+
+def _run_idle_task(task) -> None:
+    try:
+        task()
+    except Exception:  # only preparation: the job that needs it does the work (and reports its error)
+        pass
 
 
 # ---------------------------------------------------------------------------------- control jobs

@@ -13,7 +13,8 @@
   against the target; ``build_rest_figure(design)``: the rest shape with its jamming cells and
   IPAMs (both seen from two sides).
 - ``write_figures(result, out_dir)``: ``pcc_by_round``, ``rest_shape`` and ``fit_<target>``
-  (design results only) and ``control_<target>`` for each target.
+  (design results only) and ``control_<target>`` for each target; inside a run whose worker
+  processes are running (``controller.shard.worker_pool``) each figure is drawn by one of them.
 
 matplotlib is imported lazily, so the rest of the package works without it.
 """
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..controller.shard import current_pool
 from ..material import GAS_CONSTANT
 from .atomic import atomic_write
 from .valve import ValveTiming, row_times
@@ -299,10 +301,13 @@ def pcc_by_round_figure(design_result_or_array, target_names=None, path="pcc_by_
     """The fit of every target against the number of IPAMs (round i: design with i IPAMs; Figs. 9 and
     13b): for a design result the objective (what the designer minimises) and MARE beside the PCC,
     each axis fitted to its values; for an array, PCC alone."""
-    measures = _by_round(design_result_or_array)
-    pcc = measures["PCC"]
     if target_names is None:
         target_names = getattr(design_result_or_array, "target_names", None)
+    return _save(_build_by_round_figure(_by_round(design_result_or_array), target_names, title), path)
+
+
+def _build_by_round_figure(measures: dict, target_names, title: str | None):
+    pcc = measures["PCC"]
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(pcc.shape[1])]
     rounds = np.arange(pcc.shape[0])
     fig = _figure((4.2 * len(measures) + 0.6, 4.0))
@@ -321,7 +326,7 @@ def pcc_by_round_figure(design_result_or_array, target_names=None, path="pcc_by_
                      if what != "PCC" else ""), fontsize=10)
     axes[0].legend(loc="best", fontsize=8)
     fig.suptitle(title or "Fit by actuator round")
-    return _save(fig, path)
+    return fig
 
 
 def write_figures(result, out_dir, target_names=None, timing=None) -> list[Path]:
@@ -333,21 +338,72 @@ def write_figures(result, out_dir, target_names=None, timing=None) -> list[Path]
     axes (``io.valve.ValveTiming``, default 5 mL/s, 100 kPa/s, 50 Hz).
     """
     out = Path(out_dir)
-    written = []
+    jobs = []
     if hasattr(result, "pcc_by_round"):
         names = list(target_names or result.target_names)
-        written.append(pcc_by_round_figure(result, names, out / "pcc_by_round.png"))
-        shapes = write_shape_figures(result, out, names)
-        written += shapes[::2]
+        jobs.append(("by_round", (_by_round(result), names), out / "pcc_by_round.png", None, None))
+        jobs += _shape_jobs(result.design, result.results, names, out)
         results = result.results
         extra = f", {result.design.n_ipams} IPAMs"
     else:
         results = [result] if hasattr(result, "history") else list(result)
         names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(results))]
         extra = ""
-    for name, r in zip(names, results):
-        written.append(control_figure(r, out / f"control_{name}.png", title=f"Control to {name}{extra}", timing=timing))
-    return [q for p in written for q in (p, svg_path(p))]
+    jobs += [("control", r, out / f"control_{name}.png", f"Control to {name}{extra}", timing)
+             for name, r in zip(names, results)]
+    return [q for p in _draw_all(jobs) for q in (p, svg_path(p))]
+
+
+def _shape_jobs(design, results, names, out: Path) -> list[tuple]:
+    return [("rest", design, out / "rest_shape.png", None, None)] + [
+        ("fit", r, out / f"fit_{name}.png", f"Achieved {name}", None) for name, r in zip(names, results)]
+
+
+_COST = {"control": 0, "fit": 1, "rest": 2, "by_round": 3}  # the order figures are handed out: slowest first
+
+
+def _draw_all(jobs: list[tuple]) -> list[Path]:
+    """Every figure job drawn and saved; on the run's worker processes where they are running (one
+    figure per job, the slowest first), else here. The PNGs' paths, in the order of ``jobs``."""
+    pool = current_pool()
+    if pool is None or not pool.pids or len(jobs) < 2:
+        return [draw_figure(*job) for job in jobs]
+    order = sorted(range(len(jobs)), key=lambda k: _COST[jobs[k][0]])
+    done = pool.run(draw_figure, [jobs[k] for k in order])
+    out = [None] * len(jobs)
+    for k, path in zip(order, done):
+        out[k] = path
+    return out
+
+
+def prepare_drawing() -> None:
+    """Load matplotlib and its fonts by drawing a small figure to PNG and SVG (nothing is written): what
+    a worker process does while it waits, so that its first report figure does not pay for it."""
+    fig = _figure((2.0, 1.5))
+    ax = fig.subplots()
+    ax.plot([0, 1], [0, 1], label="a")
+    ax.set_xlabel("x (mm)")
+    ax.legend()
+    fig.suptitle("prepare")
+    for fmt in ("png", "svg"):
+        fig.savefig(io.BytesIO(), format=fmt, dpi=DPI)
+
+
+def draw_figure(kind: str, what, path, title: str | None, timing, *, progress=None) -> Path:
+    """One report figure ``kind`` ("control", "fit", "rest", "by_round") of ``what`` (a control
+    result, a design, or (measures, names)) saved at ``path`` (PNG, and an SVG beside it): a job a
+    worker process can run (``progress`` is the pool's, unused)."""
+    if kind == "control":
+        fig = build_control_figure(what, title, timing)
+    elif kind == "fit":
+        fig = build_fit_figure(what, title=title)
+    elif kind == "rest":
+        fig = build_rest_figure(what, title)
+    elif kind == "by_round":
+        fig = _build_by_round_figure(*what, title)
+    else:
+        raise ValueError(f"unknown figure kind {kind!r}")
+    return _save(fig, path)
 
 
 def _mesh_axes(fig, spec, title: str, extent: float, view: tuple):
@@ -445,11 +501,7 @@ def write_shape_figures(result, out_dir, target_names=None) -> list[Path]:
     """Per target ``fit_<target>`` (``build_fit_figure``) and ``rest_shape`` of the design
     (``build_rest_figure``), each a PNG with an SVG beside it, from a ``DesignResult`` (or a list of
     control results of one design, named by ``target_names``)."""
-    out = Path(out_dir)
     results = result.results if hasattr(result, "rounds") else list(result)
     names = list(target_names or getattr(result, "target_names", None) or [f"target{j}" for j in range(len(results))])
     design = result.design if hasattr(result, "rounds") else results[0].design
-    written = [_save(build_rest_figure(design), out / "rest_shape.png")]
-    for name, r in zip(names, results):
-        written.append(_save(build_fit_figure(r, title=f"Achieved {name}"), out / f"fit_{name}.png"))
-    return [q for p in written for q in (p, svg_path(p))]
+    return [q for p in _draw_all(_shape_jobs(design, results, names, Path(out_dir))) for q in (p, svg_path(p))]
