@@ -103,3 +103,30 @@ def finish_forces_kernel(
     g = fg_out[1, w, i]
     p = gauge_pressure(air_in[w], volume_in[w, vslot], gas_rt, p_atm)
     fg_out[0, w, i] = fg_out[0, w, i] + g * type(g[0])(p)
+
+
+@wp.kernel(enable_backward=False)
+def pressure_rows_kernel(
+    # Model:
+    faces: wp.array(dtype=wp.vec3i),  # (F,)
+    # State in:
+    x_in: wp.array2d(dtype=Any),  # (W, V) m
+    # Out:
+    volume_out: wp.array(dtype=wp.float64),  # (W,) m^3, accumulated; zero it first
+    perimeter_out: wp.array2d(dtype=wp.float64),  # (W, V) m, sum of perimeter / 6 of the vertex's faces, accumulated
+    grad_out: wp.array2d(dtype=wp.vec3d),  # (W, V) dV/dx, m^2, accumulated
+):
+    """The stable step's chamber terms in float64 for every precision: the enclosed volume, each
+    vertex's share of its faces' perimeters (the pressure's geometric stiffness per unit |p|) and dV/dx."""
+    w, f = wp.tid()
+    tri = faces[f]
+    x0 = wp.vec3d(x_in[w, tri[0]])
+    x1 = wp.vec3d(x_in[w, tri[1]])
+    x2 = wp.vec3d(x_in[w, tri[2]])
+    sixth = wp.float64(1.0) / wp.float64(6.0)
+    wp.atomic_add(volume_out, w, wp.dot(x0, wp.cross(x1, x2)) * sixth)
+    g = wp.cross(x1 - x0, x2 - x0) * sixth
+    share = (wp.length(x1 - x0) + wp.length(x2 - x1) + wp.length(x0 - x2)) * sixth
+    for k in range(3):
+        wp.atomic_add(perimeter_out, w, tri[k], share)
+        wp.atomic_add(grad_out, w, tri[k], g)

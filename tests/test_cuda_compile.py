@@ -25,6 +25,8 @@ import warp_shape as ws
 import warp_shape.kernels
 from warp_shape.gradients import DifferentiableReplay
 from warp_shape.physics import FORCE_TERMS
+import warp_shape.simulator as simulator
+from warp_shape.physics.pressure import pressure_rows_np
 
 KERNEL_MODULES = sorted(f"warp_shape.kernels.{m.name}" for m in pkgutil.iter_modules(warp_shape.kernels.__path__))
 PRECISIONS = ("float32", "float64")
@@ -126,12 +128,24 @@ def launched():
     # nothing is launched, so the state stays zero: the simulator's inside-out check (a zero volume after
     # a step) would stop the drive after its first step
     check, ws.Simulator.check_volume = ws.Simulator.check_volume, lambda self: None
+    # and the stable step's pressure terms, read back from their kernel, would be zero: recorded, then
+    # taken from the host formula
+    device_rows = simulator.pressure_rows
+
+    def pressure_rows(model, x, air, worlds=None):
+        device_rows(model, x, air, worlds)
+        W = x.shape[0] if worlds is None else worlds
+        return pressure_rows_np(x.numpy()[:W].astype(np.float64), model.host.faces, air[:W], model.gas_rt,
+                                model.atmospheric_pressure, 1.0 / model.host.mass)
+
+    simulator.pressure_rows = pressure_rows
     try:
         with OverloadRecorder() as recorder:
             _drive(recorder)
             _drive_adjoint(recorder)
     finally:
         ws.Simulator.check_volume = check
+        simulator.pressure_rows = device_rows
     return recorder.launched
 
 

@@ -156,6 +156,38 @@ def test_a_jam_re_estimates_the_elastic_bound_of_the_jammed_world_only(monkeypat
     full = original(sim.model, st_.jammed.numpy().astype(bool), st_.x.numpy().astype(np.float64),
                     st_.rest_length.numpy().astype(np.float64))
     assert sim._elastic_cache[2][1] == full[1]
+    from warp_shape.stability import jam_rows, stable_dt_estimate
+
+    jammed = st_.jammed.numpy().astype(bool)
+    for cached, fresh in zip(sim._elastic_cache[3], jam_rows(sim.model, jammed)):  # jam rows: the same, bit for bit
+        np.testing.assert_array_equal(cached, fresh)
+    assert not np.array_equal(sim._elastic_cache[3][0][1], sim._elastic_cache[3][0][0])  # world 1's rows moved
+    uncached = stable_dt_estimate(sim.model, type(sim.solver), jammed, sim.control.air.numpy(),
+                                  st_.x.numpy().astype(np.float64), st_.rest_length.numpy().astype(np.float64),
+                                  elastic_bound=sim._elastic_cache[2])
+    assert sim.stable_dt() == pytest.approx(float(uncached.min()), rel=1e-12)  # the device pressure terms: to rounding
     sim.positions = np.asarray(sim.positions)
     sim.stable_dt()
     assert calls == [1, 3]  # set positions: every world again
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_the_stable_steps_pressure_terms_on_the_device_are_the_host_ones(precision):
+    """``pressure_rows`` (one kernel launch) gives ``pressure_rows_np``'s rows and gas eigenvalue to
+    rounding, for every world and for the first worlds alone, in either precision."""
+    from warp_shape.physics.pressure import pressure_rows, pressure_rows_np
+
+    sim = ws.Simulator(cube_fig6_design(subdivisions=2), worlds=3, settings=ws.SimulationSettings(precision=precision))
+    rng = np.random.default_rng(7)
+    sim.positions = np.asarray(sim.positions) * (1 + 0.03 * rng.standard_normal((3, 1, 1)))
+    sim.air_moles = sim.air_moles * np.array([1.0, 1.2, 0.9])
+    m, st = sim.model, sim.state
+    air = sim.control.air.numpy()
+    want = pressure_rows_np(st.x.numpy().astype(np.float64), m.host.faces, air, m.gas_rt, m.atmospheric_pressure,
+                            1.0 / m.host.mass)
+    for worlds in (3, 1):
+        got = pressure_rows(m, st.x, air, worlds)
+        for g, w in zip(got, want):
+            assert g.shape[0] == worlds
+            np.testing.assert_allclose(g, w[:worlds], rtol=1e-10, atol=1e-12 * float(np.abs(w).max()))
+    assert not np.allclose(want[0][0], want[0][1])  # the worlds differ

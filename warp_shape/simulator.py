@@ -28,12 +28,12 @@ from .model import State, WorldRef, build_model, check_device, check_layout, cop
 from .physics.bending import bending_energy_np
 from .physics.ipam_law import axial_force_np, ipam_lengths_np, natural_length_np
 from .physics.jamming import eval_jam, jammed_factor_np
-from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, volumes_np
+from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, pressure_rows, volumes_np
 from .physics.springs import spring_energy_np
 from .settings import SimulationSettings
 from .errors import numeric_array
 from .stability import (check_chamber, check_fixed_step, check_stable_dt, check_storable, elastic_omega2_bound,
-                        stable_dt_estimate, substeps_error, substeps_for, worlds_identical)
+                        jam_rows, stable_dt_estimate, substeps_error, substeps_for, worlds_identical)
 from .step_plan import Checkpoint, StepPlan
 
 __all__ = ["Simulator", "FROM_SETTINGS", "MAX_REFINE", "TANGLE_EVERY", "TANGLE_MIN_INTERNAL"]
@@ -485,10 +485,11 @@ class Simulator:
         """Current conservative stable internal step (s), the minimum over worlds (estimated once
         when every world holds the same state).
 
-        The elastic part of the bound (a short Lanczos run, see stability.elastic_omega2_bound) is
-        cached per world until a cell of that world jams (only the worlds that jammed are estimated
-        again), positions are set or ``reestimate_every`` internal steps pass; air changes only
-        re-evaluate the cheap pressure and gas terms."""
+        The elastic part of the bound (a short Lanczos run, see stability.elastic_omega2_bound) and
+        the Gershgorin rows that depend on the jam state alone (``stability.jam_rows``) are cached per
+        world until a cell of that world jams (only the worlds that jammed are estimated again),
+        positions are set or ``reestimate_every`` internal steps pass; air changes only re-evaluate
+        the pressure and gas terms (one kernel launch, ``physics.pressure.pressure_rows``)."""
         m, st = self.model, self.state
         edge_jam, x, rest = st.jammed.numpy(), st.x.numpy(), st.rest_length.numpy()
         air = self.control.air.numpy()
@@ -502,14 +503,16 @@ class Simulator:
             try:
                 cache = self._elastic_cache
                 if cache is None or cache[0] != key:
-                    cache = (key, jams, elastic_omega2_bound(m, edge_jam, x, rest))
+                    cache = (key, jams, elastic_omega2_bound(m, edge_jam, x, rest), jam_rows(m, edge_jam))
                 elif np.any(jams != cache[1]):  # only the worlds that jammed since: the others keep theirs
                     changed = np.flatnonzero(jams != cache[1])
-                    bound = cache[2].copy()
+                    bound, stiff, damp = cache[2].copy(), cache[3][0].copy(), cache[3][1].copy()
                     bound[changed] = elastic_omega2_bound(m, edge_jam[changed], x[changed], rest[changed])
-                    cache = (key, jams, bound)
+                    stiff[changed], damp[changed] = jam_rows(m, edge_jam[changed])
+                    cache = (key, jams, bound, (stiff, damp))
                 self._elastic_cache = cache
-                est = stable_dt_estimate(m, type(self.solver), edge_jam, air, x, rest, elastic_bound=cache[2])
+                est = stable_dt_estimate(m, type(self.solver), edge_jam, air, x, rest, elastic_bound=cache[2],
+                                         rows=cache[3], pressure=pressure_rows(m, st.x, air, len(air)))
             except np.linalg.LinAlgError:  # a non-finite or degenerate state: no estimate
                 est = np.array([np.nan])
         return check_stable_dt(float(est.min()), self.step_count, self.time)

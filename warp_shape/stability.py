@@ -23,7 +23,7 @@ from .physics.springs import spring_operator_terms, spring_rows_np
 
 __all__ = ["stable_dt_estimate", "elastic_omega2_bound", "lanczos_upper_bound", "lanczos_upper_bounds", "ElasticOperator",
            "BatchedElasticOperator", "substeps_for",
-           "jammed_stiffness", "gershgorin_rows", "check_fixed_step", "worlds_identical", "LANCZOS_SAFETY",
+           "jammed_stiffness", "jam_rows", "gershgorin_rows", "check_fixed_step", "worlds_identical", "LANCZOS_SAFETY",
            "LANCZOS_STEPS", "check_stable_dt", "substeps_error", "check_chamber", "check_storable"]
 
 #: Lanczos bound safety factor on omega^2. Over meshes of 162-10242 vertices, jammed or not, the
@@ -231,12 +231,12 @@ def elastic_omega2_bound(model: Model, edge_jammed: np.ndarray, x: np.ndarray,
     return out
 
 
-def gershgorin_rows(model: Model, edge_jammed: np.ndarray, air: np.ndarray, x: np.ndarray):
-    """Gershgorin row sums (W, V) of M^-1/2 K M^-1/2: elastic (edge, hinge and IPAM springs at their
-    jammed stiffness), pressure (geometric stiffness), and of the damping rates (spring and IPAM
-    dampers, viscous); plus the gas compressibility eigenvalue (W,). Returns (stiff, press, gas, damp)."""
+def jam_rows(model: Model, edge_jammed: np.ndarray):
+    """The Gershgorin row sums (W, V) that depend on the jam state alone: of M^-1/2 K M^-1/2 for the
+    elastic stiffness (edge, hinge and IPAM springs at their jammed stiffness, the hinges' at the rest
+    geometry) and of the damping rates (spring and IPAM dampers, viscous). Returns (stiff, damp)."""
     h = model.host
-    W = x.shape[0]
+    W = edge_jammed.shape[0]
     inv_m = 1.0 / h.mass
     inv_sqrt = np.sqrt(inv_m)
     a, b = h.hinges[:, 0], h.hinges[:, 1]
@@ -250,25 +250,40 @@ def gershgorin_rows(model: Model, edge_jammed: np.ndarray, air: np.ndarray, x: n
         bending_rows_np(stiff, h.hinges, kt, h.rest_vertices, inv_sqrt)
     for fam in model.families:
         fam.stiffness_rows(stiff, damp, h.actuators[fam.name], inv_m, inv_sqrt)
-    press, gas_eig = pressure_rows_np(x, h.faces, air, model.gas_rt, model.atmospheric_pressure, inv_m)
+    return stiff, damp
+
+
+def gershgorin_rows(model: Model, edge_jammed: np.ndarray, air: np.ndarray, x: np.ndarray, rows=None,
+                    pressure=None):
+    """Gershgorin row sums (W, V) of M^-1/2 K M^-1/2: elastic (edge, hinge and IPAM springs at their
+    jammed stiffness), pressure (geometric stiffness), and of the damping rates (spring and IPAM
+    dampers, viscous); plus the gas compressibility eigenvalue (W,). Returns (stiff, press, gas, damp).
+    ``rows``: ``jam_rows`` of these jam states, ``pressure``: (press, gas) of these positions and air
+    (``physics.pressure.pressure_rows``, on the device), where known already."""
+    stiff, damp = jam_rows(model, edge_jammed) if rows is None else rows
+    if pressure is None:
+        pressure = pressure_rows_np(x, model.host.faces, air, model.gas_rt, model.atmospheric_pressure,
+                                    1.0 / model.host.mass)
+    press, gas_eig = pressure
     return stiff, press, gas_eig, damp
 
 
 def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: np.ndarray, x: np.ndarray,
                        rest_length: np.ndarray | None = None, refine: bool = True,
-                       elastic_bound: np.ndarray | None = None) -> np.ndarray:
+                       elastic_bound: np.ndarray | None = None, rows=None, pressure=None) -> np.ndarray:
     """Conservative stable internal step per world (s).
 
     The highest undamped frequency omega is bounded by Gershgorin row sums of M^-1/2 K M^-1/2
     (edge, hinge and IPAM springs at their jammed stiffness, pressure's geometric stiffness), plus the
     rank-one gas compressibility term; with ``refine`` the elastic part (springs, hinges, IPAMs) is
     instead bounded by ``elastic_omega2_bound`` (a short Lanczos run with a safety factor; pass
-    ``elastic_bound`` (W,) to reuse one), never above its Gershgorin bound, and the pressure terms
+    ``elastic_bound`` (W,) to reuse one; ``rows`` and ``pressure`` as ``gershgorin_rows`` takes them),
+    never above its Gershgorin bound, and the pressure terms
     are added to it (Weyl: lambda_max(A + B) <= lambda_max(A) + lambda_max(B)). The fastest damping
     rate gamma is bounded by Gershgorin. Returns stability_constant / (omega + gamma). edge_jammed: (W, E) bool;
     air: (W,) mol; x: (W, V, 3) positions; rest_length: (W, E) current spring rest lengths.
     """
-    stiff, press, gas_eig, damp = gershgorin_rows(model, edge_jammed, air, x)
+    stiff, press, gas_eig, damp = gershgorin_rows(model, edge_jammed, air, x, rows, pressure)
     omega2 = (stiff + press).max(axis=1) + gas_eig  # Gershgorin bound
     if refine:
         if elastic_bound is None:

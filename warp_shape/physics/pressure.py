@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from ..model import Control, Model
 
 __all__ = ["eval_volume", "eval_pressure", "eval_pressure_gradient", "volumes_np", "gauge_pressure_np",
-           "gas_energy_np", "pressure_rows_np"]
+           "gas_energy_np", "pressure_rows_np", "pressure_rows"]
 
 
 def eval_volume(model: Model, x, volume, launch: Launch):
@@ -77,4 +77,25 @@ def pressure_rows_np(x: np.ndarray, faces: np.ndarray, air: np.ndarray, gas_rt: 
     grad_v = np.stack([np.bincount(idx, weights=g[:, :, c].reshape(-1), minlength=W * V).reshape(W, V)
                        for c in range(3)], axis=2)
     gas_eig = p_abs / volumes * np.sum(np.einsum("wij,wij->wi", grad_v, grad_v) * inv_m, axis=1)
+    return press, gas_eig
+
+
+def pressure_rows(model: Model, x, air: np.ndarray, worlds: int | None = None):
+    """``pressure_rows_np`` of the first ``worlds`` worlds (default all) of the device positions x
+    (W, V), computed in one kernel launch (float64 whatever the precision; the same values to
+    rounding): (press (W, V), gas_eig (W,)) as NumPy arrays."""
+    W = x.shape[0] if worlds is None else int(worlds)
+    V, dev = x.shape[1], x.device
+    volume = wp.zeros(W, dtype=wp.float64, device=dev)
+    perimeter = wp.zeros((W, V), dtype=wp.float64, device=dev)
+    grad = wp.zeros((W, V), dtype=wp.vec3d, device=dev)
+    wp.launch(kp.pressure_rows_kernel, dim=(W, model.n_faces), inputs=[model.faces, x],
+              outputs=[volume, perimeter, grad], device=dev)
+    inv_m = 1.0 / model.host.mass
+    volumes = np.maximum(volume.numpy(), 1e-300)
+    p_abs = np.asarray(air[:W], dtype=np.float64) * model.gas_rt / volumes
+    p_gauge = np.abs(p_abs - model.atmospheric_pressure)
+    g = grad.numpy()
+    press = p_gauge[:, None] * perimeter.numpy() * inv_m[None]
+    gas_eig = p_abs / volumes * np.sum(np.einsum("wij,wij->wi", g, g) * inv_m, axis=1)
     return press, gas_eig
