@@ -243,3 +243,50 @@ def test_calibrate_command_writes_a_file_that_control_takes(lab, tmp_path, capsy
     assert main(["control", str(root / "design.usda"), "--calibration", str(root / "scan.ply"),
                  "--out", str(tmp_path / "ctl2")]) == 2
     assert "is not JSON" in capsys.readouterr().err
+
+
+def test_valve_and_control_files_give_the_sequence_their_result_recorded(tmp_path):
+    """A manifest's state from a run's ``control_<target>.csv`` is the result's own sequence (to the
+    CSV's 9 digits: replayed and held, within 1 um of it) and from its ``valve_<target>.csv`` the one a
+    valve controller plays (within 1 mm, its ramps jam on another path). Rows and times select a prefix."""
+    from warp_shape.calibration.files import control_sequence, read_manifest, valve_sequence
+    from warp_shape.calibration.observations import result_sequence
+    from warp_shape.io.outputs import control_csv_text
+    from warp_shape.io.valve import write_valve_outputs
+
+    design = cube_fig6_design(subdivisions=2)
+    res = ws.control(design, ws.target("oval"), method="paper", max_steps=40)
+    (tmp_path / "control_oval.csv").write_text(control_csv_text(res))
+    write_valve_outputs([res], ["oval"], tmp_path)
+    want = result_sequence(res, None)
+    got = control_sequence(tmp_path / "control_oval.csv", design)
+    for a, b in [(want.times, got.times), (want.air, got.air), (want.pressures, got.pressures)]:
+        np.testing.assert_allclose(b, a, rtol=1e-8, atol=1e-9)
+    np.testing.assert_array_equal(got.jammed, want.jammed)
+    assert want.jammed[-1].any() and not want.jammed[0].any()  # the run jams cells on its way
+    valve = valve_sequence(tmp_path / "valve_oval.csv", design)
+    x = replay_held(design, [want, got, valve])
+    assert np.abs(x[1] - x[0]).max() < 1e-6
+    # the valve schedule ramps the controls at the lab's rates where the result steps them, so its cells
+    # jam on a slightly different path: measured 0.51 mm at most, 0.11 mm on average here
+    moved = np.linalg.norm(x[2] - x[0], axis=1)
+    assert moved.max() < 1e-3 and moved.mean() < 2e-4, (moved.max(), moved.mean())
+    k = len(want.times) // 2
+    part = control_sequence(tmp_path / "control_oval.csv", design, time_s=float(want.times[k]))
+    assert len(part.times) == k + 1 and part.times[-1] == pytest.approx(want.times[k])
+    assert len(control_sequence(tmp_path / "control_oval.csv", design, row=3).times) == 4
+    trimesh = pytest.importorskip("trimesh")
+    trimesh.PointCloud(res.achieved.vertices * 1e3).export(tmp_path / "scan.ply")
+    manifest = tmp_path / "m.json"
+    manifest.write_text(json.dumps({"observations": [{"scan": "scan.ply", "control": "control_oval.csv", "row": 3},
+                                                     {"scan": "scan.ply", "valve": "valve_oval.csv"}]}))
+    obs, _ = read_manifest(manifest, design)
+    assert len(obs[0].sequence(design).times) == 4 and len(obs[1].sequence(design).times) == len(valve.times)
+    with pytest.raises(ws.DesignError, match="control history of another design"):
+        control_sequence(tmp_path / "control_oval.csv", _fewer_ipams(design))
+    with pytest.raises(ws.DesignError, match="not a control history"):
+        control_sequence(tmp_path / "valve_oval.csv", design)
+
+
+def _fewer_ipams(design):
+    return ws.Design(design.rest, design.material)  # no IPAMs

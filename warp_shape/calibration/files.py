@@ -3,7 +3,8 @@
 The calibration file is a small versioned JSON in SI units (``write_calibration``, ``read_calibration``);
 ``apply_calibration`` gives a design its fitted values, and ``design``, ``control`` and ``export`` take
 one with ``--calibration FILE``. The manifest lists the observations: each a scan file and the control
-state it was taken at (a row or lab time of a ``valve_<target>.csv``, or the state given directly);
+state it was taken at (a row or lab time of a ``valve_<target>.csv``, a row or simulated time of a
+``control_<target>.csv``, or the state given directly);
 every path in it is relative to its folder and must stay inside it.
 """
 
@@ -28,7 +29,7 @@ from .result import CalibrationResult
 
 __all__ = ["CALIBRATION_FORMAT", "CALIBRATION_VERSION", "UNITS", "calibration_data", "write_calibration",
            "read_calibration", "apply_calibration", "read_manifest", "calibration_markdown", "write_residual_figures",
-           "valve_sequence"]
+           "valve_sequence", "control_sequence"]
 
 CALIBRATION_FORMAT = "warp-shape calibration"
 CALIBRATION_VERSION = 1
@@ -136,35 +137,64 @@ def _inside(folder: Path, name, what: str) -> Path:
     return path
 
 
+def _schedule_rows(path: Path, design: Design, need: list, pressure: str, kind: str) -> list[dict]:
+    """The rows of a schedule CSV of ``design`` (columns ``need`` and one ``ipam<i>_<pressure>`` per IPAM)."""
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    need = need + [f"ipam{i}_{pressure}" for i in range(design.n_ipams)]
+    cols = rows[0].keys() if rows else []
+    missing = [c for c in need if c not in cols]
+    if missing:
+        raise DesignError(f"{path.name} is not a {kind} of this design: no column {missing[0]!r}")
+    n_csv = sum(1 for c in cols if c.startswith("ipam") and c.endswith(f"_{pressure}"))
+    if n_csv != design.n_ipams:
+        raise DesignError(f"{path.name} drives {n_csv} IPAMs but the design has {design.n_ipams}: a {kind} of "
+                          f"another design")
+    return rows
+
+
+def _up_to(rows: list, times: np.ndarray, row, time_s, name: str) -> list:
+    """``rows`` up to ``row`` (0-based) or the last one at or before ``time_s`` (on the clock ``times``);
+    all of them for neither."""
+    last = len(rows) - 1 if row is None and time_s is None else \
+        (int(row) if row is not None else int(np.searchsorted(times, float(time_s) + 1e-9)) - 1)
+    if not 0 <= last < len(rows):
+        raise DesignError(f"{name}: row/time outside the schedule ({len(rows)} rows, 0 to {times[-1]:.3f} s)")
+    return rows[: last + 1]
+
+
+def _jams(rows: list, design: Design) -> np.ndarray:
+    jam = np.array([[r.get(f"cell{j}_jammed", "0") in ("1", "True") for j in range(design.n_cells)] for r in rows],
+                   bool)
+    return np.maximum.accumulate(jam.reshape(len(rows), design.n_cells), axis=0)
+
+
 def valve_sequence(path: Path, design: Design, *, row: int | None = None, time_s: float | None = None) -> Sequence:
     """The sequence of a ``valve_<target>.csv`` up to ``row`` (0-based) or lab time ``time_s`` (None
     and None: its end): simulated times, the chamber air (mL at atmospheric pressure -> mol, the
     design's temperature and atmosphere), IPAM pressures (kPa -> Pa) and jam states."""
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    need = ["time_s", "sim_time_s", "chamber_air_ml"] + [f"ipam{i}_pressure_kpa" for i in range(design.n_ipams)]
-    cols = rows[0].keys() if rows else []
-    missing = [c for c in need if c not in cols]
-    if missing:
-        raise DesignError(f"{path.name} is not a valve schedule of this design: no column {missing[0]!r}")
-    n_csv = sum(1 for c in cols if c.startswith("ipam") and c.endswith("_pressure_kpa"))
-    if n_csv != design.n_ipams:
-        raise DesignError(f"{path.name} drives {n_csv} IPAMs but the design has {design.n_ipams}: a schedule of "
-                          f"another design")
-    t_lab = np.array([float(r["time_s"]) for r in rows])
-    last = len(rows) - 1 if row is None and time_s is None else \
-        (int(row) if row is not None else int(np.searchsorted(t_lab, float(time_s) + 1e-9)) - 1)
-    if not 0 <= last < len(rows):
-        raise DesignError(f"{path.name}: row/time outside the schedule ({len(rows)} rows, 0 to {t_lab[-1]:.3f} s)")
-    rows = rows[: last + 1]
+    rows = _schedule_rows(path, design, ["time_s", "sim_time_s", "chamber_air_ml"], "pressure_kpa", "valve schedule")
+    rows = _up_to(rows, np.array([float(r["time_s"]) for r in rows]), row, time_s, path.name)
     mat = design.material
     air = np.array([float(r["chamber_air_ml"]) for r in rows]) * 1e-6 * mat.atmospheric_pressure / (
         GAS_CONSTANT * mat.temperature)
     p = np.array([[float(r[f"ipam{i}_pressure_kpa"]) * 1e3 for i in range(design.n_ipams)] for r in rows])
-    jam = np.array([[r.get(f"cell{j}_jammed", "0") == "1" for j in range(design.n_cells)] for r in rows], bool)
     times = np.array([float(r["sim_time_s"]) for r in rows])
-    return Sequence(times - times[0], air, p.reshape(len(rows), design.n_ipams),
-                    np.maximum.accumulate(jam.reshape(len(rows), design.n_cells), axis=0), simulation=SimulationSettings())
+    return Sequence(times - times[0], air, p.reshape(len(rows), design.n_ipams), _jams(rows, design),
+                    simulation=SimulationSettings())
+
+
+def control_sequence(path: Path, design: Design, *, row: int | None = None, time_s: float | None = None) -> Sequence:
+    """The sequence of a ``control_<target>.csv`` (a control result's history, simulated time) up to
+    ``row`` (0-based) or simulated time ``time_s`` (None and None: its end): times, air (mol), IPAM
+    pressures (Pa) and jam states, as ``ScanObservation`` takes them from the result itself."""
+    rows = _schedule_rows(path, design, ["time", "air_mol"], "pressure_pa", "control history")
+    rows = _up_to(rows, np.array([float(r["time"]) for r in rows]), row, time_s, path.name)
+    air = np.array([float(r["air_mol"]) for r in rows])
+    p = np.array([[float(r[f"ipam{i}_pressure_pa"]) for i in range(design.n_ipams)] for r in rows])
+    times = np.array([float(r["time"]) for r in rows])
+    return Sequence(times - times[0], air, p.reshape(len(rows), design.n_ipams), _jams(rows, design),
+                    simulation=SimulationSettings())
 
 
 def _state(entry: dict, what: str) -> ControlState:
@@ -195,7 +225,9 @@ def _reading(entry: dict, what: str) -> dict:
 def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | None]:
     """(observations, wrt or None) of a manifest file (JSON): ``{"observations": [{"scan": FILE, "units":
     "auto", optionally "chamber_pressure_kpa" (a reading) and "pressure_stderr_kpa" (default 0.1), and
-    "valve": FILE with "row" or "time_s", or "state": {"air_mol", "ipam_pressures_kpa", "jammed"}}, ...],
+    "valve": FILE (a ``valve_<target>.csv``; "row" or "time_s" on its lab clock) or "control": FILE (a
+    ``control_<target>.csv``; "row" or simulated "time_s"), or "state": {"air_mol", "ipam_pressures_kpa",
+    "jammed"}}, ...],
     "wrt": [...]}``. Every path is relative to the manifest's folder and must stay in it;
     each observation's state is checked against ``design``. Errors are one line, before any work."""
     path = Path(path)
@@ -212,11 +244,14 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
         if "valve" in e:
             state = valve_sequence(_inside(folder, e["valve"], f"{what} valve"), design, row=e.get("row"),
                                    time_s=e.get("time_s"))
+        elif "control" in e:
+            state = control_sequence(_inside(folder, e["control"], f"{what} control"), design, row=e.get("row"),
+                                     time_s=e.get("time_s"))
         elif "state" in e:
             state = _state(e, what)
         else:
-            raise DesignError(f"manifest {what}: give the state the scan was taken at: \"valve\" (with \"row\" or "
-                              f"\"time_s\") or \"state\"")
+            raise DesignError(f"manifest {what}: give the state the scan was taken at: \"valve\" or \"control\" "
+                              f"(with \"row\" or \"time_s\") or \"state\"")
         o = ScanObservation(str(scan), state, units=e.get("units", "auto"), name=e.get("name", Path(scan).name),
                             **_reading(e, what))
         o.sequence(design)  # checked against the design here
