@@ -87,10 +87,8 @@ def test_the_parameter_gradient_matches_finite_differences(designs):
         precision="float64"))) for r in off.results]  # the replays in float64, as the gradient
     problem = CodesignProblem(off.design, "rest+ipams", CodesignSettings(), volume_bound=np.inf)
     grads = problem.gradients(off.design, results, off.targets)
-    samplers = [ws.RadialSampler(t) for t in off.targets]
-
     def objective(design):
-        return replayed_objectives(design, results, off.targets, samplers)
+        return replayed_objectives(design, results, off.targets)
     rng = np.random.default_rng(0)
     direction = rng.normal(size=problem.size)
     direction /= np.abs(direction).max()
@@ -99,6 +97,28 @@ def test_the_parameter_gradient_matches_finite_differences(designs):
     down = objective(problem.design(-eps * direction))
     fd = (up - down) / (2 * eps)
     np.testing.assert_allclose(grads @ direction, fd, rtol=1e-4)
+
+
+def test_codesign_on_a_runs_workers_takes_the_steps_it_takes_in_one_process(designs, targets):
+    """The targets' gradients and replays as one job each on the run's workers: the same steps, rest
+    shape and IPAM sizes bit for bit (the re-control, sharded, within 1e-5)."""
+    from warp_shape.controller.shard import worker_pool
+    from warp_shape.designer.codesign import codesign
+
+    off, _ = designs
+    kw = dict(mode="rest+ipams", volume_bound=off.settings.volume_scale * min(t.volume() for t in targets),
+              control_settings=KW["control_settings"], passive_ipams=off.passive_ipams,
+              passive_cells=off.passive_cells, settings=CodesignSettings(steps=1))
+    here = codesign(off.design, off.targets, off.results, **kw)
+    with worker_pool(2) as pool:
+        pool.start()
+        there = codesign(off.design, off.targets, off.results, **kw)
+        assert len(pool.job_seconds) >= 3  # the gradients, the replays before and of the trial
+    a, b = here[2].as_dict(), there[2].as_dict()
+    assert a["kept"] and b["kept"] and a["steps"] == b["steps"] and a["before"] == b["before"]
+    np.testing.assert_array_equal(here[0].rest.vertices, there[0].rest.vertices)
+    assert [ip.area for ip in here[0].ipams] == [ip.area for ip in there[0].ipams]
+    np.testing.assert_allclose(a["after"], b["after"], rtol=0, atol=1e-5)
 
 
 def test_bad_codesign_mode_is_named():

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..controller import ControlSettings, control_many
 from ..controller.replay import replay
+from ..controller.shard import current_pool
 from ..design import Design
 from ..gradients import gradient
 from ..mesh import TriMesh
@@ -155,10 +156,11 @@ class CodesignProblem:
         return np.concatenate([g_modes, values["ipam_area"] * area, values["ipam_stiffness"] * k])
 
     def gradients(self, design: Design, results, targets, device: str = "cpu") -> np.ndarray:
-        """(T, P) d objective / d parameters of each target's sequence replayed on ``design``."""
+        """(T, P) d objective / d parameters of each target's sequence replayed on ``design`` (one job
+        per target on the run's workers where they are running)."""
         wrt = ("rest_positions", "ipam_area", "ipam_stiffness")
-        return np.stack([self.chain(design, gradient(design, r, t, wrt=wrt, device=device).values)
-                         for r, t in zip(results, targets)])
+        values = _per_target(_gradient_job, [(design, r, t, wrt, device) for r, t in zip(results, targets)])
+        return np.stack([self.chain(design, v) for v in values])
 
     def clip_step(self, p: np.ndarray, step: np.ndarray) -> np.ndarray:
         """``step`` scaled into the per-step limits, and p + step into the size bounds."""
@@ -175,13 +177,28 @@ class CodesignProblem:
         return q
 
 
-def replayed_objectives(design: Design, results, targets, samplers) -> np.ndarray:
-    """(T,) the objective of each result's sequence replayed open loop on ``design``."""
-    out = []
-    for r, t, s in zip(results, targets, samplers):
-        x = replay(design, r)
-        out.append(fit_objective_and_gradient(x, s, 0, design.rest.faces, t.volume())[0])
-    return np.array(out)
+def _per_target(fn, jobs: list) -> list:
+    """``[fn(*job) for job in jobs]``, on the run's worker processes where they are running."""
+    pool = current_pool()
+    if pool is not None and pool.pids and len(jobs) > 1:
+        return pool.run(fn, jobs)
+    return [fn(*job) for job in jobs]
+
+
+def _gradient_job(design: Design, result, target, wrt, device: str, *, progress=None) -> dict:
+    return gradient(design, result, target, wrt=wrt, device=device).values
+
+
+def _objective_job(design: Design, result, target, device: str, *, progress=None) -> float:
+    x = replay(design, result, device=device)
+    sampler = RadialSampler(target, device=device)
+    return float(fit_objective_and_gradient(x, sampler, 0, design.rest.faces, target.volume())[0])
+
+
+def replayed_objectives(design: Design, results, targets, device: str = "cpu") -> np.ndarray:
+    """(T,) the objective of each result's sequence replayed open loop on ``design`` (one job per
+    target on the run's workers where they are running)."""
+    return np.array(_per_target(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)]))
 
 
 def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volume_bound: float,
@@ -199,9 +216,8 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
     if problem.size == 0:
         record.reason, record.after = "nothing to co-design (the rest shape is fixed and no IPAM sizes move)", record.before
         return design, results, record
-    samplers = [RadialSampler(t, device=device) for t in targets]
     p = np.zeros(problem.size)
-    current, objectives = design, replayed_objectives(design, results, targets, samplers)
+    current, objectives = design, replayed_objectives(design, results, targets, device)
     for step in range(settings.steps):
         grads = problem.gradients(current, results, targets, device)
         direction = -min_norm_direction(grads)
@@ -212,7 +228,7 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
         for _ in range(settings.halvings + 1):
             q = problem.clip_step(p, direction * trial_scale / max(np.abs(direction).max(), 1e-300))
             trial = problem.design(q)
-            trial_obj = replayed_objectives(trial, results, targets, samplers)
+            trial_obj = replayed_objectives(trial, results, targets, device)
             if np.all(trial_obj <= objectives) and np.any(trial_obj < objectives):
                 p, current, objectives, accepted = q, trial, trial_obj, True
                 break
