@@ -130,7 +130,7 @@ def plan_starts(plans: list, ctx, warm, explorer, warm_simulator=None) -> list[P
         return [PlanStart(p, t.states(), t.controls, t) for p, t in zip(plans, trajs)]
     W, host = len(warm), ctx.host
     warm_controls = _warm_controls(warm, host)
-    rest = ctx.new_simulator(W).snapshot()
+    rest = ctx.new_simulator(W).snapshot() if any(p[0] != "warm" for p in plans) else None  # none for "warm" alone
     over = [p for p in plans if p[0] == "overinflate"]
     jammed = {}
     if over:
