@@ -41,7 +41,7 @@ from ..errors import DesignError, WarpShapeError
 from ..registry import load_plugins
 from .settings import CONTROL_METHODS, LAWS
 
-__all__ = ["WorkerPool", "WorkerError", "worker_pool", "current_pool", "resolve_workers", "available_cores",
+__all__ = ["WorkerPool", "WorkerError", "worker_pool", "current_pool", "run_jobs", "resolve_workers", "available_cores",
            "control_sharded", "shard_modules", "WORKERS_VARIABLE", "MAX_WORKERS", "in_worker", "check_workers"]
 
 #: environment variable: the worker count that ``workers = 0`` ("every core") means, e.g. 1 in a test suite
@@ -107,6 +107,15 @@ def current_pool():
     """The pool of the run in progress, or None (no run, or a run in one process)."""
     pool = _CURRENT.get()
     return pool if isinstance(pool, WorkerPool) else None
+
+
+def run_jobs(fn, jobs: list) -> list:
+    """``[fn(*job) for job in jobs]``: on the workers of the run in progress where they are running
+    (``WorkerPool.run``, one job each), else in this process (no pool, a pool not started, one job)."""
+    pool = current_pool()
+    if pool is not None and pool.pids and len(jobs) > 1:
+        return pool.run(fn, jobs)
+    return [fn(*job) for job in jobs]
 
 
 @contextlib.contextmanager

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..controller import ControlSettings, control_many
 from ..controller.replay import replay
-from ..controller.shard import current_pool
+from ..controller.shard import run_jobs
 from ..design import Design
 from ..gradients import gradient
 from ..mesh import TriMesh
@@ -159,7 +159,7 @@ class CodesignProblem:
         """(T, P) d objective / d parameters of each target's sequence replayed on ``design`` (one job
         per target on the run's workers where they are running)."""
         wrt = ("rest_positions", "ipam_area", "ipam_stiffness")
-        values = _per_target(_gradient_job, [(design, r, t, wrt, device) for r, t in zip(results, targets)])
+        values = run_jobs(_gradient_job, [(design, r, t, wrt, device) for r, t in zip(results, targets)])
         return np.stack([self.chain(design, v) for v in values])
 
     def clip_step(self, p: np.ndarray, step: np.ndarray) -> np.ndarray:
@@ -177,14 +177,6 @@ class CodesignProblem:
         return q
 
 
-def _per_target(fn, jobs: list) -> list:
-    """``[fn(*job) for job in jobs]``, on the run's worker processes where they are running."""
-    pool = current_pool()
-    if pool is not None and pool.pids and len(jobs) > 1:
-        return pool.run(fn, jobs)
-    return [fn(*job) for job in jobs]
-
-
 def _gradient_job(design: Design, result, target, wrt, device: str, *, progress=None) -> dict:
     return gradient(design, result, target, wrt=wrt, device=device).values
 
@@ -198,7 +190,7 @@ def _objective_job(design: Design, result, target, device: str, *, progress=None
 def replayed_objectives(design: Design, results, targets, device: str = "cpu") -> np.ndarray:
     """(T,) the objective of each result's sequence replayed open loop on ``design`` (one job per
     target on the run's workers where they are running)."""
-    return np.array(_per_target(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)]))
+    return np.array(run_jobs(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)]))
 
 
 def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volume_bound: float,

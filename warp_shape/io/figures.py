@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..controller.shard import current_pool
+from ..controller.shard import run_jobs
 from ..material import GAS_CONSTANT
 from .atomic import atomic_write
 from .valve import ValveTiming, row_times
@@ -365,11 +365,8 @@ _COST = {"control": 0, "fit": 1, "rest": 2, "by_round": 3}  # the order figures 
 def _draw_all(jobs: list[tuple]) -> list[Path]:
     """Every figure job drawn and saved; on the run's worker processes where they are running (one
     figure per job, the slowest first), else here. The PNGs' paths, in the order of ``jobs``."""
-    pool = current_pool()
-    if pool is None or not pool.pids or len(jobs) < 2:
-        return [draw_figure(*job) for job in jobs]
     order = sorted(range(len(jobs)), key=lambda k: _COST[jobs[k][0]])
-    done = pool.run(draw_figure, [jobs[k] for k in order])
+    done = run_jobs(draw_figure, [jobs[k] for k in order])
     out = [None] * len(jobs)
     for k, path in zip(order, done):
         out[k] = path
