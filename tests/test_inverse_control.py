@@ -227,3 +227,32 @@ def test_plans_from_rest_run_only_where_kept_and_fit_as_when_every_plan_runs(fig
         assert abs(a.objective - b.objective) < 1e-4, (a.objective, b.objective)
         for n in names:
             assert abs(a.refinement["plans_before"][n] - b.refinement["plans_before"][n]) < 1e-4
+
+
+def test_a_screen_predicts_the_controllers_fit_without_running_its_sequences(fig6):
+    """``screen_many``: per target the plan and the fit the model-based controller predicts (the same
+    numbers its run records, bit for bit), close to the fit the run then measures (well within the
+    designer's ``min_gain`` of 0.5 %), at about half its cost; the same in a worker as here; a law
+    method's screen is its run's measured fit."""
+    from warp_shape.controller import screen_many
+
+    targets = _targets(["egg", "oval", "tilted_ellipsoid"])
+    passive = dict(passive_ipams=[[0], [], [1]], passive_cells=[[0, 1], [], []])
+    runs = control_many(fig6, targets, workers=1, **passive)
+    screens = screen_many(fig6, targets, settings=ControlSettings(workers=1), **passive)
+    for name, run, sc in zip(["egg", "oval", "tilted_ellipsoid"], runs, screens):
+        assert sc.predicted and sc.plan == run.refinement["plan"], name
+        assert sc.refinement["plans"] == run.refinement["plans"], name
+        expect = min(run.refinement["predicted_objective"], run.refinement["warm_objective"])
+        assert sc.objective == expect, name
+        assert abs(sc.objective - run.objective) <= 5e-4 * run.objective, (name, sc.objective, run.objective)
+        assert "trajectories" not in sc.refinement  # no plan's sequence ran
+    one = [screen_many(fig6, [t], settings=ControlSettings(workers=1), passive_ipams=[p], passive_cells=[c])[0]
+           for t, p, c in zip(targets[:2], passive["passive_ipams"], passive["passive_cells"])]
+    sharded = screen_many(fig6, targets[:2], settings=ControlSettings(workers=2),
+                          passive_ipams=passive["passive_ipams"][:2], passive_cells=passive["passive_cells"][:2])
+    assert [s.objective for s in sharded] == [s.objective for s in one]
+    law = control_many(fig6, targets, method="paper", workers=1)
+    law_screens = screen_many(fig6, targets, settings=ControlSettings(method="paper", workers=1))
+    assert [s.objective for s in law_screens] == [r.objective for r in law]
+    assert not any(s.predicted for s in law_screens)

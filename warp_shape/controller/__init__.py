@@ -19,12 +19,12 @@ masks and speeds per world), ``replay`` (a recorded sequence re-simulated open l
 from ..model import cell_anchor_faces
 from .history import HISTORY_COLUMNS
 from .laws import LAWS, Controls, LawStep, PaperLaw
-from .methods import CONTROL_METHODS, control, control_many, register_control_method, register_law
+from .methods import CONTROL_METHODS, control, control_many, register_control_method, register_law, screen_many
 from .observe import Observation, Observer
 from .replay import replay
-from .result import ControlResult
+from .result import ControlResult, ScreenResult
 from .settings import ControlSettings
 
-__all__ = ["ControlSettings", "ControlResult", "control", "control_many", "cell_anchor_faces", "Controls",
+__all__ = ["ControlSettings", "ControlResult", "ScreenResult", "control", "control_many", "screen_many", "cell_anchor_faces", "Controls",
            "LawStep", "PaperLaw", "LAWS", "CONTROL_METHODS", "register_control_method", "register_law", "Observation",
            "Observer", "HISTORY_COLUMNS", "replay"]

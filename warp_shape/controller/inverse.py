@@ -32,11 +32,11 @@ from ..sampling import RadialSampler
 from .explore import Explorer
 from .plans import parse_plans, plan_starts, plan_trajectory
 from .refine import STOP_LIMIT, Refined, refine
-from .result import ControlResult
+from .result import ControlResult, ScreenResult
 from .settings import ControlSettings
 from .worlds import mask_passive, passive_masks
 
-__all__ = ["control_inverse", "PLANS_REFINED"]
+__all__ = ["control_inverse", "predict_inverse", "PLANS_REFINED"]
 
 PLANS_REFINED = 2  # plans refined per target: those that fit best, settled, before refining
 
@@ -197,6 +197,21 @@ def _log(recorder, prefix: str, design: Design, results: list, names, settings, 
     recorder.end_run(results)
 
 
+def _prepare(design: Design, settings: ControlSettings, device: str, warm: list):
+    """The run's context, its jam plans (``settings.inverse_plans``; no ``overinflate`` where no cell can
+    jam) and its scratch explorer."""
+    plans = parse_plans(settings.inverse_plans)
+    sampler = RadialSampler([r.target for r in warm], device=device)
+    probe = _Run(design, settings, device, sampler, None, None, None)
+    host = host_model(design)
+    pi, pc = passive_masks(warm, host.n_ipams, host.n_cells)
+    ctx = dataclasses.replace(probe, host=host, passive_ipams=pi, passive_cells=pc)
+    if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
+        plans = [p for p in plans if p[0] != "overinflate"] or plans
+    names = [f"{n}{f:g}" if n == "overinflate" else n for n, f in plans]
+    return ctx, plans, names, _explorer(ctx, warm)
+
+
 def control_inverse(design: Design, targets, *, device: str, settings: ControlSettings, warm_start: list,
                     warm_simulator=None, progress=None, recorder=None, recorder_prefix: str = "control",
                     passive_ipams=(), passive_cells=(), target_names=None) -> list[ControlResult]:
@@ -206,23 +221,35 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     ``controller.loop.run_law(..., keep_simulator=True)`` gives both); the other arguments are those
     of ``control_many`` (the recorder logs the final sequences once they are chosen)."""
     t0 = time.perf_counter()
-    plans = parse_plans(settings.inverse_plans)
     warm = warm_start
-    sampler = RadialSampler([r.target for r in warm], device=device)
-    probe = _Run(design, settings, device, sampler, None, None, None)
-    host = host_model(design)
-    pi, pc = passive_masks(warm, host.n_ipams, host.n_cells)
-    ctx = dataclasses.replace(probe, host=host, passive_ipams=pi, passive_cells=pc)
-    if not (~pc).any():  # no cell to jam: over-inflating would only repeat "never"
-        plans = [p for p in plans if p[0] != "overinflate"] or plans
-    ex = _explorer(ctx, warm)
+    ctx, plans, names, ex = _prepare(design, settings, device, warm)
     starts = plan_starts(plans, ctx, warm, ex, warm_simulator)
     refined, world_steps = _refine_all(ctx, ex, starts, warm)
-    names = [f"{n}{f:g}" if n == "overinflate" else n for n, f in plans]
     results = _finish_and_choose(ctx, starts, names, refined, warm)
     for res in results:
         res.refinement.update(wall_s=time.perf_counter() - t0, world_steps=int(world_steps))
     if recorder is not None:
         names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(results))]
-        _log(recorder, recorder_prefix, design, results, names, settings, sampler)
+        _log(recorder, recorder_prefix, design, results, names, settings, ctx.sampler)
     return results
+
+
+def predict_inverse(design: Design, *, device: str, settings: ControlSettings, warm_start: list,
+                    warm_simulator=None) -> list[ScreenResult]:
+    """The fit the model-based controller predicts for every target of ``warm_start`` (steps 1-4 of
+    the module docstring, no trajectory run): per target the plan whose refined controls fit best in
+    the scratch batch and that fit, or the warm start's where it is not better (as ``control_inverse``
+    falls back). A screen's estimate, not a control sequence (``ScreenResult``)."""
+    warm = warm_start
+    ctx, plans, names, ex = _prepare(design, settings, device, warm)
+    starts = plan_starts(plans, ctx, warm, ex, warm_simulator)
+    refined, _ = _refine_all(ctx, ex, starts, warm)
+    pred = np.array([r.objective for r in refined])  # (P, W)
+    out = []
+    for w, base in enumerate(warm):
+        p = int(np.argmin(pred[:, w]))
+        info = _info(w, names, refined, p, base.objective, float(pred[p, w]))
+        better = pred[p, w] < base.objective
+        out.append(ScreenResult(objective=float(pred[p, w]) if better else float(base.objective),
+                                plan=names[p], predicted=True, refinement=info))
+    return out

@@ -16,15 +16,15 @@ from ..errors import DesignError
 from ..mesh import TriMesh
 from ..settings import settings_or_default
 from ..targets import centred_targets
-from .inverse import control_inverse
+from .inverse import control_inverse, predict_inverse
 from .laws import PaperLaw
 from .loop import run_law
-from .result import ControlResult
+from .result import ControlResult, ScreenResult
 from .settings import CONTROL_METHODS, LAWS, ControlSettings
-from .shard import control_sharded, shard_modules, worker_pool
+from .shard import control_sharded, run_method, shard_modules, worker_pool
 
 __all__ = ["LawMethod", "InverseMethod", "register_law", "register_control_method", "control_many", "control",
-           "CONTROL_METHODS"]
+           "screen_many", "CONTROL_METHODS"]
 
 
 class LawMethod:
@@ -47,15 +47,23 @@ class InverseMethod:
     summary = "the paper's law as warm start, then model-based control of air, IPAMs and jam plan (default)"
     refines = True
 
+    def _warm(self, design, targets, settings, device, progress, passive_ipams, passive_cells, target_names):
+        return run_law(design, targets, LAWS[settings.warm_start], settings=settings.replace(method=settings.warm_start),
+                       device=device, progress=progress, passive_ipams=passive_ipams, passive_cells=passive_cells,
+                       target_names=target_names, keep_simulator=True)
+
     def run(self, design, targets, *, settings, device, progress=None, passive_ipams=(), passive_cells=(),
             target_names=None, **kwargs) -> list[ControlResult]:
-        warm, sim = run_law(design, targets, LAWS[settings.warm_start],
-                            settings=settings.replace(method=settings.warm_start), device=device, progress=progress,
-                            passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
-                            keep_simulator=True)
+        warm, sim = self._warm(design, targets, settings, device, progress, passive_ipams, passive_cells, target_names)
         return control_inverse(design, targets, device=device, settings=settings, progress=progress,
                                passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
                                warm_start=warm, warm_simulator=sim, **kwargs)
+
+    def screen(self, design, targets, *, settings, device, progress=None, passive_ipams=(), passive_cells=(),
+               target_names=None) -> list[ScreenResult]:
+        """The fit ``run`` would reach, predicted without the plans' trajectories (``predict_inverse``)."""
+        warm, sim = self._warm(design, targets, settings, device, progress, passive_ipams, passive_cells, target_names)
+        return predict_inverse(design, device=device, settings=settings, warm_start=warm, warm_simulator=sim)
 
 
 def register_control_method(method, *, replace: bool = False):
@@ -99,6 +107,25 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
     ``worker_pool``, each target is its own job on a worker process (``controller.shard``; not with a
     ``recorder``): its result is that of ``control_many(design, [target])``, bit for bit.
     """
+    return _many(design, targets, device=device, settings=settings, recorder=recorder, progress=progress,
+                 passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
+                 recorder_prefix=recorder_prefix, method=method, overrides=overrides, screen=False)
+
+
+def screen_many(design: Design, targets, *, device: str = "cpu", settings: ControlSettings | None = None,
+                progress=None, passive_ipams=(), passive_cells=(), target_names=None) -> list[ScreenResult]:
+    """What ``control_many`` with the same arguments would reach per target, estimated at less cost
+    where the control method has a ``screen`` (``"inverse"``: the fit its refinement predicts in its
+    scratch settles, no trajectory run; docs/inverse_control.md), else measured by running it: one
+    ``ScreenResult`` per target, sharded as ``control_many`` is (a job's estimate is that of
+    ``screen_many(design, [target])``, bit for bit)."""
+    return _many(design, targets, device=device, settings=settings, recorder=None, progress=progress,
+                 passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
+                 recorder_prefix="control", method=None, overrides={}, screen=True)
+
+
+def _many(design, targets, *, device, settings, recorder, progress, passive_ipams, passive_cells, target_names,
+          recorder_prefix, method, overrides, screen: bool) -> list:
     if not isinstance(design, Design):
         raise DesignError(f"control needs a ws.Design, got {type(design).__name__}")
     targets = centred_targets(targets, "control")
@@ -107,16 +134,14 @@ def control_many(design: Design, targets, *, device: str = "cpu", settings: Cont
         overrides["method"] = method
     if overrides:
         settings = settings.replace(**overrides)
+    kwargs = dict(settings=settings, device=device, progress=progress, passive_ipams=passive_ipams,
+                  passive_cells=passive_cells, target_names=target_names)
     with worker_pool(settings.workers) as pool:
         modules = shard_modules(settings, design) if pool is not None else None
         if modules is not None and len(targets) > 1 and recorder is None and str(device).startswith("cpu"):
-            return control_sharded(pool, design, targets, settings=settings, device=device, progress=progress,
-                                   passive_ipams=passive_ipams, passive_cells=passive_cells,
-                                   target_names=target_names, modules=modules)
-        return CONTROL_METHODS[settings.method].run(
-            design, targets, settings=settings, device=device, recorder=recorder, progress=progress,
-            passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
-            recorder_prefix=recorder_prefix)
+            return control_sharded(pool, design, targets, modules=modules, screen=screen, **kwargs)
+        return run_method(settings.method, design, targets, screen=screen, recorder=recorder,
+                          recorder_prefix=recorder_prefix, **kwargs)
 
 
 def control(design: Design, target: TriMesh, *, device: str = "cpu", settings: ControlSettings | None = None,

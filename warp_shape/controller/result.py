@@ -10,7 +10,7 @@ from ..design import Design
 from ..mesh import TriMesh
 from .settings import ControlSettings
 
-__all__ = ["ControlResult"]
+__all__ = ["ControlResult", "ScreenResult", "screened"]
 
 
 @dataclass
@@ -69,3 +69,20 @@ class ControlResult:
                     jam_steps=self.jam_steps.tolist(), actuators=self.actuator_summary,
                     passive_ipams=self.passive_ipams.tolist(), passive_cells=self.passive_cells.tolist(),
                     refinement=self.refinement, settings=asdict(self.settings))
+
+
+@dataclass(frozen=True)
+class ScreenResult:
+    """A control method's estimate of the fit it would reach for one target, without its control
+    sequence (``controller.methods.screen_many``): to rank candidates before controlling the best."""
+
+    objective: float  # the fit objective expected (unitless, as ``ControlResult.objective``)
+    plan: str | None = None  # method "inverse": the jam plan it would keep
+    predicted: bool = False  # True: predicted from the refinement's scratch settles; False: measured at the end of a run
+    refinement: dict | None = None  # method "inverse": as ``ControlResult.refinement`` (``objective``: the prediction)
+
+
+def screened(results) -> list[ScreenResult]:
+    """The ``ScreenResult`` of each control result: its measured fit (a method without an estimate of its own)."""
+    return [ScreenResult(objective=r.objective, plan=(r.refinement or {}).get("plan"), refinement=r.refinement)
+            for r in results]

@@ -39,10 +39,11 @@ import warp as wp
 from ..actuators import ACTUATOR_FAMILIES
 from ..errors import DesignError, WarpShapeError
 from ..registry import load_plugins
+from .result import screened
 from .settings import CONTROL_METHODS, LAWS
 
 __all__ = ["WorkerPool", "WorkerError", "worker_pool", "current_pool", "run_jobs", "resolve_workers", "available_cores",
-           "control_sharded", "shard_modules", "WORKERS_VARIABLE", "MAX_WORKERS", "in_worker", "check_workers"]
+           "control_sharded", "run_method", "shard_modules", "WORKERS_VARIABLE", "MAX_WORKERS", "in_worker", "check_workers"]
 
 #: environment variable: the worker count that ``workers = 0`` ("every core") means, e.g. 1 in a test suite
 WORKERS_VARIABLE = "WARP_SHAPE_WORKERS"
@@ -417,22 +418,33 @@ def _per_world(spec, W: int) -> list:
     return [[spec[w]] if per_world else spec for w in range(W)]
 
 
-def control_job(method: str, design, target, settings, device, passive_ipams, passive_cells, name, *, progress=None):
-    """One target's control run (a worker's job): ``CONTROL_METHODS[method].run`` on one world."""
-    return CONTROL_METHODS[method].run(design, [target], settings=settings, device=device, recorder=None,
-                                       progress=progress, passive_ipams=passive_ipams, passive_cells=passive_cells,
-                                       target_names=[name], recorder_prefix="control")[0]
+def run_method(method: str, design, targets, *, screen: bool = False, recorder=None, recorder_prefix="control",
+               **kwargs) -> list:
+    """``CONTROL_METHODS[method].run`` on ``targets`` in this process, or its ``screen`` (``screen``:
+    True; a method without one is run and its results screened, ``result.screened``)."""
+    m = CONTROL_METHODS[method]
+    if screen and hasattr(m, "screen"):
+        return m.screen(design, targets, **kwargs)
+    out = m.run(design, targets, recorder=recorder, recorder_prefix=recorder_prefix, **kwargs)
+    return screened(out) if screen else out
+
+
+def control_job(method: str, design, target, settings, device, passive_ipams, passive_cells, name, screen=False, *,
+                progress=None):
+    """One target's control run (a worker's job): ``run_method`` on one world."""
+    return run_method(method, design, [target], screen=screen, settings=settings, device=device, progress=progress,
+                      passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=[name])[0]
 
 
 def control_sharded(pool: WorkerPool, design, targets: list, *, settings, device: str, progress=None,
-                    passive_ipams=(), passive_cells=(), target_names=None, modules=()) -> list:
-    """``control_many``'s results for the (centred) ``targets``, one job per target on ``pool``'s
-    workers; ``progress(step, max_steps, done, worlds)`` as a batch reports it (the furthest step of the
-    jobs running, the targets done)."""
+                    passive_ipams=(), passive_cells=(), target_names=None, modules=(), screen: bool = False) -> list:
+    """``control_many``'s results for the (centred) ``targets`` (``screen``: ``screen_many``'s), one job
+    per target on ``pool``'s workers; ``progress(step, max_steps, done, worlds)`` as a batch reports it
+    (the furthest step of the jobs running, the targets done)."""
     W = len(targets)
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
     pi, pc = _per_world(passive_ipams, W), _per_world(passive_cells, W)
-    jobs = [(settings.method, design, targets[w], settings, device, pi[w], pc[w], names[w]) for w in range(W)]
+    jobs = [(settings.method, design, targets[w], settings, device, pi[w], pc[w], names[w], screen) for w in range(W)]
     steps, done = np.zeros(W, dtype=np.int64), np.zeros(W, dtype=bool)
 
     total = [settings.max_steps + settings.max_settle_steps]
@@ -447,4 +459,4 @@ def control_sharded(pool: WorkerPool, design, targets: list, *, settings, device
             progress(int(steps.max()), total[0], int(done.sum()), W)
 
     results = pool.run(control_job, jobs, modules=modules, progress=relay)
-    return [dataclasses.replace(r, design=design) for r in results]
+    return results if screen else [dataclasses.replace(r, design=design) for r in results]

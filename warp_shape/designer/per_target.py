@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..controller import control_many
+from ..controller import control_many, screen_many
 from ..design import Design
 from .placement import PaperPlacement, register_placement
 from .passive import PassiveSets
@@ -76,28 +76,27 @@ def _passive(passive_sets: PassiveSets, t: int, hold: PassiveCandidate = Passive
 
 
 def _screen(design: Design, worlds: list, current: list, passive_sets: PassiveSets, targets, names, control_settings, *,
-            device, progress, recorder, r: int, stage: int = 0) -> list:
+            device, progress) -> list:
     """The candidate worlds (target, hold), grouped by their screening settings (one batch per jam
-    plan, usually one or two); their results in ``worlds`` order."""
+    plan, usually one or two), each screened by ``screen_many`` (the fit its controller predicts, no
+    control sequence run); their estimates in ``worlds`` order."""
     groups: dict = {}
     for k, (t, h) in enumerate(worlds):
         s = _screen_settings(control_settings, current[t])
         groups.setdefault((s.method, s.inverse_plans), (s, []))[1].append(k)
     runs = [None] * len(worlds)
-    for g, (s, ks) in enumerate(groups.values()):
+    for s, ks in groups.values():
         passive = [_passive(passive_sets, worlds[k][0], worlds[k][1]) for k in ks]
-        out = control_many(design, [targets[worlds[k][0]] for k in ks], device=device, settings=s, progress=progress,
-                           recorder=recorder, recorder_prefix=f"design/refine_{r}" + (f"_{g}" if g else "")
-                           + (f"_more{stage}" if stage else ""),
-                           passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
-                           target_names=[f"{names[worlds[k][0]]}_hold_{worlds[k][1].label()}" for k in ks])
+        out = screen_many(design, [targets[worlds[k][0]] for k in ks], device=device, settings=s, progress=progress,
+                          passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
+                          target_names=[f"{names[worlds[k][0]]}_hold_{worlds[k][1].label()}" for k in ks])
         for k, run in zip(ks, out):
             runs[k] = run
     return runs
 
 
 def _screen_round(design: Design, r: int, holds: dict, failed: list, current: list, passive_sets: PassiveSets,
-                  targets, names, settings, control_settings, *, device, progress, recorder):
+                  targets, names, settings, control_settings, *, device, progress):
     """Round ``r``'s screening of ``holds`` ({target: [PassiveCandidate]}) in two stages (module
     docstring); ``failed[t]`` (the holds target t screened in vain) is updated. Returns the round's
     record, {target: (gain, hold)} of the holds that gained more than ``min_gain`` (the best per
@@ -124,7 +123,7 @@ def _screen_round(design: Design, r: int, holds: dict, failed: list, current: li
         if not worlds:
             continue
         runs = _screen(design, worlds, current, passive_sets, targets, names, control_settings, device=device,
-                       progress=progress, recorder=recorder, r=r, stage=stage)
+                       progress=progress)
         record["worlds"] += len(worlds)
         for (t, h), run in zip(worlds, runs):
             before = current[t].objective
@@ -165,7 +164,7 @@ def refine_passive(design: Design, results: list, passive_sets: PassiveSets, con
             stop = "every target already leaves out every actuator it could"
             break
         record, best, first = _screen_round(design, r, holds, failed, current, passive_sets, targets, names, settings,
-                                            control_settings, device=device, progress=progress, recorder=recorder)
+                                            control_settings, device=device, progress=progress)
         if not best:
             finish(record)
             stop = (f"no hold lowers a target's screened objective by more than {100 * settings.min_gain:g} %")
