@@ -248,8 +248,9 @@ def predict_inverse(design: Design, *, device: str, settings: ControlSettings, w
     out = []
     for w, base in enumerate(warm):
         p = int(np.argmin(pred[:, w]))
-        info = _info(w, names, refined, p, base.objective, float(pred[p, w]))
-        better = pred[p, w] < base.objective
-        out.append(ScreenResult(objective=float(pred[p, w]) if better else float(base.objective),
-                                plan=names[p], predicted=True, refinement=info))
+        obj, warm_obj = float(pred[p, w]), float(base.objective)
+        info = _info(w, names, refined, p, warm_obj, obj)
+        if obj >= warm_obj:  # as control_inverse: the paper law's result is kept
+            info.update(fell_back=True, objective=warm_obj)
+        out.append(ScreenResult(objective=info["objective"], plan=names[p], predicted=True, refinement=info))
     return out
