@@ -246,12 +246,13 @@ def build_edges_kernel(
     hinges: wp.array(dtype=wp.vec4i),  # (E,) v0, v1 (edge), v2, v3 (wings)
     stretch_modulus: wp.array(dtype=Any),  # (1,) E t, N/m
     bending_stiffness: wp.array(dtype=Any),  # (1,) k_t, N m/rad
+    wing_scale: wp.array2d(dtype=Any),  # (E, 2) multiplier of E t of face a (wing v2) and face b (wing v3)
     # State in:
     rest_in: wp.array(dtype=Any),  # (V,) rest positions, m
     # Out:
     edge_out: wp.array3d(dtype=Any),  # (4, 1, E) rest length, rest angle, stretch and bending stiffness
 ):
-    """Each edge's rest length and angle, stretch stiffness E t (A_a + A_b) / L^2 and k_t at rest."""
+    """Each edge's rest length and angle, stretch stiffness E t (s_a A_a + s_b A_b) / L^2 and k_t at rest."""
     e = wp.tid()
     h = hinges[e]
     x0 = rest_in[h[0]]
@@ -260,7 +261,8 @@ def build_edges_kernel(
     x3 = rest_in[h[3]]
     length = wp.length(x1 - x0)
     half = type(length)(0.5)
-    area = half * (wp.length(wp.cross(x1 - x0, x2 - x0)) + wp.length(wp.cross(x0 - x1, x3 - x1)))
+    area = half * (wing_scale[e, 0] * wp.length(wp.cross(x1 - x0, x2 - x0))
+                   + wing_scale[e, 1] * wp.length(wp.cross(x0 - x1, x3 - x1)))
     edge_out[0, 0, e] = length
     edge_out[1, 0, e] = dihedral_angle(x0, x1, x2, x3)
     edge_out[2, 0, e] = stretch_modulus[0] * area / (length * length)

@@ -4,10 +4,11 @@ The "device" is the 162-vertex Fig. 6 design with its parameters perturbed near 
 in the direction that moves the shape most (E t +30 %, bending -50 %, each IPAM's k -10..-20 % and A
 +10..+20 %: each IPAM strokes 1.3-1.5 x the model's per unit pressure; rest scale +2 %), driven to
 four control states that use every IPAM, held to rest and scanned: 60 % of the surface, 0.3 mm noise,
-a random rigid pose, one scan in millimetres; the chamber pressure is read with each scan (20 Pa
-noise), which fixes the common scale of E t, k and A that shape alone leaves loose
+a random rigid pose, one scan in millimetres, 20000 points each; the chamber pressure is read with
+each scan (20 Pa noise), which pins the common scale of E t, k and A that shape alone fixes least
 (docs/calibration.md). A scan at a state where an IPAM's pressure is zero cannot fit its area, and
-E with t is one product: the fit must say so.
+E with t is one product: the fit must say so. Parts of the membrane stiffer than the rest (the plug,
+the cells' edges) are fitted as regions.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import pytest
 import warp_shape as ws
 from warp_shape.calibration import ControlState, apply_values, replay_held, scan_residuals
 from warp_shape.calibration.files import apply_calibration, read_calibration, write_calibration
+from warp_shape.calibration.regions import region_faces
 from warp_shape.cli import main
 from warp_shape.model import host_model
 from warp_shape.objective_grad import fit_objective_and_gradient
@@ -27,9 +29,12 @@ from warp_shape.scan import surface_samples
 from warp_shape.scenarios import cube_fig6_design
 
 NOISE = 3e-4  # m, per coordinate
-POINTS = 5000  # per scan
+POINTS = 20000  # per scan (about 0.8 mm apart on the 60 % scanned)
 COVERAGE = 0.6
 PRESSURE_NOISE = 20.0  # Pa, the chamber pressure sensor (0.2 % of a 10 kPa range)
+#: the control states scanned: (chamber air / rest air, IPAM gauge pressures kPa); the last is held out
+STATES = [(1.3, (200, -30, 100, 0, 150)), (2.0, (0, 220, -40, 150, 280)), (2.6, (250, 120, 180, -40, 60)),
+          (1.8, (120, 60, 140, 40, 200))]
 
 
 def rotation(rng) -> np.ndarray:
@@ -54,7 +59,7 @@ def scan_of(mesh: ws.TriMesh, rng) -> np.ndarray:
 class Device:
     """The default design, the perturbed "device", its states and their scans."""
 
-    def __init__(self, seed: int = 1):
+    def __init__(self, seed: int = 1, readings: bool = False):
         rng = np.random.default_rng(seed)
         self.design = d = cube_fig6_design(subdivisions=2)
         k0 = np.array([ip.stiffness for ip in d.ipams])
@@ -65,23 +70,20 @@ class Device:
                           rest_scale=1.02)
         self.device = apply_values(d, self.truth)
         n = host_model(d).rest_air
-        self.states = [ControlState(n * 1.6, (200e3, -30e3, 100e3, 0.0, 150e3)),
-                       ControlState(n * 1.9, (0.0, 220e3, -40e3, 150e3, 280e3)),
-                       ControlState(n * 2.2, (250e3, 120e3, 180e3, -40e3, 60e3)),
-                       ControlState(n * 1.8, (120e3, 60e3, 140e3, 40e3, 200e3))]  # held out
+        self.states = [ControlState(n * air, tuple(1e3 * p for p in kpa)) for air, kpa in STATES]
         probe = [ws.ScanObservation(np.random.default_rng(0).random((60, 3)) * 0.05, s) for s in self.states]
         shapes, pressures = replay_held(self.device, [o.sequence(self.device) for o in probe], pressures=True)
         self.scans = [scan_of(self.device.rest.copy_with(x), rng) for x in shapes]
-        read = pressures + rng.normal(0.0, PRESSURE_NOISE, len(pressures))  # the chamber's sensor
-        self.obs = [ws.ScanObservation(p * (1e3 if i == 0 else 1.0), s, name=f"s{i}", pressure=r,  # s0 in mm
-                                       pressure_stderr=PRESSURE_NOISE)
+        self.pressures = pressures + rng.normal(0.0, PRESSURE_NOISE, len(pressures))  # a chamber sensor's readings
+        read = [dict(pressure=r, pressure_stderr=PRESSURE_NOISE) if readings else {} for r in self.pressures]
+        self.obs = [ws.ScanObservation(p * (1e3 if i == 0 else 1.0), s, name=f"s{i}", **r)  # s0 in mm
                     for i, (p, s, r) in enumerate(zip(self.scans, self.states, read))]
         self.cal = ws.calibrate(d, self.obs[:3])
 
 
 @pytest.fixture(scope="module")
 def dev():
-    return Device()
+    return Device(readings=True)
 
 
 def test_units_of_the_scans_are_detected(dev):
@@ -98,10 +100,9 @@ def test_identifiable_parameters_are_recovered_and_their_errors_cover_the_truth(
         seen = np.isfinite(se)
         err = np.abs(value / truth - 1.0)
         assert np.all(np.abs(value - truth)[seen] <= 3.0 * se[seen]), (name, value, truth, se)  # 3 sigma coverage
-        well = seen & (se / value < 0.015)  # determined to 1.5 %: recovered within 3 % (2 standard errors)
-        assert np.all(err[well] < 0.03), (name, err, se / value)
-    for name in ("youngs_modulus", "rest_scale"):
-        assert cal.stderr[name] / cal.values[name] < 0.015
+        if name != "bending_stiffness":  # determined to 1.5 % and recovered within 3 % (2 standard errors)
+            assert np.all(se / value < 0.015) and np.all(err < 0.03), (name, err, se / value)
+    assert [n.split(":")[0] for n in cal.poorly_determined] == ["bending_stiffness"], cal.poorly_determined
     assert all(r < 1.1 * NOISE * 1e3 for r in cal.residual_mm)
     assert all(b > a for a, b in zip(cal.residual_mm, cal.initial_residual_mm))
 
@@ -122,6 +123,74 @@ def test_what_the_scans_cannot_separate_is_named(dev):
     assert "ipam_area[4]" in cal.unidentifiable and "youngs_modulus ~ thickness" in cal.unidentifiable
     assert any("pressure never changed" in n for n in cal.notes)
     assert not np.isfinite(cal.stderr["ipam_area"][4]) and not np.isfinite(cal.stderr["youngs_modulus"])
+
+
+@pytest.fixture(scope="module")
+def stiff_parts(dev):
+    """A device whose silicone is stiffer where the tubes leave it (the plug, E t x1.8) and along the
+    cells' edges (x1.3), E t elsewhere as modelled, scanned at the three fitted states."""
+    regions = region_faces(dev.design, ("plug", "cell_boundaries"))
+    device = apply_values(dev.design, {"region_stretch": np.array([1.8, 1.3])}, regions=regions)
+    rng = np.random.default_rng(7)
+    seqs = [o.sequence(device) for o in dev.obs[:3]]
+    shapes = replay_held(device, seqs)
+    obs = [ws.ScanObservation(scan_of(device.rest.copy_with(x), rng), s, name=f"r{i}")
+           for i, (x, s) in enumerate(zip(shapes, dev.states))]
+    return dict(regions=regions, obs=obs, cal=ws.calibrate(dev.design, obs, wrt=("youngs_modulus",),
+                                                           regions=("plug", "cell_boundaries")),
+                uniform=ws.calibrate(dev.design, obs, wrt=("youngs_modulus",)))
+
+
+def test_e_t_is_fitted_per_region(stiff_parts):
+    """The plug and the cells' edges fitted on their own recover their stiffness (within 3 standard
+    errors) and explain the scans to the noise; one uniform E t cannot."""
+    cal, uniform = stiff_parts["cal"], stiff_parts["uniform"]
+    assert cal.labels == ["youngs_modulus", "region_stretch[plug]", "region_stretch[cell_boundaries]"]
+    value, se = cal.values["region_stretch"], cal.stderr["region_stretch"]
+    truth = np.array([1.8, 1.3])
+    assert np.all(np.abs(value - truth) <= 3.0 * se) and np.all(np.abs(value / truth - 1) < 0.1), (value, se)
+    assert abs(cal.values["youngs_modulus"] / cal.start["youngs_modulus"] - 1) <= 3 * cal.stderr["youngs_modulus"] \
+        / cal.start["youngs_modulus"]
+    assert max(cal.residual_mm) < 1.05 * NOISE * 1e3 < min(uniform.residual_mm)
+    expect = np.ones(cal.design.rest.n_faces)
+    for faces, v in zip(stiff_parts["regions"].values(), value):
+        expect[faces] *= v  # the two regions overlap: their multipliers multiply
+    np.testing.assert_allclose(cal.design.stretch_scale, expect, rtol=1e-12)
+
+
+def test_regions_that_cover_the_membrane_with_e_name_their_product(dev, stiff_parts, tmp_path):
+    """Patches covering the whole membrane, fitted with E itself: only E times each patch's multiplier
+    acts, so the fit names that combination; a calibration file keeps its regions and gives a design
+    the same per-face E t, and refuses another membrane."""
+    obs = stiff_parts["obs"][:1]
+    cal = ws.calibrate(dev.design, obs, wrt=("youngs_modulus",), regions="patches:3", max_iterations=1)
+    assert cal.labels[1:] == [f"region_stretch[patch{k}]" for k in range(3)]
+    assert any(n.startswith("youngs_modulus ~ region_stretch[patch") for n in cal.unidentifiable), cal.unidentifiable
+    assert not np.isfinite(cal.stderr["youngs_modulus"])
+    good = stiff_parts["cal"]
+    path = write_calibration(good, dev.design, tmp_path / "calibration.json")
+    assert json.loads(path.read_text())["regions"]["plug"] == [int(f) for f in stiff_parts["regions"]["plug"]]
+    np.testing.assert_allclose(apply_calibration(dev.design, path).stretch_scale, good.design.stretch_scale,
+                               rtol=1e-12)
+    with pytest.raises(ws.DesignError, match="faces"):
+        apply_calibration(ws.Design(ws.icosphere(1, 0.04)), path)
+    with pytest.raises(ws.DesignError, match="not known"):
+        ws.calibrate(dev.design, obs, regions=("plugs",))
+
+
+def test_a_pressure_reading_sharpens_the_stiffness_scale_and_one_state_leaves_k_with_a(dev):
+    """One scan at one state, E t, every IPAM's k and A fitted (one Gauss-Newton step): a chamber
+    pressure reading with the scan narrows E t's standard error; one state cannot part an IPAM's k from
+    its A (both act at one pressure), which the fit reports as poorly determined with the remedy."""
+    wrt = ("youngs_modulus", "ipam_stiffness", "ipam_area")
+    scan = dev.obs[0].points
+    bare = ws.calibrate(dev.design, [ws.ScanObservation(scan, dev.states[0])], wrt=wrt, max_iterations=1)
+    read = ws.calibrate(dev.design, [ws.ScanObservation(scan, dev.states[0], pressure=float(dev.pressures[0]),
+                                                        pressure_stderr=PRESSURE_NOISE)], wrt=wrt, max_iterations=1)
+    rel = [c.stderr["youngs_modulus"] / c.values["youngs_modulus"] for c in (bare, read)]
+    assert rel[1] < 0.8 * rel[0], rel
+    assert any("stiffness and area act together at one pressure" in n for n in bare.poorly_determined), \
+        bare.poorly_determined
 
 
 def _objective_on(device, result, target) -> float:
@@ -228,6 +297,20 @@ def test_bad_input_is_one_line_and_writes_nothing(lab, tmp_path, capsys, scan, s
     assert not out.exists()
 
 
+def test_a_region_the_design_lacks_is_one_line_and_writes_nothing(lab, tmp_path, capsys):
+    root, state = lab
+    (root / "regions.json").write_text(json.dumps({"observations": [{"scan": "scan.ply", "state": state}],
+                                                   "regions": ["plug", "patches:1"]}))
+    out = tmp_path / "cal"
+    assert _calibrate(root, str(root / "regions.json"), out) == 2
+    err = capsys.readouterr().err.strip()
+    assert "patches:N with N from 2 to 32" in err and len(err.splitlines()) == 1, err
+    plain = _manifest(root, "plain.json", [{"scan": "scan.ply", "state": state}])
+    assert _calibrate(root, plain, out, "--regions", "ribs") == 2
+    assert "'ribs' is not known" in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_calibrate_command_writes_a_file_that_control_takes(lab, tmp_path, capsys):
     root, state = lab
     manifest = _manifest(root, "good.json", [{"scan": "scan.ply", "state": state}])
@@ -280,7 +363,7 @@ def test_valve_and_control_files_give_the_sequence_their_result_recorded(tmp_pat
     manifest = tmp_path / "m.json"
     manifest.write_text(json.dumps({"observations": [{"scan": "scan.ply", "control": "control_oval.csv", "row": 3},
                                                      {"scan": "scan.ply", "valve": "valve_oval.csv"}]}))
-    obs, _ = read_manifest(manifest, design)
+    obs, _, _ = read_manifest(manifest, design)
     assert len(obs[0].sequence(design).times) == 4 and len(obs[1].sequence(design).times) == len(valve.times)
     with pytest.raises(ws.DesignError, match="control history of another design"):
         control_sequence(tmp_path / "control_oval.csv", _fewer_ipams(design))

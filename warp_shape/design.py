@@ -87,6 +87,23 @@ class Design:
         self.actuators: dict[str, list] = {"ipam": []}  # the elements of each actuator family, by family name
         self.cells: list[Cell] = []
         self._face_cell = np.full(rest.n_faces, -1, dtype=np.int64)
+        self.stretch_scale: np.ndarray | None = None  # (F,) multiplier of E t per face; None: uniform
+
+    # ------------------------------------------------------------------ material
+    def set_stretch_scale(self, scale) -> None:
+        """Give each face its own multiplier of the material's E t (``scale`` (F,), > 0; None: uniform):
+        a membrane stiffer or softer in places (a calibration's regions). An edge's stretch stiffness is
+        E t (s_a A_a + s_b A_b) / L^2 over its two faces a, b."""
+        if scale is None:
+            self.stretch_scale = None
+            return
+        s = np.asarray(scale, dtype=np.float64).reshape(-1)
+        if s.size != self.rest.n_faces:
+            raise DesignError(f"stretch_scale has {s.size} values but the rest mesh has {self.rest.n_faces} faces: "
+                              f"give one multiplier of E t per face")
+        if not np.all(np.isfinite(s) & (s > 0)):
+            raise DesignError("stretch_scale values must be positive numbers (multipliers of E t)")
+        self.stretch_scale = None if np.all(s == 1.0) else s.copy()
 
     # ------------------------------------------------------------------ actuators
     @property

@@ -198,6 +198,8 @@ def host_model(design: Design) -> HostModel:
     hinges = topo.hinges
     areas = mesh.face_areas()
     rest_length = np.linalg.norm(x[hinges[:, 1]] - x[hinges[:, 0]], axis=1)
+    if design.stretch_scale is not None:  # E t per face (calibrated regions)
+        areas = areas * design.stretch_scale
     hinge_area = areas[topo.faces[:, 0]] + areas[topo.faces[:, 1]]
     fams = model_families(design)
     return HostModel(

@@ -25,6 +25,7 @@ from ..material import GAS_CONSTANT
 from ..settings import SimulationSettings
 from .observations import ControlState, ScanObservation, Sequence
 from .parameters import CALIBRATION_PARAMETERS, apply_values, check_wrt
+from .regions import region_faces
 from .result import CalibrationResult
 
 __all__ = ["CALIBRATION_FORMAT", "CALIBRATION_VERSION", "UNITS", "calibration_data", "write_calibration",
@@ -35,7 +36,8 @@ CALIBRATION_FORMAT = "warp-shape calibration"
 CALIBRATION_VERSION = 1
 #: the unit of every value in a calibration file
 UNITS = {"youngs_modulus": "Pa", "thickness": "m", "bending_stiffness": "N m/rad", "ipam_stiffness": "N/m",
-         "ipam_area": "m^2", "rest_scale": "1", "residual_mm": "mm"}
+         "ipam_area": "m^2", "rest_scale": "1", "region_stretch": "1 (multiplier of E t on the region's faces)",
+         "residual_mm": "mm"}
 
 
 def _plain(v):
@@ -48,11 +50,14 @@ def _plain(v):
 def calibration_data(result: CalibrationResult, design: Design) -> dict:
     """The calibration file's content (a JSON-ready dict, SI units named in ``units``)."""
     return {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "units": UNITS,
-            "design": {"vertices": design.rest.n_vertices, "ipams": design.n_ipams, "cells": design.n_cells},
+            "design": {"vertices": design.rest.n_vertices, "faces": design.rest.n_faces, "ipams": design.n_ipams,
+                       "cells": design.n_cells},
             "values": {k: _plain(v) for k, v in result.values.items()},
+            "regions": {k: [int(f) for f in v] for k, v in result.regions.items()},
             "stderr": {k: _plain(v) for k, v in result.stderr.items()},
             "start": {k: _plain(v) for k, v in result.start.items()},
             "unidentifiable": list(result.unidentifiable), "notes": list(result.notes),
+            "poorly_determined": list(result.poorly_determined),
             "residual_mm": [float(x) for x in result.residual_mm],
             "initial_residual_mm": [float(x) for x in result.initial_residual_mm],
             "observations": list(result.observation_names)}
@@ -97,6 +102,15 @@ def read_calibration(path) -> dict:
             raise DesignError(f"calibration file {path}: {k} must be positive numbers ({UNITS.get(k)}), got {v!r}")
         out[k] = float(v) if a.ndim == 0 else np.asarray(v, dtype=np.float64)
     out["_design"] = data.get("design", {})
+    regions = data.get("regions") or {}
+    if ("region_stretch" in out) != bool(regions) or not isinstance(regions, dict) or (
+            "region_stretch" in out and np.size(out["region_stretch"]) != len(regions)):
+        raise DesignError(f"calibration file {path}: region_stretch and its \"regions\" (face lists) do not match; "
+                          f"give a file warp-shape calibrate wrote")
+    try:
+        out["_regions"] = {str(k): np.asarray(v, dtype=np.int64).reshape(-1) for k, v in regions.items()}
+    except (TypeError, ValueError):
+        raise DesignError(f"calibration file {path}: \"regions\" must map names to face indices") from None
     return out
 
 
@@ -105,11 +119,16 @@ def apply_calibration(design: Design, calibration) -> Design:
     another design (other IPAM count) is a one-line ``DesignError``."""
     values = read_calibration(calibration) if isinstance(calibration, (str, Path)) else dict(calibration)
     made_for = values.pop("_design", {}) or {}
+    regions = values.pop("_regions", {}) or {}
     n = made_for.get("ipams")
     if n is not None and n != design.n_ipams and any(k.startswith("ipam_") for k in values):
         raise DesignError(f"the calibration was fitted on a design with {n} IPAMs; this design has "
                           f"{design.n_ipams}: calibrate this design, or use a file of it")
-    return apply_values(design, values)
+    nf = made_for.get("faces")
+    if regions and nf is not None and nf != design.rest.n_faces:
+        raise DesignError(f"the calibration's regions are faces of a membrane with {nf} faces; this design has "
+                          f"{design.rest.n_faces}: calibrate this design, or use a file of it")
+    return apply_values(design, values, regions=regions)
 
 
 def material_values(calibration) -> dict:
@@ -222,13 +241,14 @@ def _reading(entry: dict, what: str) -> dict:
             from None
 
 
-def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | None]:
+def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | None, list | None]:
     """(observations, wrt or None) of a manifest file (JSON): ``{"observations": [{"scan": FILE, "units":
     "auto", optionally "chamber_pressure_kpa" (a reading) and "pressure_stderr_kpa" (default 0.1), and
     "valve": FILE (a ``valve_<target>.csv``; "row" or "time_s" on its lab clock) or "control": FILE (a
     ``control_<target>.csv``; "row" or simulated "time_s"), or "state": {"air_mol", "ipam_pressures_kpa",
     "jammed"}}, ...],
-    "wrt": [...]}``. Every path is relative to the manifest's folder and must stay in it;
+    "wrt": [...], "regions": [...]}`` (``regions``: of ``calibrate``). Returns (observations, wrt or None,
+    regions or None). Every path is relative to the manifest's folder and must stay in it;
     each observation's state is checked against ``design``. Errors are one line, before any work."""
     path = Path(path)
     data = _json_file(path, "manifest")
@@ -257,7 +277,15 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
         o.sequence(design)  # checked against the design here
         obs.append(o)
     wrt = data.get("wrt")
-    return obs, (check_wrt(wrt) if wrt is not None else None)
+    regions = data.get("regions")
+    if regions is not None:
+        if isinstance(regions, str):
+            regions = [regions]
+        if not isinstance(regions, list) or not all(isinstance(r, str) for r in regions):
+            raise DesignError(f"manifest {path}: \"regions\" is a list of region names (plug, cell_boundaries, "
+                              f"patches:N)")
+        region_faces(design, regions)  # checked here
+    return obs, (check_wrt(wrt) if wrt is not None else None), regions
 
 
 def calibration_markdown(result: CalibrationResult) -> str:
@@ -273,17 +301,24 @@ def calibration_markdown(result: CalibrationResult) -> str:
               "| scan | RMS residual before (mm) | after (mm) |", "|---|---|---|"]
     for name, a, b in zip(result.observation_names, result.initial_residual_mm, result.residual_mm):
         lines.append(f"| {name} | {a:.3f} | {b:.3f} |")
+    if result.regions:
+        lines += ["", "Regions of region_stretch (a multiplier of E t on their faces): " + ", ".join(
+            f"{k} ({len(v)} faces)" for k, v in result.regions.items())]
     if result.notes:
         lines += ["", "## Not identifiable", ""] + [f"- {n}" for n in result.notes]
+    if result.poorly_determined:
+        lines += ["", "## Poorly determined", ""] + [f"- {n}" for n in result.poorly_determined]
     return "\n".join(lines) + "\n"
 
 
 def _rows(result: CalibrationResult):
+    regions = list(result.regions)
     for name, value in result.values.items():
         v, s0, se = (np.atleast_1d(np.asarray(x, dtype=np.float64)) for x in
                      (value, result.start[name], result.stderr[name]))
         for i in range(len(v)):
-            yield (name if np.ndim(value) == 0 else f"{name}[{i}]"), float(s0[i]), float(v[i]), float(se[i])
+            label = name if np.ndim(value) == 0 else f"{name}[{regions[i] if name == 'region_stretch' else i}]"
+            yield label, float(s0[i]), float(v[i]), float(se[i])
 
 
 def write_residual_figures(result: CalibrationResult, faces: np.ndarray, out_dir) -> list[Path]:

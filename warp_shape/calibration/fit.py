@@ -16,14 +16,15 @@ from ..design import Design
 from ..errors import DesignError, ShapeError
 from ..scan import IcpConvergenceWarning, closest_points_query, compare_scan, icp
 from .observations import ScanObservation
-from .parameters import DEFAULT_WRT, ParameterSet
+from .parameters import DEFAULT_WRT, ParameterSet, check_wrt
+from .regions import region_faces
 from .replay import HOLD_S, replay_held
 from .result import CalibrationResult, ScanResidual
 
 __all__ = ["calibrate", "scan_residuals", "FIT_POINTS", "MIN_COVERAGE", "MAX_MEDIAN_DISTANCE"]
 
 #: scan points used per observation (a fixed random subset)
-FIT_POINTS = 8000
+FIT_POINTS = 20000
 #: a scan must cover at least this share of the modelled membrane
 MIN_COVERAGE = 0.1
 #: a scan whose points lie farther than this (median, as a fraction of the membrane's mean radius) from
@@ -40,6 +41,9 @@ REJECT_SIGMAS = 6.0
 NULL_EIGENVALUE = 1e-6
 #: a parameter whose Jacobian column is below this fraction of the largest is not seen at all
 NULL_COLUMN = 1e-4
+#: a direction of the fitted logarithms whose standard error exceeds this (a relative change) is named
+#: poorly determined
+LOOSE_STDERR = 0.05
 
 
 class _Fit:
@@ -333,11 +337,61 @@ def _why(labels: list[str], members: list[int], fit: _Fit) -> str:
         return f"{lab}: no observation moves the scanned surface with it"
     if set(names) == {"youngs_modulus", "thickness"}:
         return "youngs_modulus ~ thickness: only their product E t acts on the membrane's springs"
+    if any(n.startswith("region_stretch[") for n in names) and {"youngs_modulus", "thickness"} & set(names):
+        return (f"{' ~ '.join(names)}: the regions cover the membrane once, so only E t times each region's "
+                f"multiplier acts: fit E or the regions, not both")
     return f"{' ~ '.join(names)}: the observations move the surface the same way for this combination"
 
 
-def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray]:
-    """(stderr of log-parameters (P,), unidentifiable names, notes, correlation matrix)."""
+def _loose(cov: np.ndarray, idx: np.ndarray, labels: list[str], fit: _Fit) -> list[str]:
+    """The directions of the identifiable logarithms (covariance ``cov`` over ``idx``) whose standard error
+    exceeds ``LOOSE_STDERR``: each named by its members (weight >= 0.25), with what would fix it where
+    the direction's members say (one IPAM's k with its A; E t with IPAM sizes of one sign: the common
+    scale; bending alone)."""
+    lam, vec = np.linalg.eigh(cov)
+    out = []
+    for k in np.argsort(lam)[::-1]:
+        if not np.sqrt(max(lam[k], 0.0)) > LOOSE_STDERR:
+            break
+        big = np.flatnonzero(np.abs(vec[:, k]) >= 0.25)
+        members = [labels[int(idx[i])] for i in big]
+        text = f"{' ~ '.join(members)}: determined only to +-{100 * np.sqrt(lam[k]):.0f} % along this combination"
+        ipams = {m[m.index("[") + 1:-1] for m in members if m.startswith("ipam_")}
+        same_sign = bool(np.all(vec[big, k] > 0) or np.all(vec[big, k] < 0))
+        if members == ["bending_stiffness"]:
+            text += "; these states barely bend the membrane"
+        elif len(ipams) == 1 and all(m.startswith("ipam_") for m in members):
+            i = ipams.pop()
+            text += (f"; IPAM {i}'s stiffness and area act together at one pressure: scan states with IPAM {i} "
+                     f"at different pressures and the chamber at different inflations")
+        elif same_sign and any(m.split("[")[0] in ("youngs_modulus", "thickness", "region_stretch") for m in members) \
+                and ipams and not any(o.pressure is not None for o in fit.obs):
+            text += ("; the scans fix the stiffnesses' ratios better than their common scale (the air is nearly "
+                     "incompressible): give a chamber pressure reading with each scan")
+        out.append(text)
+    return out
+
+
+def _structural_nulls(params: ParameterSet, idx: np.ndarray) -> list[np.ndarray]:
+    """Directions (over the seen parameters ``idx``, in log space) that leave the model unchanged by
+    construction: regions covering every face once, fitted with E (or t), act only as E t s_region."""
+    labels = [params.labels[i] for i in idx]
+    regions = [k for k, lab in enumerate(labels) if lab.startswith("region_stretch[")]
+    scale = [k for k, lab in enumerate(labels) if lab in ("youngs_modulus", "thickness")]
+    if not regions or not scale or len(regions) != len(params.regions):
+        return []
+    count = np.bincount(np.concatenate(list(params.regions.values())), minlength=params.n_faces)
+    if not np.all(count == 1):
+        return []
+    v = np.zeros(len(idx))
+    v[scale[0]] = 1.0
+    v[regions] = -1.0
+    return [v]
+
+
+def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray, list]:
+    """(stderr of log-parameters (P,), unidentifiable names, notes, correlation matrix, poorly determined
+    directions)."""
     labels = fit.params.labels
     npar = len(labels)
     keep = s.w > 0
@@ -353,6 +407,11 @@ def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray]
         free[i] = True
     idx = np.flatnonzero(seen)
     c = norm[np.ix_(idx, idx)] / np.outer(d[idx], d[idx])
+    for v in _structural_nulls(fit.params, idx):  # exact, where finite differences see only nearly
+        u = d[idx] * v
+        u /= np.linalg.norm(u)
+        proj = np.eye(len(idx)) - np.outer(u, u)
+        c = proj @ c @ proj
     lam, vec = np.linalg.eigh(c)
     cov = np.zeros((len(idx), len(idx)))
     for k in range(len(lam)):
@@ -364,13 +423,14 @@ def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray]
         else:
             cov += np.outer(vec[:, k], vec[:, k]) / lam[k]
     cov = sigma2 * cov / np.outer(d[idx], d[idx])
+    loose = _loose(cov, idx, labels, fit)
     se = np.full(npar, np.inf)
     se[idx] = np.sqrt(np.maximum(np.diag(cov), 0.0))
     se[free] = np.inf
     corr = np.full((npar, npar), np.nan)
     sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
     corr[np.ix_(idx, idx)] = cov / np.outer(sd, sd)
-    return se, names, notes, corr
+    return se, names, notes, corr, loose
 
 
 def _vertex_residual(vertices: np.ndarray, points: np.ndarray, r: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -407,8 +467,9 @@ def _checked_observations(design, observations) -> list:
     return obs
 
 
-def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, device: str = "cpu", max_iterations: int = 20,
-              tolerance: float = 0.5, hold_s: float = HOLD_S, seed: int = 0) -> CalibrationResult:
+def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, device: str = "cpu",
+              max_iterations: int = 20, tolerance: float = 0.5, hold_s: float = HOLD_S,
+              seed: int = 0) -> CalibrationResult:
     """Fit ``design``'s parameters ``wrt`` (names of ``CALIBRATION_PARAMETERS``) to the scans of
     ``observations`` (``ScanObservation``): each observation's sequence is replayed on the model and held
     ``hold_s`` s until at rest, its scan aligned to it (unknown pose, as ``compare``), and the signed
@@ -416,9 +477,15 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, device: str = "c
     jointly, every parameter within its bounds. Every input is checked before the fit (a state that does
     not fit the design, a scan of another object or without overlap: one-line errors). Returns a
     ``CalibrationResult``; ``tolerance``: a step on a fresh Jacobian that lowers the robust cost by less
-    than this many residual variances ends the fit. docs/calibration.md gives the algorithm and its measured accuracy."""
+    than this many residual variances ends the fit. ``regions``: parts of the membrane whose E t is fitted
+    on its own (``region_stretch``, added to ``wrt``): names of ``calibration.regions.REGION_KINDS``
+    (``"plug"``, ``"cell_boundaries"``, ``"patches:N"``) or {name: face indices}.
+    docs/calibration.md gives the algorithm and its measured accuracy."""
     obs = _checked_observations(design, observations)
-    params = ParameterSet(design, wrt)
+    faces = region_faces(design, regions)
+    if faces:
+        wrt = tuple(check_wrt(wrt)) + (() if "region_stretch" in check_wrt(wrt) else ("region_stretch",))
+    params = ParameterSet(design, wrt, faces)
     fit = _Fit(design, obs, params, device, hold_s, seed)
     shapes = fit.shapes(params.x0)
     s = _State(fit, params.x0.copy(), _initial_poses(fit, shapes), shapes)
@@ -433,7 +500,7 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, device: str = "c
         n = len(s.r) - sum(s.sizes)
         jp[len(jp) - n:] *= fit.sigma / sigma0
         s2.jp, s2.fresh, s = jp, s.fresh, s2
-    se, names, notes, corr = _identify(s, fit)
+    se, names, notes, corr, loose = _identify(s, fit)
     values = params.values(s.x)
     stderr = params.per_name(se * np.exp(s.x))
     maps = _maps(fit, s)
@@ -442,7 +509,7 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, device: str = "c
                              initial_residual_mm=initial, unidentifiable=names, notes=notes, residuals=maps,
                              labels=params.labels, correlation=corr, iterations=info["iterations"],
                              jacobians=info["jacobians"], converged=info["converged"], costs=info["costs"],
-                             wrt=params.names, observation_names=[o.name for o in obs])
+                             wrt=params.names, observation_names=[o.name for o in obs], regions=faces, poorly_determined=loose)
 
 
 def scan_residuals(design: Design, observation: ScanObservation, *, device: str = "cpu", hold_s: float = HOLD_S,

@@ -3,7 +3,8 @@
 Every parameter is positive and fitted as its logarithm (a step is a relative change), clipped to
 its physical bounds. A fitted value applies to a design as ``apply_values``: the material's Young's
 modulus, thickness and bending stiffness, each IPAM's stiffness and area, and the rest-shape scale
-(a uniform mold shrinkage or swelling about the rest centroid).
+(a uniform mold shrinkage or swelling about the rest centroid), and each region's multiplier of E t
+(``region_stretch``, regions of ``calibration.regions``).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 
 from ..design import Design
 from ..errors import DesignError
+from .regions import face_scale
 
 __all__ = ["CALIBRATION_PARAMETERS", "DEFAULT_WRT", "BOUNDS", "Parameter", "ParameterSet", "apply_values",
            "check_wrt"]
@@ -27,6 +29,8 @@ CALIBRATION_PARAMETERS = {
     "ipam_stiffness": "N/m, (n_ipam,): each IPAM's stiffness k",
     "ipam_area": "m^2, (n_ipam,): each IPAM's area A",
     "rest_scale": "1: the rest shape's scale about its centroid (mold shrinkage < 1)",
+    "region_stretch": "1, (n_regions,): each region's multiplier of E t (calibrate's regions=: plug, "
+                      "cell_boundaries, patches:N)",
 }
 #: what ``calibrate`` fits when ``wrt`` is not given
 DEFAULT_WRT = ("youngs_modulus", "bending_stiffness", "ipam_stiffness", "ipam_area", "rest_scale")
@@ -38,6 +42,7 @@ BOUNDS = {
     "ipam_stiffness": (0.5, 5.0e3),
     "ipam_area": (1.0e-8, 1.0e-3),
     "rest_scale": (0.8, 1.25),
+    "region_stretch": (0.1, 10.0),
 }
 RELATIVE_BOUND = 10.0
 _PER_IPAM = ("ipam_stiffness", "ipam_area")
@@ -65,16 +70,17 @@ class Parameter:
     start: float
     lower: float
     upper: float
+    tag: str | None = None  # a region's name
 
     @property
     def label(self) -> str:
-        """``name`` or ``name[index]``."""
-        return self.name if self.index is None else f"{self.name}[{self.index}]"
+        """``name``, ``name[index]`` or ``name[region]``."""
+        return self.name if self.index is None else f"{self.name}[{self.tag if self.tag else self.index}]"
 
 
 def design_value(design: Design, name: str, index: int | None) -> float:
     """The value of parameter ``name`` (IPAM ``index``) in ``design``."""
-    if name == "rest_scale":
+    if name in ("rest_scale", "region_stretch"):
         return 1.0
     if name in _PER_IPAM:
         ip = design.ipams[index]
@@ -83,15 +89,24 @@ def design_value(design: Design, name: str, index: int | None) -> float:
 
 
 class ParameterSet:
-    """The scalars fitted for ``wrt`` on ``design``, as a vector of logarithms."""
+    """The scalars fitted for ``wrt`` on ``design``, as a vector of logarithms; ``regions`` ({name: faces},
+    ``calibration.regions.region_faces``) those of ``region_stretch``."""
 
-    def __init__(self, design: Design, wrt):
+    def __init__(self, design: Design, wrt, regions: dict | None = None):
         names = check_wrt(wrt)
+        self.regions = dict(regions or {})
         if any(n in _PER_IPAM for n in names) and not design.n_ipams:
             raise DesignError("calibrate wrt: the design has no IPAMs; leave ipam_stiffness and ipam_area out")
+        if "region_stretch" in names and not self.regions:
+            raise DesignError("calibrate wrt: region_stretch is fitted per region; give regions= (plug, "
+                              "cell_boundaries, patches:N)")
+        if self.regions and "region_stretch" not in names:
+            raise DesignError("calibrate: regions given but region_stretch is not in wrt; add it")
+        tags = list(self.regions)
         params = []
         for name in names:
-            for index in (range(design.n_ipams) if name in _PER_IPAM else [None]):
+            count = design.n_ipams if name in _PER_IPAM else len(tags) if name == "region_stretch" else None
+            for index in (range(count) if count is not None else [None]):
                 v = design_value(design, name, index)
                 if not v > 0:
                     raise DesignError(f"calibrate wrt: {name} is {v!r} in the design; a fitted parameter must start "
@@ -101,9 +116,10 @@ class ParameterSet:
                 if not lo <= v <= hi:
                     raise DesignError(f"calibrate: {name} = {v:g} lies outside its physical bounds "
                                       f"[{BOUNDS[name][0]:g}, {BOUNDS[name][1]:g}]")
-                params.append(Parameter(name, index, v, lo, hi))
+                params.append(Parameter(name, index, v, lo, hi, tags[index] if name == "region_stretch" else None))
         self.names = names
         self.params = params
+        self.n_faces = design.rest.n_faces
         self.lower = np.log([p.lower for p in params])
         self.upper = np.log([p.upper for p in params])
         self.x0 = np.log([p.start for p in params])
@@ -140,14 +156,15 @@ class ParameterSet:
 
     def design(self, design: Design, x: np.ndarray) -> Design:
         """``design`` with the values of ``x``."""
-        return apply_values(design, self.values(x))
+        return apply_values(design, self.values(x), regions=self.regions)
 
 
-def apply_values(design: Design, values: dict) -> Design:
+def apply_values(design: Design, values: dict, regions: dict | None = None) -> Design:
     """A copy of ``design`` with calibrated ``values`` ({name: value}, SI; see ``CALIBRATION_PARAMETERS``):
     material fields replaced, IPAM stiffness and area replaced (per IPAM), the rest shape scaled about its
     centroid by ``rest_scale`` (an IPAM whose free length is its rest length keeps following it; another's
-    free length scales with it). Cells keep their faces; other actuator families are copied unchanged."""
+    free length scales with it), E t multiplied on each region's faces by ``region_stretch`` (``regions``
+    {name: faces} in the values' order). Cells keep their faces; other actuator families are copied unchanged."""
     unknown = sorted(set(values) - set(CALIBRATION_PARAMETERS))
     if unknown:
         raise DesignError(f"unknown calibration parameter {unknown[0]!r}; known: {', '.join(CALIBRATION_PARAMETERS)}")
@@ -175,6 +192,13 @@ def apply_values(design: Design, values: dict) -> Design:
     shared = bool(design.cells) and np.bincount(np.concatenate([c.faces for c in design.cells])).max() > 1
     for c in design.cells:
         out.add_cell(c.faces, shared=shared)
+    if "region_stretch" in values:
+        if not regions:
+            raise DesignError("region_stretch values need their regions (face indices): a calibration file "
+                              "without them is damaged; calibrate again")
+        out.set_stretch_scale(face_scale(design, regions, values["region_stretch"]))
+    else:
+        out.set_stretch_scale(design.stretch_scale)
     return out
 
 

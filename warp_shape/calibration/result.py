@@ -45,7 +45,10 @@ class CalibrationResult:
     combinations the observations cannot separate (e.g. ``"youngs_modulus ~ thickness"``, ``"ipam_area[4]"``)
     with ``notes`` saying why; ``residuals``: the per-scan residual maps (``ScanResidual``);
     ``labels`` the fitted scalars, ``correlation`` their correlation matrix; ``iterations``,
-    ``jacobians`` (finite-difference Jacobians computed), ``converged``, ``costs`` (robust cost per iteration)."""
+    ``jacobians`` (finite-difference Jacobians computed), ``converged``, ``costs`` (robust cost per iteration);
+    ``regions`` {name: rest face indices} of ``region_stretch`` (labelled ``region_stretch[name]``);
+    ``poorly_determined``: the identifiable combinations whose standard error exceeds 5 %, each with
+    its members and what would fix it (e.g. the stiffnesses' common scale without pressure readings)."""
 
     values: dict
     stderr: dict
@@ -64,6 +67,8 @@ class CalibrationResult:
     costs: list = field(default_factory=list)
     wrt: tuple = ()
     observation_names: list = field(default_factory=list)
+    regions: dict = field(default_factory=dict, repr=False)  # {name: (n,) rest faces} of region_stretch
+    poorly_determined: list = field(default_factory=list)  # directions known only to > 5 %, with the remedy
 
     def relative_change(self) -> dict:
         """{name: value / start - 1}."""
@@ -81,5 +86,6 @@ class CalibrationResult:
                     residual_mm=[float(x) for x in self.residual_mm],
                     initial_residual_mm=[float(x) for x in self.initial_residual_mm],
                     unidentifiable=list(self.unidentifiable), notes=list(self.notes),
+                    poorly_determined=list(self.poorly_determined),
                     iterations=self.iterations, jacobians=self.jacobians, converged=self.converged,
                     observations=list(self.observation_names))

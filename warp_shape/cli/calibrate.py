@@ -11,6 +11,7 @@ from ..calibration import CALIBRATION_PARAMETERS, DEFAULT_WRT, calibrate
 from ..calibration.files import (calibration_data, calibration_markdown, read_manifest, write_calibration,
                                  write_residual_figures)
 from ..calibration.parameters import check_wrt
+from ..calibration.regions import region_faces
 from ..errors import DesignError
 from ..io.atomic import atomic_write
 from .options import add_common_args, check_device, check_rerun, open_recorder, resolve_design_and_targets
@@ -35,6 +36,9 @@ def register(subparsers) -> None:
                                                   "cube_fig6 (default)")
     c.add_argument("--wrt", nargs="+", default=None, choices=list(CALIBRATION_PARAMETERS),
                    help=f"parameters to fit (default: the manifest's \"wrt\", else {' '.join(DEFAULT_WRT)})")
+    c.add_argument("--regions", nargs="+", default=None, metavar="REGION",
+                   help="parts of the membrane whose E t is fitted on its own (region_stretch): plug, "
+                        "cell_boundaries, patches:N (default: the manifest's \"regions\", else none)")
     add_common_args(c, out="out/calibration")
     c.set_defaults(func=run)
 
@@ -43,6 +47,8 @@ def _print(result, out: Path, written) -> None:
     print(calibration_markdown(result))
     for n in result.notes:
         print(f"warning: not identifiable: {n}")
+    for n in result.poorly_determined:
+        print(f"warning: poorly determined: {n}")
     print(f"wrote {', '.join(Path(p).name for p in written)} to {out}/; use it with "
           f"warp-shape control DESIGN --calibration {out / 'calibration.json'}")
 
@@ -55,9 +61,11 @@ def run(args) -> int:
     if out.exists() and not out.is_dir():
         raise DesignError(f"--out {out} is a file; give a folder")
     design, _, _ = resolve_design_and_targets(args.design, None)
-    observations, manifest_wrt = read_manifest(args.manifest, design)
+    observations, manifest_wrt, manifest_regions = read_manifest(args.manifest, design)
     wrt = check_wrt(args.wrt) if args.wrt else (manifest_wrt or DEFAULT_WRT)
-    result = calibrate(design, observations, wrt=wrt, device=args.device)
+    regions = args.regions or manifest_regions
+    region_faces(design, regions)  # checked before the fit
+    result = calibrate(design, observations, wrt=wrt, regions=regions, device=args.device)
     out.mkdir(parents=True, exist_ok=True)
     written = [write_calibration(result, design, out / "calibration.json"),
                atomic_write(out / "calibration.md", calibration_markdown(result))]

@@ -143,6 +143,7 @@ class CodesignProblem:
                          damping=ip.damping)
         for c in self.base.cells:
             out.add_cell(c.faces)
+        out.set_stretch_scale(self.base.stretch_scale)
         return out
 
     def chain(self, design: Design, values: dict) -> np.ndarray:

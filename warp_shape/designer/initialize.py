@@ -83,4 +83,5 @@ def copy_design(d: Design, rest: TriMesh | None = None) -> Design:
                      if rest is not None else ip.free_length, pressure_limits=ip.pressure_limits, damping=ip.damping)
     for c in d.cells:
         out.add_cell(c.faces)
+    out.set_stretch_scale(d.stretch_scale)
     return out

@@ -195,6 +195,8 @@ class DifferentiableReplay:
         self.rest = self._arr(h.rest_vertices.astype(self.np_dtype), self.vec3)
         self.stretch_modulus = self._arr(np.array([mat.stretch_modulus]))
         self.bending_stiffness = self._arr(np.array([mat.bending_stiffness]))
+        face_scale = d.stretch_scale if d.stretch_scale is not None else np.ones(len(h.faces))
+        self.wing_scale = self._arr(face_scale[h.hinge_faces].astype(self.np_dtype), grad=False)  # (E, 2)
         ip = h.actuators["ipam"]
         self.ipam_stiffness = self._arr(ip["stiffness"] if n else np.ones(1))
         self.ipam_area = self._arr(np.array([i.area for i in d.ipams]) if n else np.ones(1))
@@ -266,8 +268,8 @@ class DifferentiableReplay:
         """The model arrays from the parameters (recorded on the build tape)."""
         h, V, E, n = self.host, len(self.host.rest_vertices), len(self.host.hinges), self.host.n_ipams
         self.mass.zero_()
-        launch(ka.build_edges_kernel, E, [self.hinges, self.stretch_modulus, self.bending_stiffness, self.rest,
-                                          self.edge0])
+        launch(ka.build_edges_kernel, E, [self.hinges, self.stretch_modulus, self.bending_stiffness, self.wing_scale,
+                                          self.rest, self.edge0])
         launch(ka.build_mass_kernel, len(h.faces), [self.faces, self.scalar(self.design.material.areal_density),
                                                     self.rest, self.mass])
         launch(ka.invert_kernel, V, [self.mass, self.inv_mass])
