@@ -22,6 +22,7 @@ import warp_shape as ws
 from warp_shape.calibration import ControlState, apply_values, replay_held, scan_residuals
 from warp_shape.calibration.files import apply_calibration, read_calibration, write_calibration
 from warp_shape.calibration.regions import region_faces
+from warp_shape.io.recording_read import read_recording
 from warp_shape.cli import main
 from warp_shape.model import host_model
 from warp_shape.objective_grad import fit_objective_and_gradient
@@ -32,6 +33,9 @@ NOISE = 3e-4  # m, per coordinate
 POINTS = 20000  # per scan (about 0.8 mm apart on the 60 % scanned)
 COVERAGE = 0.6
 PRESSURE_NOISE = 20.0  # Pa, the chamber pressure sensor (0.2 % of a 10 kPa range)
+#: the inverse controller's tolerance in the sim-to-real loop (a tenth of the default, so that the gain
+#: of the calibrated model on the heart, 0.3 %, is not within the controller's own noise)
+LOOP_TOLERANCE = 5e-4
 #: the control states scanned: (chamber air / rest air, IPAM gauge pressures kPa); the last is held out
 STATES = [(1.3, (200, -30, 100, 0, 150)), (2.0, (0, 220, -40, 150, 280)), (2.6, (250, 120, 180, -40, 60)),
           (1.8, (120, 60, 140, 40, 200))]
@@ -138,12 +142,13 @@ def stiff_parts(dev):
            for i, (x, s) in enumerate(zip(shapes, dev.states))]
     return dict(regions=regions, obs=obs, cal=ws.calibrate(dev.design, obs, wrt=("youngs_modulus",),
                                                            regions=("plug", "cell_boundaries")),
-                uniform=ws.calibrate(dev.design, obs, wrt=("youngs_modulus",)))
+                uniform=ws.calibrate(dev.design, obs, wrt=("youngs_modulus",), max_iterations=3))
 
 
 def test_e_t_is_fitted_per_region(stiff_parts):
     """The plug and the cells' edges fitted on their own recover their stiffness (within 3 standard
-    errors) and explain the scans to the noise; one uniform E t cannot."""
+    errors) and explain the scans to the noise; one uniform E t cannot (measured: 0.35-0.65 mm after
+    29 iterations; the test stops it at 3)."""
     cal, uniform = stiff_parts["cal"], stiff_parts["uniform"]
     assert cal.labels == ["youngs_modulus", "region_stretch[plug]", "region_stretch[cell_boundaries]"]
     value, se = cal.values["region_stretch"], cal.stderr["region_stretch"]
@@ -207,7 +212,8 @@ def loop(dev):
     for name in ("oval", "heart"):
         target = ws.target(name)
         for label, model in (("default", dev.design), ("calibrated", dev.cal.design)):
-            res = ws.control(model, target, settings=ws.ControlSettings(method="inverse"))
+            res = ws.control(model, target, settings=ws.ControlSettings(method="inverse",
+                                                                        inverse_tolerance=LOOP_TOLERANCE))
             out[name, label] = (_objective_on(dev.device, res, target), _objective_on(model, res, target))
     return out
 
@@ -215,9 +221,10 @@ def loop(dev):
 def test_sequences_controlled_on_the_calibrated_model_fit_the_device_better(loop):
     """The sim-to-real loop: on every target of the default problem the sequence controlled on the
     calibrated model fits the device better than the one controlled on the default model (the default
-    model's IPAMs stroke 1.3-1.5 x less than the device's; docs/calibration.md has the figures)."""
+    model's IPAMs stroke 1.3-1.5 x less than the device's; docs/calibration.md has the figures), by
+    more than the controller's own tolerance (so not by the controller's noise)."""
     for name in ("oval", "heart"):
-        assert loop[name, "calibrated"][0] < loop[name, "default"][0], (name, loop)
+        assert loop[name, "calibrated"][0] < (1.0 - LOOP_TOLERANCE) * loop[name, "default"][0], (name, loop)
 
 
 def test_the_calibrated_model_predicts_what_its_sequences_do_on_the_device(loop):
@@ -314,13 +321,24 @@ def test_a_region_the_design_lacks_is_one_line_and_writes_nothing(lab, tmp_path,
 def test_calibrate_command_writes_a_file_that_control_takes(lab, tmp_path, capsys):
     root, state = lab
     manifest = _manifest(root, "good.json", [{"scan": "scan.ply", "state": state}])
-    out = tmp_path / "cal"
-    assert _calibrate(root, manifest, out, "--wrt", "youngs_modulus", "rest_scale") == 0
+    out, rrd = tmp_path / "cal", tmp_path / "cal.rrd"
+    assert _calibrate(root, manifest, out, "--wrt", "youngs_modulus", "rest_scale", "--regions", "plug",
+                      "--rerun", str(rrd)) == 0
     text = capsys.readouterr().out
-    assert "youngs_modulus" in text and (out / "calibration.md").is_file()
+    assert "region_stretch[plug]" in text and (out / "calibration.md").is_file()
     data = json.loads((out / "calibration.json").read_text())
-    assert set(data["values"]) == {"youngs_modulus", "rest_scale"}
+    assert set(data["values"]) == {"youngs_modulus", "rest_scale", "region_stretch"}
     assert abs(data["values"]["rest_scale"] - 1.0) < 0.005  # the scan is of the default device
+    plug = np.array(data["regions"]["plug"])
+    assert 0 < len(plug) < 0.3 * data["design"]["faces"]
+    # the residual map: a figure per scan and, in the recording, the replayed membrane and the aligned scan
+    assert (out / "residuals_0.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    ents = read_recording(rrd)["entities"]
+    mesh = ents["/calibration/0/membrane"]["static"]
+    assert len(mesh["Mesh3D:vertex_positions"]) == 162 and len(mesh["Mesh3D:vertex_colors"]) == 162
+    assert len(ents["/calibration/0/scan"]["static"]["Points3D:positions"]) > 0.5 * POINTS  # the kept points
+    rms = ents["/calibration/0/rms_mm"]["static"]
+    assert f"RMS {data['residual_mm'][0]:.3f} mm" in str(next(v for k, v in rms.items() if k.endswith("text")))
     assert main(["control", str(root / "design.usda"), "--calibration", str(out / "calibration.json"),
                  "--method", "paper", "--max-steps", "5", "--out", str(tmp_path / "ctl")]) == 0
     assert main(["control", str(root / "design.usda"), "--calibration", str(root / "scan.ply"),

@@ -57,7 +57,7 @@ def calibration_data(result: CalibrationResult, design: Design) -> dict:
             "stderr": {k: _plain(v) for k, v in result.stderr.items()},
             "start": {k: _plain(v) for k, v in result.start.items()},
             "unidentifiable": list(result.unidentifiable), "notes": list(result.notes),
-            "poorly_determined": list(result.poorly_determined),
+            "poorly_determined": list(result.poorly_determined), "realigned": list(result.realigned),
             "residual_mm": [float(x) for x in result.residual_mm],
             "initial_residual_mm": [float(x) for x in result.initial_residual_mm],
             "observations": list(result.observation_names)}
@@ -301,6 +301,9 @@ def calibration_markdown(result: CalibrationResult) -> str:
               "| scan | RMS residual before (mm) | after (mm) |", "|---|---|---|"]
     for name, a, b in zip(result.observation_names, result.initial_residual_mm, result.residual_mm):
         lines.append(f"| {name} | {a:.3f} | {b:.3f} |")
+    if result.realigned:
+        lines += ["", "Aligned again in another turn after a first fit (docs/calibration.md, Align): "
+                  + ", ".join(result.realigned)]
     if result.regions:
         lines += ["", "Regions of region_stretch (a multiplier of E t on their faces): " + ", ".join(
             f"{k} ({len(v)} faces)" for k, v in result.regions.items())]

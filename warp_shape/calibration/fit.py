@@ -32,6 +32,17 @@ MIN_COVERAGE = 0.1
 MAX_MEDIAN_DISTANCE = 0.1
 #: random starting rotations of the unknown-pose alignment
 POSE_TRIALS = 32
+#: poses that differ by more than this are different turns of the scan (alternatives of the alignment)
+REPOSE_DEGREES = 5.0
+#: the other turns kept per scan, tried when the fit leaves the scan's RMS residual above MISFIT_RATIO
+#: times the best-fitting scan's
+POSE_ALTERNATIVES = 2
+MISFIT_RATIO = 1.25
+#: an other turn is kept as an alternative only where it aligns nearly as well as the best (trimmed RMS
+#: within this ratio): the start model could not tell them apart
+AMBIGUOUS_RATIO = 1.5
+#: half turns of the best pose tried about this many axes (the membrane's near symmetries)
+HALF_TURN_AXES = 24
 #: forward-difference step in the logarithm of a parameter
 FD_STEP = 1e-2
 #: Huber loss threshold in robust standard deviations; residuals beyond REJECT_SIGMAS weigh nothing
@@ -60,6 +71,7 @@ class _Fit:
         self.seed = seed
         self.pressures = {}  # id of a shapes array -> its chamber pressures
         self.sigma = 3e-4  # m: a scan point's noise, what a pressure reading's row is scaled to (set_sigma)
+        self.other_turns = []  # per scan, the alignment's other turns [(R, t), ...] (robust_poses)
 
     def set_sigma(self, r: np.ndarray) -> None:
         """The scans' robust residual scale (1.4826 median |r| of the scan rows of ``r``), m."""
@@ -168,11 +180,29 @@ def _trimmed(d: np.ndarray) -> float:
     return float(np.sqrt(np.mean(d * d)))
 
 
-def robust_pose(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, device: str = "cpu",
-                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t) taking ``points`` (a partial scan, any pose) onto the surface (``vertices``, ``faces``):
-    ``POSE_TRIALS`` random rotations and the scan's own, each refined by point-to-plane ICP on a subset; the best few by trimmed RMS refined on all points, the best kept. A nearly
-    round membrane has no clear principal axes, so the random starts are what find its pose."""
+def _spread_axes(n: int) -> np.ndarray:
+    """(n, 3) unit axes spread over a hemisphere (a Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = k / n
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _turn(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle between rotations ``a`` and ``b``, degrees."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(a @ b.T) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def robust_poses(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, device: str = "cpu",
+                 seed: int = 0, alternatives: int = 0) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """[(trimmed RMS distance m, R, t), ...] taking ``points`` (a partial scan, any pose) onto the surface (``vertices``, ``faces``),
+    the best first: ``POSE_TRIALS`` random rotations and the scan's own, each refined by point-to-plane
+    ICP on a subset; the best two by trimmed RMS refined on all points, and the best trial of each of
+    ``POSE_ALTERNATIVES`` other turns (more than ``REPOSE_DEGREES`` apart), and the best two half turns
+    of the best about ``HALF_TURN_AXES`` axes (ICP on the subset); ranked by trimmed RMS on all points, the first
+    ``alternatives + 1`` returned with their scores. A nearly round membrane has no clear principal axes, so the random starts
+    are what find its pose; its other turns are what ``calibrate`` tries when a scan will not fit."""
     q = closest_points_query((vertices, faces), device=device)
     scale = float(np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))
     sub = points[np.random.default_rng(seed).choice(len(points), size=min(300, len(points)), replace=False)]
@@ -184,13 +214,40 @@ def robust_pose(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, 
             r1, t1, _, _ = icp(sub, q, rot, cm - rot @ cs, max_iterations=30, tolerance=1e-6, scale=scale)
             trials.append((_trimmed(q(sub @ r1.T + t1)[1]), r1, t1))
         trials.sort(key=lambda e: e[0])
-        best = None
-        for _, r0, t0 in trials[:2]:
+
+        def refine(r0, t0):
             r1, t1, _, _ = icp(points, q, r0, t0, max_iterations=40, tolerance=1e-6, scale=scale)
-            score = _trimmed(q(points @ r1.T + t1)[1])
-            if best is None or score < best[0]:
-                best = (score, r1, t1)
-    return best[1], best[2]
+            return _trimmed(q(points @ r1.T + t1)[1]), r1, t1
+
+        out = [min((refine(r0, t0) for _, r0, t0 in trials[:2]), key=lambda e: e[0])]
+        for _, r0, t0 in trials:
+            if len(out) > max(alternatives, POSE_ALTERNATIVES):
+                break
+            if all(_turn(r0, r) > REPOSE_DEGREES for _, r, _ in out):
+                e = refine(r0, t0)
+                if all(_turn(e[1], r) > REPOSE_DEGREES for _, r, _ in out):
+                    out.append(e)
+        # half turns of the best about HALF_TURN_AXES axes spread over the sphere: where the membrane is
+        # nearly symmetric, the random starts may all fall into a half-turned pose's basin
+        _, r0, t0 = min(out, key=lambda e: e[0])
+        turned = []
+        for a in _spread_axes(HALF_TURN_AXES):
+            flip = 2.0 * np.outer(a, a) - np.eye(3)  # 180 degrees about a, about the model's centroid
+            r1, t1, _, _ = icp(sub, q, flip @ r0, flip @ (t0 - cm) + cm, max_iterations=30, tolerance=1e-6,
+                               scale=scale)
+            turned.append((_trimmed(q(sub @ r1.T + t1)[1]), r1, t1))
+        for _, r1, t1 in sorted(turned, key=lambda e: e[0])[:2]:
+            e = refine(r1, t1)
+            if all(_turn(e[1], r) > REPOSE_DEGREES for _, r, _ in out):
+                out.append(e)
+    out.sort(key=lambda e: e[0])  # by the trimmed RMS on all points
+    return out[:alternatives + 1]
+
+
+def robust_pose(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, device: str = "cpu",
+                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t): the best of ``robust_poses``."""
+    return robust_poses(points, vertices, faces, device=device, seed=seed)[0][1:]
 
 
 def _initial_poses(fit: _Fit, shapes: np.ndarray) -> list:
@@ -199,7 +256,9 @@ def _initial_poses(fit: _Fit, shapes: np.ndarray) -> list:
     ``compare`` does) is an error."""
     poses, faces = [], fit.design.rest.faces
     for o, pts, x in zip(fit.obs, fit.points, shapes):
-        rot, t = robust_pose(pts, x, faces, device=fit.device, seed=fit.seed)
+        (score, rot, t), *others = robust_poses(pts, x, faces, device=fit.device, seed=fit.seed,
+                                                alternatives=POSE_ALTERNATIVES)
+        fit.other_turns.append([(r, u) for d, r, u in others if d < AMBIGUOUS_RATIO * score])
         radius = float(np.mean(np.linalg.norm(x - x.mean(axis=0), axis=1)))
         d = closest_points_query((x, faces), device=fit.device)(pts @ rot.T + t)[1]
         med = float(np.median(d))
@@ -218,6 +277,45 @@ def _initial_poses(fit: _Fit, shapes: np.ndarray) -> list:
                              f"(at least {100 * MIN_COVERAGE:.0f} % needed): no overlap to fit; scan more of the device")
         poses.append((rot, t))
     return poses
+
+
+def _scan_rms(s) -> np.ndarray:
+    """(W,) RMS residual of each scan's kept points (m)."""
+    out, start = [], 0
+    for m in s.sizes:
+        r, w = s.r[start:start + m], s.w[start:start + m]
+        out.append(float(np.sqrt(np.mean(r[w > 0] ** 2))) if np.any(w > 0) else np.inf)
+        start += m
+    return np.array(out)
+
+
+def _other_turns(fit: _Fit, s, info: dict, max_iterations: int, tolerance: float):
+    """The fit, with each scan it leaves misfitted (RMS above ``MISFIT_RATIO`` times the best scan's)
+    aligned in its other turns (``robust_poses``' alternatives) and fitted again from there; a turn is
+    kept where the scans' summed RMS falls. On the start model a scan of a much softer or stiffer device
+    may fit best in a wrong turn of the nearly round membrane, and the IPAMs' parameters then bend the
+    model towards it: a local minimum that the residual shows. ``info["realigned"]``: the scans turned."""
+    info["realigned"] = []
+    if len(s.sizes) < 2:
+        return s
+    rms = _scan_rms(s)
+    for k in np.argsort(rms)[::-1]:
+        if not rms[k] > MISFIT_RATIO * rms.min():
+            break
+        for pose in fit.other_turns[k]:
+            poses = list(s.poses)
+            poses[k] = pose
+            trial = _State(fit, s.x, _realign(fit, s.shapes, poses), s.shapes)
+            trial, more = _levenberg_marquardt(fit, trial, max_iterations, tolerance)
+            for key in ("iterations", "jacobians"):
+                info[key] += more[key]
+            if _scan_rms(trial).sum() < rms.sum():
+                info["costs"] += more["costs"]
+                info["converged"] = more["converged"]
+                info["realigned"].append(fit.obs[int(k)].name)
+                s, rms = trial, _scan_rms(trial)
+                break
+    return s
 
 
 def _realign(fit: _Fit, shapes: np.ndarray, poses) -> list:
@@ -493,6 +591,7 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
     s = _State(fit, s.x, _realign(fit, shapes, s.poses), shapes)
     initial = [m.rms_mm for m in _maps(fit, s)]
     s, info = _levenberg_marquardt(fit, s, max_iterations, tolerance)
+    s = _other_turns(fit, s, info, max_iterations, tolerance)
     if any(o.pressure is not None for o in obs):  # the readings weighed at the final noise
         jp, sigma0 = s.jp.copy(), fit.sigma
         fit.set_sigma(s.r)
@@ -509,7 +608,8 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
                              initial_residual_mm=initial, unidentifiable=names, notes=notes, residuals=maps,
                              labels=params.labels, correlation=corr, iterations=info["iterations"],
                              jacobians=info["jacobians"], converged=info["converged"], costs=info["costs"],
-                             wrt=params.names, observation_names=[o.name for o in obs], regions=faces, poorly_determined=loose)
+                             wrt=params.names, observation_names=[o.name for o in obs], regions=faces, poorly_determined=loose,
+                             realigned=info["realigned"])
 
 
 def scan_residuals(design: Design, observation: ScanObservation, *, device: str = "cpu", hold_s: float = HOLD_S,

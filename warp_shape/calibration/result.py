@@ -69,6 +69,7 @@ class CalibrationResult:
     observation_names: list = field(default_factory=list)
     regions: dict = field(default_factory=dict, repr=False)  # {name: (n,) rest faces} of region_stretch
     poorly_determined: list = field(default_factory=list)  # directions known only to > 5 %, with the remedy
+    realigned: list = field(default_factory=list)  # scans whose pose a first fit had in a wrong turn
 
     def relative_change(self) -> dict:
         """{name: value / start - 1}."""
@@ -86,6 +87,6 @@ class CalibrationResult:
                     residual_mm=[float(x) for x in self.residual_mm],
                     initial_residual_mm=[float(x) for x in self.initial_residual_mm],
                     unidentifiable=list(self.unidentifiable), notes=list(self.notes),
-                    poorly_determined=list(self.poorly_determined),
+                    poorly_determined=list(self.poorly_determined), realigned=list(self.realigned),
                     iterations=self.iterations, jacobians=self.jacobians, converged=self.converged,
                     observations=list(self.observation_names))
