@@ -196,6 +196,8 @@ def test_a_pressure_reading_sharpens_the_stiffness_scale_and_one_state_leaves_k_
     assert rel[1] < 0.8 * rel[0], rel
     assert any("stiffness and area act together at one pressure" in n for n in bare.poorly_determined), \
         bare.poorly_determined
+    assert any("without chamber pressure readings" in n for n in bare.poorly_determined)
+    assert not any("without chamber pressure readings" in n for n in read.poorly_determined)
 
 
 def _objective_on(device, result, target) -> float:

@@ -15,7 +15,7 @@ import sys
 import time
 from dataclasses import replace
 
-from ..calibration.files import ipam_values, material_values
+from ..calibration.files import ipam_values, material_values, read_calibration
 from ..controller.shard import worker_pool
 from ..designer import PLACEMENTS, design
 from ..designer.settings import CODESIGN_MODES
@@ -86,8 +86,13 @@ def run_settings(scene, args) -> RunSettings:
                     initialize=False if args.keep_rest else None, workers=args.workers)
     material = scene.design.material if scene.design is not None else None
     if getattr(args, "calibration", None):  # the fitted material, and the fitted IPAMs' mean size for new ones
-        material = replace(material or Material(), **material_values(args.calibration))
-        designer.update(ipam_values(args.calibration))
+        calibration = read_calibration(args.calibration)
+        material = replace(material or Material(), **material_values(calibration))
+        designer.update(ipam_values(calibration))
+        if calibration.get("_regions"):
+            print(f"note: the calibration's E t per region ({', '.join(calibration['_regions'])}) describes the "
+                  f"membrane it was fitted on; a new design takes only its material and mean IPAM size",
+                  file=sys.stderr)
     return RunSettings.from_groups(scene.settings, designer=designer, material=material)
 
 
