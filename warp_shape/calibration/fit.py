@@ -464,12 +464,12 @@ def _loose(cov: np.ndarray, idx: np.ndarray, labels: list[str], fit: _Fit) -> li
                      f"at different pressures and the chamber at different inflations")
         elif same_sign and any(m.split("[")[0] in ("youngs_modulus", "thickness", "region_stretch") for m in members) \
                 and ipams and not any(o.pressure is not None for o in fit.obs):
-            text += ("; the scans fix the stiffnesses' ratios better than their common scale (the air is nearly "
-                     "incompressible): give a chamber pressure reading with each scan")
+            text += ("; without chamber pressure readings the scans fix the stiffnesses' ratios better than their "
+                     "common scale (the air is nearly incompressible): give a reading with each scan")
         out.append(text)
     fitted = {lab.split("[")[0] for lab in labels}
     if not any(o.pressure is not None for o in fit.obs) and fitted & {"youngs_modulus", "thickness", "region_stretch"} \
-            and fitted & {"ipam_stiffness", "ipam_area"} and not any("common scale" in t for t in out):
+            and fitted & {"ipam_stiffness", "ipam_area"} and not any("without chamber pressure readings" in t for t in out):
         out.append("the stiffnesses' common scale (E t with every IPAM's k and A): without chamber pressure readings "
                    "it rests on the air's small compressibility alone (errors up to 5 % seen at 0.3 mm noise, beyond "
                    "their standard errors); give a chamber pressure reading with each scan")
