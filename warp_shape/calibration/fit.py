@@ -196,13 +196,14 @@ def _turn(a: np.ndarray, b: np.ndarray) -> float:
 
 def robust_poses(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, device: str = "cpu",
                  seed: int = 0, alternatives: int = 0) -> list[tuple[float, np.ndarray, np.ndarray]]:
-    """[(trimmed RMS distance m, R, t), ...] taking ``points`` (a partial scan, any pose) onto the surface (``vertices``, ``faces``),
-    the best first: ``POSE_TRIALS`` random rotations and the scan's own, each refined by point-to-plane
-    ICP on a subset; the best two by trimmed RMS refined on all points, and the best trial of each of
-    ``POSE_ALTERNATIVES`` other turns (more than ``REPOSE_DEGREES`` apart), and the best two half turns
-    of the best about ``HALF_TURN_AXES`` axes (ICP on the subset); ranked by trimmed RMS on all points, the first
-    ``alternatives + 1`` returned with their scores. A nearly round membrane has no clear principal axes, so the random starts
-    are what find its pose; its other turns are what ``calibrate`` tries when a scan will not fit."""
+    """[(trimmed RMS distance m, R, t), ...] taking ``points`` (a partial scan, any pose) onto the surface
+    (``vertices``, ``faces``), the best first: ``POSE_TRIALS`` random rotations and the scan's own, each
+    refined by point-to-plane ICP on a subset; the best two by trimmed RMS refined on all points, the
+    best trial of each of ``POSE_ALTERNATIVES`` other turns (more than ``REPOSE_DEGREES`` apart), and the
+    best two half turns of the best about ``HALF_TURN_AXES`` axes; ranked by trimmed RMS on all points,
+    the first ``alternatives + 1`` returned. A nearly round membrane has no clear principal axes, so the
+    random starts are what find its pose; its other turns are what ``calibrate`` tries when a scan
+    will not fit."""
     q = closest_points_query((vertices, faces), device=device)
     scale = float(np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))
     sub = points[np.random.default_rng(seed).choice(len(points), size=min(300, len(points)), replace=False)]
@@ -244,14 +245,8 @@ def robust_poses(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *,
     return out[:alternatives + 1]
 
 
-def robust_pose(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *, device: str = "cpu",
-                seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(R, t): the best of ``robust_poses``."""
-    return robust_poses(points, vertices, faces, device=device, seed=seed)[0][1:]
-
-
 def _initial_poses(fit: _Fit, shapes: np.ndarray) -> list:
-    """Each scan aligned to its replayed shape (``robust_pose``: unknown pose); a scan that does not
+    """Each scan aligned to its replayed shape (``robust_poses``: unknown pose); a scan that does not
     match the display (too far from it after alignment, or covering too little of it, measured as
     ``compare`` does) is an error."""
     poses, faces = [], fit.design.rest.faces
