@@ -315,13 +315,12 @@ def calibration_markdown(result: CalibrationResult) -> str:
 
 
 def _rows(result: CalibrationResult):
-    regions = list(result.regions)
+    labels = iter(result.labels)  # the fitted scalars in the values' order: name, name[i] or name[region]
     for name, value in result.values.items():
         v, s0, se = (np.atleast_1d(np.asarray(x, dtype=np.float64)) for x in
                      (value, result.start[name], result.stderr[name]))
         for i in range(len(v)):
-            label = name if np.ndim(value) == 0 else f"{name}[{regions[i] if name == 'region_stretch' else i}]"
-            yield label, float(s0[i]), float(v[i]), float(se[i])
+            yield next(labels), float(s0[i]), float(v[i]), float(se[i])
 
 
 def write_residual_figures(result: CalibrationResult, faces: np.ndarray, out_dir) -> list[Path]:

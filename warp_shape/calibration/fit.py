@@ -439,8 +439,8 @@ def _why(labels: list[str], members: list[int], fit: _Fit) -> str:
 def _loose(cov: np.ndarray, idx: np.ndarray, labels: list[str], fit: _Fit) -> list[str]:
     """The directions of the identifiable logarithms (covariance ``cov`` over ``idx``) whose standard error
     exceeds ``LOOSE_STDERR``: each named by its members (weight >= 0.25), with what would fix it where
-    the direction's members say (one IPAM's k with its A; E t with IPAM sizes of one sign: the common
-    scale; bending alone)."""
+    the direction's members say (one IPAM's k with its A; bending alone); and, fitted without pressure
+    readings, E t with IPAM sizes: their common scale."""
     lam, vec = np.linalg.eigh(cov)
     out = []
     for k in np.argsort(lam)[::-1]:
@@ -450,36 +450,32 @@ def _loose(cov: np.ndarray, idx: np.ndarray, labels: list[str], fit: _Fit) -> li
         members = [labels[int(idx[i])] for i in big]
         text = f"{' ~ '.join(members)}: determined only to +-{100 * np.sqrt(lam[k]):.0f} % along this combination"
         ipams = {m[m.index("[") + 1:-1] for m in members if m.startswith("ipam_")}
-        same_sign = bool(np.all(vec[big, k] > 0) or np.all(vec[big, k] < 0))
         if members == ["bending_stiffness"]:
             text += "; these states barely bend the membrane"
         elif len(ipams) == 1 and all(m.startswith("ipam_") for m in members):
             i = ipams.pop()
             text += (f"; IPAM {i}'s stiffness and area act together at one pressure: scan states with IPAM {i} "
                      f"at different pressures and the chamber at different inflations")
-        elif same_sign and any(m.split("[")[0] in ("youngs_modulus", "thickness", "region_stretch") for m in members) \
-                and ipams and not any(o.pressure is not None for o in fit.obs):
-            text += ("; without chamber pressure readings the scans fix the stiffnesses' ratios better than their "
-                     "common scale (the air is nearly incompressible): give a reading with each scan")
         out.append(text)
     fitted = {lab.split("[")[0] for lab in labels}
     if not any(o.pressure is not None for o in fit.obs) and fitted & {"youngs_modulus", "thickness", "region_stretch"} \
-            and fitted & {"ipam_stiffness", "ipam_area"} and not any("without chamber pressure readings" in t for t in out):
+            and fitted & {"ipam_stiffness", "ipam_area"}:
         out.append("the stiffnesses' common scale (E t with every IPAM's k and A): without chamber pressure readings "
                    "it rests on the air's small compressibility alone (errors up to 5 % seen at 0.3 mm noise, beyond "
                    "their standard errors); give a chamber pressure reading with each scan")
     return out
 
 
-def _structural_nulls(params: ParameterSet, idx: np.ndarray) -> list[np.ndarray]:
+def _structural_nulls(params: ParameterSet, idx: np.ndarray, n_faces: int) -> list[np.ndarray]:
     """Directions (over the seen parameters ``idx``, in log space) that leave the model unchanged by
-    construction: regions covering every face once, fitted with E (or t), act only as E t s_region."""
+    construction: regions covering every one of the ``n_faces`` faces once, fitted with E (or t), act
+    only as E t s_region."""
     labels = [params.labels[i] for i in idx]
     regions = [k for k, lab in enumerate(labels) if lab.startswith("region_stretch[")]
     scale = [k for k, lab in enumerate(labels) if lab in ("youngs_modulus", "thickness")]
     if not regions or not scale or len(regions) != len(params.regions):
         return []
-    count = np.bincount(np.concatenate(list(params.regions.values())), minlength=params.n_faces)
+    count = np.bincount(np.concatenate(list(params.regions.values())), minlength=n_faces)
     if not np.all(count == 1):
         return []
     v = np.zeros(len(idx))
@@ -506,7 +502,8 @@ def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray,
         free[i] = True
     idx = np.flatnonzero(seen)
     c = norm[np.ix_(idx, idx)] / np.outer(d[idx], d[idx])
-    for v in _structural_nulls(fit.params, idx):  # exact, where finite differences see only nearly
+    # exact null directions, where finite differences see them only nearly
+    for v in _structural_nulls(fit.params, idx, fit.design.rest.n_faces):
         u = d[idx] * v
         u /= np.linalg.norm(u)
         proj = np.eye(len(idx)) - np.outer(u, u)
@@ -582,8 +579,9 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
     docs/calibration.md gives the algorithm and its measured accuracy."""
     obs = _checked_observations(design, observations)
     faces = region_faces(design, regions)
-    if faces:
-        wrt = tuple(check_wrt(wrt)) + (() if "region_stretch" in check_wrt(wrt) else ("region_stretch",))
+    wrt = check_wrt(wrt)
+    if faces and "region_stretch" not in wrt:
+        wrt += ("region_stretch",)
     params = ParameterSet(design, wrt, faces)
     fit = _Fit(design, obs, params, device, hold_s, seed)
     shapes = fit.shapes(params.x0)
@@ -609,8 +607,8 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
                              initial_residual_mm=initial, unidentifiable=names, notes=notes, residuals=maps,
                              labels=params.labels, correlation=corr, iterations=info["iterations"],
                              jacobians=info["jacobians"], converged=info["converged"], costs=info["costs"],
-                             wrt=params.names, observation_names=[o.name for o in obs], regions=faces, poorly_determined=loose,
-                             realigned=info["realigned"])
+                             wrt=params.names, observation_names=[o.name for o in obs], regions=faces,
+                             poorly_determined=loose, realigned=info["realigned"])
 
 
 def scan_residuals(design: Design, observation: ScanObservation, *, device: str = "cpu", hold_s: float = HOLD_S,

@@ -119,7 +119,6 @@ class ParameterSet:
                 params.append(Parameter(name, index, v, lo, hi, tags[index] if name == "region_stretch" else None))
         self.names = names
         self.params = params
-        self.n_faces = design.rest.n_faces
         self.lower = np.log([p.lower for p in params])
         self.upper = np.log([p.upper for p in params])
         self.x0 = np.log([p.start for p in params])

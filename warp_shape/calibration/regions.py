@@ -30,9 +30,9 @@ PLUG_RADIUS = 25e-3
 def _plug(design: Design) -> np.ndarray:
     """Faces of the underside within ``PLUG_RADIUS`` (horizontally) of the seat axis the molds use."""
     rest = design.rest
-    ends = np.array([rest.face_centroids()[f] for ip in design.ipams for f in (ip.face_a, ip.face_b)]).reshape(-1, 3)
-    xy, _ = seat_place(rest.to_trimesh(), ends, seat_radius=PLUG_RADIUS)
     c = rest.face_centroids()
+    ends = c[[f for ip in design.ipams for f in (ip.face_a, ip.face_b)]].reshape(-1, 3)
+    xy, _ = seat_place(rest.to_trimesh(), ends, seat_radius=PLUG_RADIUS)
     low = c[:, 2] < rest.centroid()[2]
     near = np.linalg.norm(c[:, :2] - xy[None], axis=1) <= PLUG_RADIUS
     faces = np.flatnonzero(low & near)

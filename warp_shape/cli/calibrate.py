@@ -11,7 +11,6 @@ from ..calibration import CALIBRATION_PARAMETERS, DEFAULT_WRT, calibrate
 from ..calibration.files import (calibration_data, calibration_markdown, read_manifest, write_calibration,
                                  write_residual_figures)
 from ..calibration.parameters import check_wrt
-from ..calibration.regions import region_faces
 from ..errors import DesignError
 from ..io.atomic import atomic_write
 from .options import add_common_args, check_device, check_rerun, open_recorder, resolve_design_and_targets
@@ -63,9 +62,8 @@ def run(args) -> int:
     design, _, _ = resolve_design_and_targets(args.design, None)
     observations, manifest_wrt, manifest_regions = read_manifest(args.manifest, design)
     wrt = check_wrt(args.wrt) if args.wrt else (manifest_wrt or DEFAULT_WRT)
-    regions = args.regions or manifest_regions
-    region_faces(design, regions)  # checked before the fit
-    result = calibrate(design, observations, wrt=wrt, regions=regions, device=args.device)
+    result = calibrate(design, observations, wrt=wrt, regions=args.regions or manifest_regions,
+                       device=args.device)  # its regions are checked before any replay
     out.mkdir(parents=True, exist_ok=True)
     written = [write_calibration(result, design, out / "calibration.json"),
                atomic_write(out / "calibration.md", calibration_markdown(result))]
