@@ -174,8 +174,8 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
                               repeats=args.repeats)
         results["gradient"] = rows
         print("gradient: ws.gradient (float64, every parameter) beside ws.replay of the same sequence; ratio = "
-              "gradient / float64 replay (ratio_f32: / float32 replay, the product's); "
-              "peak_extra_mb = the gradient's peak resident memory above the process's")
+              "gradient / float64 replay (ratio_f32: / float32 replay, the product's); serial: the gradient on one "
+              "thread (by default the next segment is recomputed on a second thread); peak_extra_mb = the gradient's peak resident memory above the process's")
         print(format_rows(rows, GRADIENT_COLUMNS))
 
 

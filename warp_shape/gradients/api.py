@@ -59,7 +59,8 @@ def check_wrt(wrt) -> tuple:
 
 
 def gradient(design: Design, result: ControlResult, target: TriMesh | None = None, wrt=tuple(GRADIENT_PARAMETERS), *,
-             precision: str = "float64", device: str = "cpu", segment: int | None = None) -> Gradient:
+             precision: str = "float64", device: str = "cpu", segment: int | None = None,
+             threads: int | None = None) -> Gradient:
     """Replay ``result``'s control sequence open loop on ``design`` (as ``ws.replay``) and return the fit
     objective of its final shape against ``target`` (centred on its volume centroid; None: the result's
     own target) with its gradient with respect to ``wrt`` (names of ``GRADIENT_PARAMETERS``).
@@ -68,12 +69,17 @@ def gradient(design: Design, result: ControlResult, target: TriMesh | None = Non
     lengths and angles are those of the state it jammed at, so they depend on everything before),
     with checkpoints every ``segment`` output steps (None: the square root of their number), so memory
     grows with the square root of the sequence's length. ``precision`` "float64" (the default, for
-    checks) or "float32". docs/gradients.md gives the algorithm, its checks and its cost."""
+    checks) or "float32". ``threads``: 2 recomputes the next segment on a second thread while the
+    adjoint steps back through this one (the same gradient, bit for bit), 1 does both on this thread;
+    None: 2 on a CPU with two cores or more. docs/gradients.md gives the algorithm, its checks and its
+    cost."""
     if not isinstance(design, Design):
         raise DesignError(f"gradient needs a ws.Design, got {type(design).__name__}")
     if not isinstance(result, ControlResult):
         raise DesignError(f"gradient needs a control result (ws.control returns one), got {type(result).__name__}")
     names = check_wrt(wrt)
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads not in (1, 2)):
+        raise DesignError(f"gradient threads must be 1, 2 or None (2 where the CPU has two cores), got {threads!r}")
     if precision not in PRECISIONS:
         raise DesignError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
     target = result.target if target is None else target
@@ -86,6 +92,6 @@ def gradient(design: Design, result: ControlResult, target: TriMesh | None = Non
     plan = replay.forward()
     sampler = RadialSampler(target, device=device)
     objective, dj_dx = fit_objective_and_gradient(plan.final, sampler, 0, design.rest.faces, target.volume())
-    values = replay.backward(dj_dx, objective).values
+    values = replay.backward(dj_dx, objective, threads=threads).values
     return Gradient(objective=objective, values={n: values[n] for n in names}, positions=plan.final,
                     internal_steps=plan.internal_steps, precision=precision, segment=plan.segment)

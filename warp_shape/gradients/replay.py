@@ -6,14 +6,16 @@ schedule (the internal step of every output step, the jam events) and keeps chec
 its checkpoint with the backward-enabled kernels (``kernels/adjoint.py``), every internal step's
 intermediates kept on a tape, then every internal step's adjoint is taken in reverse,
 through the jam events (the frozen rest lengths and angles depend on the state they froze at) down to
-the model's parameters and the rest shape.
+the model's parameters and the rest shape. On a CPU with two cores the next segment is recomputed on a
+second thread while the adjoint steps back through this one (``backward(threads=)``).
 docs/gradients.md gives the algorithm and its cost.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import threading
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
@@ -21,6 +23,7 @@ import warp as wp
 from warp_shape.kernels import adjoint as ka
 
 from ..controller.replay import control_schedule
+from ..controller.shard import available_cores, in_worker
 from ..controller.worlds import mask_passive, passive_masks
 from ..design import Design
 from ..errors import DesignError
@@ -144,6 +147,39 @@ class StepBuffers:
 
 
 @dataclass
+class Tape:
+    """The intermediates of up to ``slots`` internal steps (see ``StepBuffers``): ``rows`` (slots, kept,
+    V), ``volumes`` (slots, stages), the hinges' angles ``angles`` (slots, stages, E) and the slot in
+    hand ``slot`` (1,) on the device, so that one captured graph serves every slot."""
+
+    rows: wp.array
+    volumes: wp.array
+    angles: wp.array
+    slot: wp.array
+
+    @property
+    def slots(self) -> int:
+        return self.rows.shape[0]
+
+
+@dataclass
+class Lane:
+    """What an internal step reads besides the model arrays: the edge fields ``edge`` (4, 1, E), the
+    air ``air`` (1,) mol, the IPAM gauge pressures ``pressure`` (n,) Pa and ``enabled`` flags, the
+    internal step ``step_h`` (1,) s, with the ``work`` buffers it runs on; ``loaded`` the (jam phase,
+    history row, h) now in them. The adjoint runs on lane 0; a pipelined backward recomputes the next
+    segment on lane 1 meanwhile, on a second thread."""
+
+    edge: wp.array
+    air: wp.array
+    pressure: wp.array
+    enabled: wp.array
+    step_h: wp.array
+    work: StepBuffers
+    loaded: list = field(default_factory=lambda: [None, None, None])
+
+
+@dataclass
 class ReplayGradient:
     """d(loss)/d(parameter) of a replay, SI: ``rest_positions`` (V, 3) per m, ``youngs_modulus``
     per Pa and ``stretch_modulus`` per (N/m), ``bending_stiffness`` per (N m/rad), ``ipam_stiffness``
@@ -213,20 +249,14 @@ class DifferentiableReplay:
         self.free_fixed = self._arr(ip["free_length"] if n else np.ones(1), grad=False)
         self.ipam_damping = self._arr(ip["damping"] if n else np.zeros(1), grad=False)
         self.xv0 = vec((2, 1, V))
-        # the controls and edge fields in force (every step reads them)
-        self.edge = sc((4, 1, E))
-        self.air = wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True)
-        self.pressure = sc(max(n, 1))
-        self.enabled = wp.ones(max(n, 1), dtype=wp.int32, device=self.device)
         self._vec, self._stages = vec, 4 if self.integrator == "rk4" else 1
-        # one step's buffers for the forward on the kernels alone; the adjoint's work buffers, whose
-        # intermediates every recomputed internal step leaves on the tape (slot index on the device, so
-        # one captured graph serves every slot and every internal step h)
+        # the controls and edge fields in force with the work buffers, whose intermediates every
+        # recomputed internal step leaves on a tape: lane 0 (the adjoint's; a pipelined backward
+        # recomputes on lane 1, made when first needed); one step's buffers for the forward on the
+        # kernels alone
+        self.lanes = [self._lane()]
         self.single = self._buffers(vec((2, 1, V)), vec((2, 1, V)))
-        self.work = self._work_buffers()
-        self.step_h = wp.zeros(1, dtype=self.scalar, device=self.device)
-        self.tape_slot = wp.zeros(1, dtype=wp.int32, device=self.device)
-        self.tape_rows = self.tape_volumes = self.tape_angles = None
+        self.tapes: list = [None, None]
         self._tape(1)
         # jam event buffers
         self.jam_now = wp.zeros(E, dtype=wp.int32, device=self.device)
@@ -241,6 +271,18 @@ class DifferentiableReplay:
                            points=[vec((2, 1, V)) for _ in range(stages - 1)],
                            accel=[vec((1, V)) for _ in range(stages - 1)])
 
+    def _lane(self) -> Lane:
+        n, E = self.host.n_ipams, len(self.host.hinges)
+        sc = lambda shape: wp.zeros(shape, dtype=self.scalar, device=self.device, requires_grad=True)  # noqa: E731
+        return Lane(edge=sc((4, 1, E)), air=wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True),
+                    pressure=sc(max(n, 1)), enabled=wp.ones(max(n, 1), dtype=wp.int32, device=self.device),
+                    step_h=wp.zeros(1, dtype=self.scalar, device=self.device), work=self._work_buffers())
+
+    @property
+    def lane(self) -> Lane:
+        """The adjoint's lane (lane 0)."""
+        return self.lanes[0]
+
     def _work_buffers(self) -> StepBuffers:
         """One internal step's buffers as views of one rows array and one volumes array."""
         V, stages = len(self.host.rest_vertices), self._stages
@@ -254,14 +296,19 @@ class DifferentiableReplay:
                            accel=[rows[acc0 + s] for s in range(stages - 1)], rows=rows, volumes=volumes,
                            kept=4 * stages)
 
-    def _tape(self, slots: int) -> None:
-        """A tape of at least ``slots`` internal steps (a new one drops the graphs of the old)."""
-        if self.tape_rows is None or self.tape_rows.shape[0] < slots:
+    def _tape(self, slots: int, index: int = 0) -> "Tape":
+        """Tape ``index`` (0 or 1), of at least ``slots`` internal steps (a new one drops the graphs of
+        the old)."""
+        tape = self.tapes[index]
+        if tape is None or tape.slots < slots:
             self._graphs.clear()
-            V, E, w = len(self.host.rest_vertices), len(self.host.hinges), self.work
-            self.tape_rows = wp.zeros((slots, w.kept, V), dtype=self.vec3, device=self.device)
-            self.tape_volumes = wp.zeros((slots, self._stages), dtype=wp.float64, device=self.device)
-            self.tape_angles = wp.zeros((slots, self._stages, E), dtype=self.scalar, device=self.device)
+            V, E, kept = len(self.host.rest_vertices), len(self.host.hinges), self.lane.work.kept
+            tape = self.tapes[index] = Tape(
+                rows=wp.zeros((slots, kept, V), dtype=self.vec3, device=self.device),
+                volumes=wp.zeros((slots, self._stages), dtype=wp.float64, device=self.device),
+                angles=wp.zeros((slots, self._stages, E), dtype=self.scalar, device=self.device),
+                slot=wp.zeros(1, dtype=wp.int32, device=self.device))
+        return tape
 
     # ------------------------------------------------------------------ launches
     def _build(self, launch) -> None:
@@ -279,33 +326,35 @@ class DifferentiableReplay:
                                                   self.offsets, self.free_length, self.area_over_k])
         launch(ka.start_state_kernel, V, [self.rest, self.xv0])
 
-    def _forces(self, xv, fg, volume, stage: int, launch) -> None:
+    def _forces(self, xv, fg, volume, stage: int, lane: Lane, tape: Tape, launch) -> None:
         m, V, E = self.design.material, len(self.host.rest_vertices), len(self.host.hinges)
         launch(ka.start_forces_kernel, V, [self.scalar(m.viscous_damping), xv, fg, volume])
         launch(ka.hinge_grad_kernel, E, [self.hinges, self.owns, self.scalar(m.spring_damping), self.paper_bending,
-                                         1, E, self.edge, xv, 0, fg, volume, self.tape_angles, self.tape_slot, stage])
+                                         1, E, lane.edge, xv, 0, fg, volume, tape.angles, tape.slot, stage])
         if self.host.n_ipams:
             launch(ka.ipam_grad_kernel, 3 * self.host.n_ipams,
                    [self.sub_pairs, self.offsets, self.ipam_stiffness, self.area_over_k, self.free_length,
-                    self.ipam_damping, xv, self.pressure, self.enabled, fg])
+                    self.ipam_damping, xv, lane.pressure, lane.enabled, fg])
 
-    def _step(self, b: StepBuffers, launch) -> None:
-        """One internal step (h: ``step_h``) from b.xv_in into b.xv_out."""
+    def _step(self, b: StepBuffers, launch, lane: Lane | None = None, tape: Tape | None = None) -> None:
+        """One internal step (h: the lane's ``step_h``) from b.xv_in into b.xv_out, the hinges' angles
+        into the tape's slot in hand (lane 0 and tape 0 where not given)."""
         V = len(self.host.rest_vertices)
+        lane, tape = lane or self.lane, tape or self.tapes[0]
         gas = (wp.float64(self.host.gas_rt), wp.float64(self.host.atmospheric_pressure))
         if self.integrator != "rk4":
-            self._forces(b.xv_in, b.fg[0], b.volume[0], 0, launch)
-            launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, self.step_h, self.air, b.xv_in,
+            self._forces(b.xv_in, b.fg[0], b.volume[0], 0, lane, tape, launch)
+            launch(ka.semi_implicit_grad_kernel, V, [self.inv_mass, *gas, lane.step_h, lane.air, b.xv_in,
                                                       b.fg[0], b.volume[0], b.xv_out])
             return
         points = [b.xv_in] + b.points
         for s, c in enumerate((0.5, 0.5, 1.0)):
-            self._forces(points[s], b.fg[s], b.volume[s], s, launch)
-            launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, self.step_h, self.scalar(c), self.air, b.xv_in,
+            self._forces(points[s], b.fg[s], b.volume[s], s, lane, tape, launch)
+            launch(ka.rk4_point_kernel, V, [self.inv_mass, *gas, lane.step_h, self.scalar(c), lane.air, b.xv_in,
                                              points[s],
                                              b.fg[s], b.volume[s], b.accel[s], points[s + 1]])
-        self._forces(points[3], b.fg[3], b.volume[3], 3, launch)
-        launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, self.step_h, self.air, b.xv_in, *b.points,
+        self._forces(points[3], b.fg[3], b.volume[3], 3, lane, tape, launch)
+        launch(ka.rk4_combine_kernel, V, [self.inv_mass, *gas, lane.step_h, lane.air, b.xv_in, *b.points,
                                            *b.accel, b.fg[3], b.volume[3], b.xv_out])
 
     def kernel_launches(self) -> list:
@@ -317,16 +366,16 @@ class DifferentiableReplay:
         return (self._record(self._build) + step + self._tape_launches(store=True) + self._tape_launches(store=False)
                 + hinge[:1] + [self._jam_launch()])
 
-    def _tape_launches(self, store: bool) -> list:
-        """Store the work buffers' intermediates in the tape's current slot and move to the next, or
-        move back and load them."""
-        w, V = self.work, len(self.host.rest_vertices)
-        tape = [self.tape_slot, self.tape_rows, self.tape_volumes]
+    def _tape_launches(self, store: bool, lane: Lane | None = None, tape: Tape | None = None) -> list:
+        """Store the lane's work buffers' intermediates in the tape's slot in hand and move to the next,
+        or move back and load them (lane 0 and tape 0 where not given)."""
+        w, V = (lane or self.lane).work, len(self.host.rest_vertices)
+        t = tape or self.tapes[0]
         if store:
-            return [(ka.tape_store_kernel, V, [self.tape_slot, w.rows, w.volumes, *tape[1:]]),
-                    (ka.advance_slot_kernel, 1, [1, self.tape_slot])]
-        return [(ka.advance_slot_kernel, 1, [-1, self.tape_slot]),
-                (ka.tape_load_kernel, V, [*tape, w.rows, w.volumes])]
+            return [(ka.tape_store_kernel, V, [t.slot, w.rows, w.volumes, t.rows, t.volumes]),
+                    (ka.advance_slot_kernel, 1, [1, t.slot])]
+        return [(ka.advance_slot_kernel, 1, [-1, t.slot]),
+                (ka.tape_load_kernel, V, [t.slot, t.rows, t.volumes, w.rows, w.volumes])]
 
     # ------------------------------------------------------------------ recorded launches and graphs
     def _record(self, fill) -> list:
@@ -360,21 +409,32 @@ class DifferentiableReplay:
             self._graphs["single"] = self._capture(lambda: self._run(launches))
         return self._graphs["single"]
 
-    def _tape_graphs(self):
-        """(forward, adjoint) graphs of one internal step on the work buffers: the forward steps
-        work.xv_in into work.xv_out, leaves its intermediates in the tape's slot, moves to the next
-        slot and makes xv_out the next step's xv_in; the adjoint moves back a slot, loads its
-        intermediates, zeroes their adjoints, runs the step's adjoints (work.xv_out.grad in; the
-        adjoints of the parameters, edge fields and controls add up) and leaves the adjoint of the state
-        before the step in work.xv_out.grad, for the step before."""
-        if "tape" not in self._graphs:
-            w = self.work
-            launches = self._record(lambda launch: self._step(w, launch))
-            store, load = self._tape_launches(store=True), self._tape_launches(store=False)
+    def _forward_graph(self, lane: Lane, tape: Tape):
+        """The captured forward of one internal step on the lane's work buffers: it steps work.xv_in
+        into work.xv_out, leaves its intermediates in the tape's slot, moves to the next slot and makes
+        xv_out the next step's xv_in."""
+        key = ("forward", id(lane), id(tape))
+        if key not in self._graphs:
+            w = lane.work
+            launches = self._record(lambda launch: self._step(w, launch, lane, tape)) + \
+                self._tape_launches(True, lane, tape)
 
             def forward():
-                self._run(launches + store)
+                self._run(launches)
                 wp.copy(w.xv_in, w.xv_out)
+            self._graphs[key] = self._capture(forward)
+        return self._graphs[key]
+
+    def _adjoint_graph(self, tape: Tape):
+        """The captured adjoint of one internal step on lane 0: it moves back a slot of the tape, loads
+        its intermediates, zeroes their adjoints, runs the step's adjoints (work.xv_out.grad in; the
+        adjoints of the parameters, edge fields and controls add up) and leaves the adjoint of the state
+        before the step in work.xv_out.grad, for the step before."""
+        key = ("adjoint", id(tape))
+        if key not in self._graphs:
+            lane, w = self.lane, self.lane.work
+            launches = self._record(lambda launch: self._step(w, launch, lane, tape))
+            load = self._tape_launches(False, lane, tape)
 
             def adjoint():
                 self._run(load)
@@ -382,61 +442,62 @@ class DifferentiableReplay:
                 w.volumes.grad.zero_()
                 self._run(launches, adjoint=True)
                 wp.copy(w.xv_out.grad, w.xv_in.grad)
-            self._graphs["tape"] = (self._capture(forward), self._capture(adjoint))
-        return self._graphs["tape"]
+            self._graphs[key] = self._capture(adjoint)
+        return self._graphs[key]
 
     # ------------------------------------------------------------------ forward and backward
     def forward(self) -> ReplayPlan:
         """Replay on the simulator and keep the plan (schedule, checkpoints, jam phases)."""
         self.plan = plan_replay(self.design, self.result, precision=self.precision, device=self.device,
                                 segment=self.segment)
-        self._loaded_phase = self._loaded_row = self._loaded_h = None
+        for lane in self.lanes:
+            lane.loaded[:] = [None, None, None]
         return self.plan
 
     def _set(self, arr: wp.array, value) -> None:
         arr.assign(np.asarray(value, dtype=arr.numpy().dtype).reshape(arr.numpy().shape))
 
-    def _controls(self, row: int) -> None:
+    def _controls(self, row: int, lane: Lane) -> None:
         """The controls of history row ``row`` (nothing to do where they are loaded already)."""
-        if getattr(self, "_loaded_row", None) == row:
+        if lane.loaded[1] == row:
             return
         p = self.plan
-        self.air.fill_(float(p.air[row]))
+        lane.air.fill_(float(p.air[row]))
         if self.host.n_ipams:
-            self._set(self.pressure, p.pressures[row])
-            self._set(self.enabled, p.enabled)
-        self._loaded_row = row
+            self._set(lane.pressure, p.pressures[row])
+            self._set(lane.enabled, p.enabled)
+        lane.loaded[1] = row
 
-    def _recompute(self, start: int, stop: int) -> None:
-        """Output steps start..stop-1 recomputed from the checkpoint at start, every internal step's
-        intermediates left on the tape (slots 0, 1, ...)."""
-        p = self.plan
-        self._tape(int(p.substeps[start:stop].sum()))
-        forward = self._tape_graphs()[0]
-        self._set(self.work.xv_in, p.checkpoints[start].reshape(2, 1, -1, 3))
-        self.tape_slot.zero_()
+    def _recompute(self, start: int, stop: int, lane: Lane | None = None, tape: Tape | None = None) -> None:
+        """Output steps start..stop-1 recomputed from the checkpoint at start on ``lane``, every internal
+        step's intermediates left on ``tape`` (slots 0, 1, ...; lane 0 and tape 0 where not given)."""
+        p, lane = self.plan, lane or self.lane
+        tape = tape or self._tape(int(p.substeps[start:stop].sum()))
+        forward = self._forward_graph(lane, tape)
+        self._set(lane.work.xv_in, p.checkpoints[start].reshape(2, 1, -1, 3))
+        tape.slot.zero_()
         for k in range(start, stop):
-            self._load_step(k)
+            self._load_step(k, lane)
             for _ in range(int(p.substeps[k])):
                 wp.capture_launch(forward)
 
-    def _load_step(self, k: int) -> None:
-        """The edge fields, controls and internal step of output step k."""
+    def _load_step(self, k: int, lane: Lane) -> None:
+        """The edge fields, controls and internal step of output step k into ``lane``."""
         p = self.plan
-        self._load_edges(self._phase_of(k))
-        self._controls(int(p.row[k]))
-        if getattr(self, "_loaded_h", None) != p.h[k]:
-            self.step_h.fill_(float(p.h[k]))
-            self._loaded_h = p.h[k]
+        self._load_edges(self._phase_of(k), lane)
+        self._controls(int(p.row[k]), lane)
+        if lane.loaded[2] != p.h[k]:
+            lane.step_h.fill_(float(p.h[k]))
+            lane.loaded[2] = p.h[k]
 
     def _phase_of(self, k: int) -> int:
         """The jam phase of output step k (0 before the first jam event)."""
         return int(np.searchsorted(self.plan.jam_steps, k, side="right"))
 
-    def _load_edges(self, phase: int) -> None:
-        if getattr(self, "_loaded_phase", None) != phase:
-            self._set(self.edge, self.plan.edges[phase].reshape(4, 1, -1))
-            self._loaded_phase = phase
+    def _load_edges(self, phase: int, lane: Lane) -> None:
+        if lane.loaded[0] != phase:
+            self._set(lane.edge, self.plan.edges[phase].reshape(4, 1, -1))
+            lane.loaded[0] = phase
 
     def _jam_launch(self):
         E = len(self.host.hinges)
@@ -451,30 +512,46 @@ class DifferentiableReplay:
         self.jam_now.assign(mask)
 
     def _jam_adjoint(self, event: int, lam: wp.array) -> None:
-        """Back through jam event ``event``: edge.grad (the adjoint of the edges after it) becomes the
-        adjoint of the edges before it, and the state it froze at gains its share in ``lam``."""
-        p = self.plan
+        """Back through jam event ``event``: lane 0's edge.grad (the adjoint of the edges after it)
+        becomes the adjoint of the edges before it, and the state it froze at gains its share in ``lam``."""
+        p, lane = self.plan, self.lane
         self._jam_mask(event)
         self._set(self.edge_before, p.edges[event].reshape(4, 1, -1))
         self._set(self.xv_jam, p.jam_states[event].reshape(2, 1, -1, 3))
         launch = [self._jam_launch()]
         self._run(launch)
-        wp.copy(self.edge_after.grad, self.edge.grad)
+        wp.copy(self.edge_after.grad, lane.edge.grad)
         self.edge_before.grad.zero_()
         self.xv_jam.grad.zero_()
         self._run(launch, adjoint=True)
         _add(lam, self.xv_jam.grad)
-        wp.copy(self.edge.grad, self.edge_before.grad)
-        self._load_edges(event)
+        wp.copy(lane.edge.grad, self.edge_before.grad)
+        self._load_edges(event, lane)
 
     def _zero_grads(self) -> None:
+        lane = self.lane
         for a in (self.rest, self.stretch_modulus, self.bending_stiffness, self.ipam_stiffness, self.ipam_area,
                   self.edge0, self.mass, self.inv_mass, self.offsets, self.free_length, self.area_over_k, self.xv0,
-                  self.edge, self.air, self.pressure):
+                  lane.edge, lane.air, lane.pressure):
             a.grad.zero_()
 
-    def backward(self, dloss_dx, loss: float = 0.0) -> ReplayGradient:
-        """Every parameter's gradient from d(loss)/d(final positions) ``dloss_dx`` (V, 3)."""
+    def _pipelined(self, threads: int | None, segments: int) -> bool:
+        """Whether the backward recomputes the next segment on a second thread while it steps back
+        through this one: ``threads`` 2 (or None: on a CPU device where this process may use two cores
+        or more and is not a run's worker, whose siblings use the others) and more than one segment.
+        Warp's CPU kernels run on the calling thread, outside Python's lock, so the two passes run on
+        two cores."""
+        if segments < 2:
+            return False
+        if threads is None:
+            return wp.get_device(self.device).is_cpu and available_cores() >= 2 and not in_worker()
+        return int(threads) >= 2
+
+    def backward(self, dloss_dx, loss: float = 0.0, threads: int | None = None) -> ReplayGradient:
+        """Every parameter's gradient from d(loss)/d(final positions) ``dloss_dx`` (V, 3). ``threads``:
+        1 recomputes each segment and then steps back through it on this thread; 2 recomputes the next
+        segment on a second thread meanwhile (the same arithmetic, so the same gradient bit for bit);
+        None: 2 on a CPU with two cores or more (not in a run's worker)."""
         if self.plan is None:
             self.forward()
         p, n = self.plan, self.host.n_ipams
@@ -488,25 +565,45 @@ class DifferentiableReplay:
         adj_air, adj_p = np.zeros(len(p.air)), np.zeros(p.pressures.shape)
         starts = sorted(p.checkpoints)
         events = {s: j for j, s in enumerate(p.jam_steps)}
-        segments = list(zip(starts, starts[1:] + [p.n_steps]))
-        self._tape(max(int(p.substeps[a:b].sum()) for a, b in segments))
-        adjoint = self._tape_graphs()[1]
-        for start, stop in reversed(segments):
-            self._recompute(start, stop)
-            wp.copy(self.work.xv_out.grad, lam)
-            for k in reversed(range(start, stop)):
-                self._load_step(k)
-                for _ in range(int(p.substeps[k])):
-                    wp.capture_launch(adjoint)
-                adj_air[p.row[k]] += float(self.air.grad.numpy()[0])
-                self.air.grad.zero_()
-                if n:
-                    adj_p[p.row[k]] += self.pressure.grad.numpy()[:n].astype(np.float64)
-                    self.pressure.grad.zero_()
-                if k in events:
-                    self._jam_adjoint(events[k], self.work.xv_out.grad)
-            wp.copy(lam, self.work.xv_out.grad)
-        wp.copy(self.edge0.grad, self.edge.grad)
+        segments = list(reversed(list(zip(starts, starts[1:] + [p.n_steps]))))
+        slots = max(int(p.substeps[a:b].sum()) for a, b in segments)
+        pipelined = self._pipelined(threads, len(segments))
+        if pipelined and len(self.lanes) < 2:
+            self.lanes.append(self._lane())
+        tapes = [self._tape(slots, 0)] + ([self._tape(slots, 1)] if pipelined else [])
+        recompute_lane = self.lanes[1] if pipelined else self.lane
+        adjoints = [self._adjoint_graph(t) for t in tapes]
+        for t in tapes:
+            self._forward_graph(recompute_lane, t)  # captured here, not on the second thread
+        lane, w = self.lane, self.lane.work
+        if pipelined:
+            self._recompute(*segments[0], recompute_lane, tapes[0])
+        for i, (start, stop) in enumerate(segments):
+            tape = tapes[i % len(tapes)]
+            worker = None
+            if not pipelined:
+                self._recompute(start, stop, lane, tape)
+            elif i + 1 < len(segments):
+                worker = _Worker(self._recompute, *segments[i + 1], recompute_lane, tapes[(i + 1) % 2])
+            try:
+                wp.copy(w.xv_out.grad, lam)
+                tape.slot.fill_(int(p.substeps[start:stop].sum()))
+                for k in reversed(range(start, stop)):
+                    self._load_step(k, lane)
+                    for _ in range(int(p.substeps[k])):
+                        wp.capture_launch(adjoints[i % len(tapes)])
+                    adj_air[p.row[k]] += float(lane.air.grad.numpy()[0])
+                    lane.air.grad.zero_()
+                    if n:
+                        adj_p[p.row[k]] += lane.pressure.grad.numpy()[:n].astype(np.float64)
+                        lane.pressure.grad.zero_()
+                    if k in events:
+                        self._jam_adjoint(events[k], w.xv_out.grad)
+            finally:
+                if worker is not None:
+                    worker.join()
+            wp.copy(lam, w.xv_out.grad)
+        wp.copy(self.edge0.grad, lane.edge.grad)
         wp.copy(self.xv0.grad, lam)
         self._run(build, adjoint=True)
         return ReplayGradient(loss=float(loss), values=self._values(adj_air, adj_p))
@@ -543,30 +640,30 @@ class DifferentiableReplay:
         rows_air = p.air if air is None else np.asarray(air, dtype=np.float64)
         rows_p = p.pressures if ipam_pressures is None else np.asarray(ipam_pressures, dtype=np.float64)
         self._run(self._record(self._build))
-        self.tape_slot.zero_()
+        self.tapes[0].slot.zero_()
+        lane = self.lane
         b = self.single
         wp.copy(b.xv_out, self.xv0)
-        wp.copy(self.edge, self.edge0)
-        self._loaded_phase = None
+        wp.copy(lane.edge, self.edge0)
         events = {s: j for j, s in enumerate(p.jam_steps)}
         for k in range(p.n_steps):
             if k in events:
                 self._jam_mask(events[k])
                 wp.copy(self.xv_jam, b.xv_out)
-                wp.copy(self.edge_before, self.edge)
+                wp.copy(self.edge_before, lane.edge)
                 self._run([self._jam_launch()])
-                wp.copy(self.edge, self.edge_after)
+                wp.copy(lane.edge, self.edge_after)
             row = int(p.row[k])
-            self.air.assign(np.array([rows_air[row]]))
+            lane.air.assign(np.array([rows_air[row]]))
             if n:
-                self._set(self.pressure, rows_p[row])
-                self._set(self.enabled, p.enabled)
-            self.step_h.fill_(float(p.h[k]))
+                self._set(lane.pressure, rows_p[row])
+                self._set(lane.enabled, p.enabled)
+            lane.step_h.fill_(float(p.h[k]))
             fwd = self._single_graph()
             for _ in range(int(p.substeps[k])):
                 wp.copy(b.xv_in, b.xv_out)
                 wp.capture_launch(fwd)
-        self._loaded_phase = self._loaded_row = self._loaded_h = None
+        lane.loaded[:] = [None, None, None]
         return b.xv_out.numpy()[0, 0].astype(np.float64)
 
 
@@ -585,6 +682,26 @@ def _hinge_adjoint(dim: int, inputs: list) -> tuple:
     *model, edge, xv, vslot, fg, volume, angles, slot, stage = inputs
     return ka.hinge_adjoint_kernel, dim, [*model, edge, xv, vslot, fg.grad, volume.grad, edge.grad, xv.grad, angles,
                                           slot, stage]
+
+
+class _Worker(threading.Thread):
+    """``call(*args)`` on a thread of its own, started at once; ``join`` re-raises what it raised."""
+
+    def __init__(self, call, *args):
+        super().__init__(daemon=True)
+        self.call, self.args, self.error = call, args, None
+        self.start()
+
+    def run(self) -> None:
+        try:
+            self.call(*self.args)
+        except BaseException as e:  # noqa: BLE001 - handed to the joining thread
+            self.error = e
+
+    def join(self, timeout=None) -> None:
+        super().join(timeout)
+        if self.error is not None:
+            raise self.error
 
 
 def _add(dst: wp.array, src: wp.array) -> None:
