@@ -27,8 +27,8 @@ def targets():
 
 @pytest.fixture(scope="module")
 def designs(targets):
-    off = ws.design(ws.icosphere(2, 0.04), targets, **KW)
-    on = ws.design(ws.icosphere(2, 0.04), targets, codesign="rest+ipams", **KW)
+    off = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", **KW)
+    on = ws.design(ws.icosphere(2, 0.04), targets, **KW)  # the default: rest+ipams
     return off, on
 
 

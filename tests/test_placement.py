@@ -120,7 +120,9 @@ PAIRS = [("egg", "bean"), ("puck", "teardrop"), ("tilted_ellipsoid", "peanut")]
 
 
 def _design(names, actuators=2, **kw):
-    """The designer with its defaults (placement, K, refinement rounds) on a 162-vertex base."""
+    """The designer with its defaults (placement, K, refinement rounds) on a 162-vertex base; co-design
+    off (these tests are about the placement: tests/test_codesign.py covers the stage after it)."""
+    kw.setdefault("codesign", "off")
     return design(ws.icosphere(2, 0.035), [shape(n, subdivisions=3) for n in names], actuators=actuators,
                   target_names=list(names), **kw)
 
@@ -223,6 +225,9 @@ class _CandidateLog:
 
     def log_design_refinement(self, r, record, names):
         self.refinement[r] = [c["score"] for c in record["candidates"]]
+
+    def log_codesign(self, record, names):
+        self.codesign = record
 
 
 def test_greedy_placement_generated_pair():

@@ -63,7 +63,8 @@ def register(subparsers) -> None:
                    help="simulated placement: refinement rounds at most after the last round (default 5; 0: none)")
     d.add_argument("--codesign", choices=list(CODESIGN_MODES), default=None,
                    help="after placement, optimise by exact gradients: the rest shape ('rest') and the IPAM sizes "
-                        "('rest+ipams'), never worse on any target (default: the scene's, else off; docs/gradients.md)")
+                        "('rest+ipams'), never worse on any target; 'off' keeps the placed design (default: the scene's, else "
+                        "rest+ipams; docs/gradients.md)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
     d.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")

@@ -61,7 +61,7 @@ class DesignSettings:
     ipam_damping: float = DEFAULT_IPAM_DAMPING  # N s/m
     ipam_pressure_limits: tuple = DEFAULT_IPAM_PRESSURE_LIMITS  # Pa gauge
     round_control: str = "law"  # control of the rounds before the last: "law", "quick" or "full" (ROUND_CONTROLS)
-    codesign: str = "off"  # after placement: "off", "rest" or "rest+ipams" (CODESIGN_MODES, docs/gradients.md)
+    codesign: str = "rest+ipams"  # after placement: "off", "rest" or "rest+ipams" (CODESIGN_MODES, docs/gradients.md)
     codesign_steps: int = 4  # co-design's descent steps at most
     workers: int = 0  # processes the run's control jobs are sharded over (0: every core, 1: one; controller.shard)
 
