@@ -28,7 +28,8 @@ def register(subparsers) -> None:
     b = subparsers.add_parser("bench", help="speed benchmarks (tables + JSON)",
                               description="Speed benchmarks: a table on stdout and bench_<name>.json in --out per bench.")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
-                                                                    "rays", "gradient", "codesign", "all"],
+                                                                    "rays", "gradient", "control_gradient", "codesign",
+                                                                    "all"],
                    help="; ".join(f"{k}: {v}" for k, v in ABOUT.items()) + "; all: every one but codesign")
     b.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
     add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
@@ -127,6 +128,8 @@ ABOUT = {
     "peer": "the same membrane in Newton's semi-implicit solver",
     "rays": "radial sampling throughput",
     "gradient": "the adjoint of a replayed Fig. 6 sequence beside the forward replay: wall time and memory",
+    "control_gradient": "the model-based refinement by finite differences beside the equilibrium's adjoint, per "
+                        "number of controls on the four_targets_20 design: wall time and objective",
     "codesign": "per target fit after co-design beside Algorithm 1 and the default placement (minutes per case)",
 }
 
@@ -167,6 +170,15 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
         _rays(args, results)
     elif name == "codesign":
         results["codesign"] = _codesign(args, format_rows)
+    elif name == "control_gradient":
+        from ..benchmarks.control_gradient import CONTROL_GRADIENT_COLUMNS, bench_control_gradient
+
+        rows = bench_control_gradient(device=args.device,
+                                      progress=lambda text: print(text, file=sys.stderr, flush=True))
+        results["control_gradient"] = rows
+        print("control_gradient: the refinement's wall time (warm start and plan settles left out) and final objective, "
+              "finite-difference Jacobian (fd) against the equilibrium's adjoint; ratio = adjoint / fd")
+        print(format_rows(rows, CONTROL_GRADIENT_COLUMNS))
     elif name == "gradient":
         from ..benchmarks.gradient import GRADIENT_COLUMNS, bench_gradient
 

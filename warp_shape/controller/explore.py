@@ -55,6 +55,8 @@ class Explorer:
         self._sims: dict[int, object] = {}
         self.world_steps = 0  # world-steps simulated so far (cost)
         self.evaluations = 0  # force evaluations of the static settles so far (cost; settle "static")
+        self.equilibrium_gradient = None  # gradients.equilibrium.EquilibriumGradient, made on first use
+        self.adjoint_iterations = 0  # conjugate-gradient iterations of the adjoint solves so far (cost)
 
     def _sim(self, worlds: int):
         if worlds not in self._sims:

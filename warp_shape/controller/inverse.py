@@ -31,7 +31,7 @@ from ..model import HostModel, host_model
 from ..sampling import RadialSampler
 from .explore import Explorer
 from .plans import parse_plans, plan_starts, plan_trajectory
-from .refine import STOP_LIMIT, Refined, refine
+from .refine import STOP_LIMIT, Refined, refine, uses_adjoint
 from .result import ControlResult, ScreenResult
 from .settings import ControlSettings
 from .worlds import mask_passive, passive_masks
@@ -89,7 +89,8 @@ def _refine_all(ctx: _Run, ex: Explorer, starts: list, warm) -> tuple[list[Refin
     keep = _screen(S.objective.reshape(P, W), PLANS_REFINED).reshape(-1)
     idx = np.flatnonzero(keep)
     ref = refine(ex, [S.states[c] for c in idx], air[idx], press[idx], targets[idx],
-                 np.tile(~ctx.passive_ipams, (P, 1))[idx], s.inverse_iterations, s.inverse_tolerance)
+                 np.tile(~ctx.passive_ipams, (P, 1))[idx], s.inverse_iterations, s.inverse_tolerance,
+                 gradient=s.inverse_gradient)
     out = []
     for p in range(P):
         sl = slice(p * W, (p + 1) * W)
@@ -226,8 +227,12 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     starts = plan_starts(plans, ctx, warm, ex, warm_simulator)
     refined, world_steps = _refine_all(ctx, ex, starts, warm)
     results = _finish_and_choose(ctx, starts, names, refined, warm)
-    for res in results:
-        res.refinement.update(wall_s=time.perf_counter() - t0, world_steps=int(world_steps))
+    for w, res in enumerate(results):
+        m = 1 + int((~ctx.passive_ipams[w]).sum()) if ctx.host.n_ipams else 1
+        res.refinement.update(wall_s=time.perf_counter() - t0, world_steps=int(world_steps),
+                              evaluations=int(ex.evaluations), adjoint_iterations=int(ex.adjoint_iterations),
+                              gradient="adjoint" if uses_adjoint(settings.inverse_gradient, m,
+                                                                 ex.sim_settings.settle) else "finite-difference")
     if recorder is not None:
         names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(results))]
         _log(recorder, recorder_prefix, design, results, names, settings, ctx.sampler)

@@ -9,12 +9,15 @@ from ..errors import DesignError
 from ..registry import Registry
 from ..settings import SimulationSettings, check_field_types, replace_settings
 
-__all__ = ["ControlSettings", "CONTROL_METHODS", "LAWS"]
+__all__ = ["ControlSettings", "CONTROL_METHODS", "LAWS", "GRADIENTS"]
 
 #: control methods by name (``ControlSettings.method``; built in: "inverse", "paper"; ``controller.methods``)
 CONTROL_METHODS = Registry("control method")
 #: control laws by name (``ControlSettings.warm_start``, and each a control method of its own; ``controller.laws``)
 LAWS = Registry("control law")
+#: how the model-based refinement gets its derivatives (``ControlSettings.inverse_gradient``;
+#: ``controller.refine.uses_adjoint``)
+GRADIENTS = ("auto", "finite-difference", "adjoint")
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,7 @@ class ControlSettings:
     warm_start: str = "paper"  # the law (a name in LAWS) whose run starts the "inverse" method
     inverse_iterations: int = 6  # Gauss-Newton iteration limit of the model-based refinement
     inverse_tolerance: float = 0.005  # refinement stops when an iteration lowers the objective by less (relative)
+    inverse_gradient: str = "auto"  # one of GRADIENTS: the refinement's derivatives (docs/gradients.md)
     inverse_settle_steps: int = 60  # simulation steps each explored world settles before it is measured
     inverse_plans: str = "warm never overinflate1.3 overinflate1.5"  # jam plans tried (controller.plans)
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
@@ -58,6 +62,9 @@ class ControlSettings:
         if self.inverse_iterations < 0 or self.inverse_settle_steps < 1 or not self.inverse_tolerance >= 0:
             raise DesignError("ControlSettings needs inverse_iterations >= 0, inverse_settle_steps >= 1 and "
                               "inverse_tolerance >= 0")
+        if self.inverse_gradient not in GRADIENTS:
+            raise DesignError(f"ControlSettings.inverse_gradient must be one of {', '.join(GRADIENTS)} "
+                              f"(auto: the adjoint for many controls), got {self.inverse_gradient!r}")
         if self.control_period < 1 or self.max_steps < 1:
             raise DesignError("ControlSettings needs control_period >= 1 and max_steps >= 1")
         if self.workers < 0:
