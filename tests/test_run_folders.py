@@ -22,7 +22,7 @@ from warp_shape.io.atomic import MANIFEST, OutputError, StagedFolder, file_diges
 from warp_shape.io.outputs import is_run_output
 
 ROOT = Path(__file__).resolve().parents[1]
-SMALL = ["--subdivisions", "2", "--actuators", "1", "--placement", "paper"]
+SMALL = ["--subdivisions", "2", "--actuators", "1", "--placement", "paper", "--codesign", "off"]
 
 
 def snapshot(folder: Path) -> dict:

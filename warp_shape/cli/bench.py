@@ -170,26 +170,24 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
         _rays(args, results)
     elif name == "codesign":
         results["codesign"] = _codesign(args, format_rows)
-    elif name == "control_gradient":
-        from ..benchmarks.control_gradient import CONTROL_GRADIENT_COLUMNS, bench_control_gradient
+    elif name in ("gradient", "control_gradient"):
+        from ..benchmarks import control_gradient, gradient
 
-        rows = bench_control_gradient(device=args.device,
-                                      progress=lambda text: print(text, file=sys.stderr, flush=True))
-        results["control_gradient"] = rows
-        print("control_gradient: the refinement's wall time (warm start and plan settles left out) and final objective, "
-              "finite-difference Jacobian (fd) against the equilibrium's adjoint; ratio = adjoint / fd")
-        print(format_rows(rows, CONTROL_GRADIENT_COLUMNS))
-    elif name == "gradient":
-        from ..benchmarks.gradient import GRADIENT_COLUMNS, bench_gradient
-
-        rows = bench_gradient(device=args.device, subdivisions=[s for s in args.subdivisions if s <= 4] or [2, 3],
-                              repeats=args.repeats)
+        if name == "control_gradient":
+            rows = control_gradient.bench_control_gradient(
+                device=args.device, progress=lambda text: print(text, file=sys.stderr, flush=True))
+            results["control_gradient"] = rows
+            print("control_gradient: the refinement's wall time (warm start and plan settles left out) and final "
+                  "objective, finite-difference Jacobian (fd) against the equilibrium's adjoint; ratio = adjoint / fd")
+            print(format_rows(rows, control_gradient.CONTROL_GRADIENT_COLUMNS))
+            return
+        rows = gradient.bench_gradient(device=args.device, subdivisions=[s for s in args.subdivisions if s <= 4] or [2, 3],
+                                       repeats=args.repeats)
         results["gradient"] = rows
         print("gradient: ws.gradient (float64, every parameter) beside ws.replay of the same sequence; ratio = "
               "gradient / float64 replay (ratio_f32: / float32 replay, the product's); serial: the gradient on one "
               "thread (by default the next segment is recomputed on a second thread); peak_extra_mb = the gradient's peak resident memory above the process's")
-        print(format_rows(rows, GRADIENT_COLUMNS))
-
+        print(format_rows(rows, gradient.GRADIENT_COLUMNS))
 
 def run(args) -> int:
     """Run the chosen benchmarks; print their tables; write ``bench_<name>.json`` for each."""

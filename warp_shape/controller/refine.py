@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..gradients.equilibrium import EquilibriumGradient
+from ..objective_grad import fit_objective_and_gradient
 from .explore import Explorer
 from .gauss_newton import bounded_step
 from .settings import GRADIENTS
@@ -197,8 +199,6 @@ def _jacobians(explorer: Explorer, worlds: list[_World], targets: np.ndarray) ->
 def _adjoint_gradient(explorer: Explorer, wd: _World, target: int) -> np.ndarray | None:
     """dJ/du (scaled controls, zero on passive ones) at the world's settled state, by the equilibrium's
     adjoint; None where its solve fails."""
-    from ..gradients.equilibrium import EquilibriumGradient  # the adjoint kernels load only when used
-    from ..objective_grad import fit_objective_and_gradient
     if explorer.equilibrium_gradient is None:
         explorer.equilibrium_gradient = EquilibriumGradient(explorer.host, explorer.design.material, explorer.device)
     eg, ref, host = explorer.equilibrium_gradient, wd.state, explorer.host

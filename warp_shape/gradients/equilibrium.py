@@ -25,7 +25,7 @@ import warp as wp
 from warp_shape.kernels import adjoint as ka
 
 from ..errors import DesignError
-from .replay import _adjoint, _hinge_adjoint
+from .replay import adjoint_argument, hinge_adjoint_launch
 
 __all__ = ["EquilibriumGradient", "ControlGradient", "CG_TOLERANCE", "CG_MAX_ITERATIONS"]
 
@@ -149,9 +149,9 @@ class EquilibriumGradient:
             if kernel is ka.start_forces_kernel:  # at rest: only velocities, which carry no adjoint here
                 continue
             if kernel is ka.hinge_grad_kernel:
-                wp.launch(*_hinge_adjoint(dim, inputs), device=self.device, record_tape=False)
+                wp.launch(*hinge_adjoint_launch(dim, inputs), device=self.device, record_tape=False)
                 continue
-            wp.launch(kernel, dim, inputs, adj_inputs=[_adjoint(a) for a in inputs], device=self.device,
+            wp.launch(kernel, dim, inputs, adj_inputs=[adjoint_argument(a) for a in inputs], device=self.device,
                       adjoint=True, record_tape=False)
         dx = self.xv.grad.numpy()[0, 0].astype(np.float64)
         dp = self.pressure.grad.numpy()[:self.n].astype(np.float64)

@@ -362,7 +362,7 @@ class DifferentiableReplay:
         step, the tape's and a jam event (their adjoints take the same arguments), and the hinge pass's
         hand-written adjoint; e.g. to compile them."""
         step = self._record(lambda launch: self._step(self.single, launch))
-        hinge = [_hinge_adjoint(dim, inputs) for kernel, dim, inputs in step if kernel is ka.hinge_grad_kernel]
+        hinge = [hinge_adjoint_launch(dim, inputs) for kernel, dim, inputs in step if kernel is ka.hinge_grad_kernel]
         return (self._record(self._build) + step + self._tape_launches(store=True) + self._tape_launches(store=False)
                 + hinge[:1] + [self._jam_launch()])
 
@@ -392,9 +392,9 @@ class DifferentiableReplay:
             return
         for kernel, dim, inputs in reversed(launches):
             if kernel is ka.hinge_grad_kernel:  # its adjoint is written by hand
-                wp.launch(*_hinge_adjoint(dim, inputs), device=self.device, record_tape=False)
+                wp.launch(*hinge_adjoint_launch(dim, inputs), device=self.device, record_tape=False)
                 continue
-            wp.launch(kernel, dim, inputs, adj_inputs=[_adjoint(a) for a in inputs], device=self.device,
+            wp.launch(kernel, dim, inputs, adj_inputs=[adjoint_argument(a) for a in inputs], device=self.device,
                       adjoint=True, record_tape=False)
 
     def _capture(self, fill):
@@ -667,7 +667,7 @@ class DifferentiableReplay:
         return b.xv_out.numpy()[0, 0].astype(np.float64)
 
 
-def _adjoint(a):
+def adjoint_argument(a):
     """The adjoint argument of a recorded launch input (as wp.Tape does)."""
     if isinstance(a, wp.array):
         return a.grad
@@ -676,7 +676,7 @@ def _adjoint(a):
     return None
 
 
-def _hinge_adjoint(dim: int, inputs: list) -> tuple:
+def hinge_adjoint_launch(dim: int, inputs: list) -> tuple:
     """(kernel, dim, inputs) of the hinge pass's adjoint for a recorded hinge_grad_kernel launch: its
     inputs, the adjoints of its outputs (forces and dV/dx, volume) in, of the edges and state out."""
     *model, edge, xv, vslot, fg, volume, angles, slot, stage = inputs
