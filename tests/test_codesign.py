@@ -14,8 +14,8 @@ import pytest
 import warp_shape as ws
 from generated_shapes import shape
 from warp_shape.io.report import design_markdown
-from warp_shape.designer.codesign import (CodesignProblem, CodesignSettings, min_norm_direction, radial_modes,
-                                         replayed_objectives)
+from warp_shape.designer.codesign import (CodesignProblem, CodesignSettings, first_length, min_norm_direction,
+                                         radial_modes, replayed_objectives)
 
 KW = dict(actuators=2, refine_rounds=0, control_settings=ws.ControlSettings(method="paper"))
 
@@ -57,9 +57,16 @@ def test_codesign_is_never_worse_on_any_target_and_off_is_todays_design(designs,
     np.testing.assert_allclose(before, [r.objective for r in off.results], rtol=0, atol=0)  # the same placement
     assert np.all(after <= before), (before, after)  # per target
     assert np.all(after < before * 0.99), (before, after)  # and it pays on both
-    # every accepted step lowered every replayed objective
-    steps = np.array([rec["before"]] + rec["steps"])
-    assert len(steps) > 1 and np.all(np.diff(steps, axis=0) <= 0)
+    # every accepted step lowered every replayed objective (within a round: each round starts from its
+    # re-controlled sequences), and every round kept lowered no target's objective under the controller
+    assert rec["steps"] and rec["recontrols"] and rec["recontrols"][0]["kept"]
+    starts = [0] + [rc["step"] for rc in rec["recontrols"]]
+    for a, b in zip(starts[:-1], starts[1:]):
+        steps = np.array(([rec["before"]] if a == 0 else []) + rec["steps"][a:b])
+        assert np.all(np.diff(steps, axis=0) <= 0), steps
+    kept = [rc["objectives"] for rc in rec["recontrols"] if rc["kept"]]
+    assert np.all(np.diff(np.array([rec["before"]] + kept), axis=0) <= 0)
+    np.testing.assert_array_equal(kept[-1], after)
     # the rest shape stays within the initialisation's volume bound; sizes within their bounds
     bound = on.settings.volume_scale * min(t.volume() for t in targets)
     assert on.design.rest.volume() <= bound * (1 + 1e-9)
@@ -70,6 +77,7 @@ def test_codesign_is_never_worse_on_any_target_and_off_is_todays_design(designs,
     assert off.codesign["mode"] == "off" and not off.codesign["kept"]
     report = design_markdown(on)
     assert "## Co-design" in report and "(kept)" in report and "Rest shape moved by at most" in report
+    assert "| re-controlled |" in report  # each round's end in the step table
     assert "## Co-design" not in design_markdown(off)
 
 
@@ -99,6 +107,58 @@ def test_the_parameter_gradient_matches_finite_differences(designs):
     np.testing.assert_allclose(grads @ direction, fd, rtol=1e-4)
 
 
+def test_the_gradient_at_the_volume_bound_is_that_of_the_design_held_at_it(designs):
+    """A rest shape placed at the volume bound stays at it: the chained gradient is the scaled
+    design's, against central differences of replayed objectives (both sides scaled to the bound)."""
+    off, _ = designs
+    results = [dataclasses.replace(r, settings=r.settings.replace(simulation=r.settings.simulation.replace(
+        precision="float64"))) for r in off.results]
+    problem = CodesignProblem(off.design, "rest", CodesignSettings(), volume_bound=off.design.rest.volume())
+    assert problem.hold_volume
+    grads = problem.gradients(off.design, results, off.targets)
+    free = CodesignProblem(off.design, "rest", CodesignSettings(), volume_bound=np.inf).gradients(
+        off.design, results, off.targets)
+    direction = np.random.default_rng(2).normal(size=problem.size)
+    direction /= np.abs(direction).max()
+    eps = 1e-5
+    up, down = problem.design(eps * direction), problem.design(-eps * direction)
+    np.testing.assert_allclose([up.rest.volume(), down.rest.volume()], off.design.rest.volume(), rtol=1e-12)
+    fd = (replayed_objectives(up, results, off.targets) - replayed_objectives(down, results, off.targets)) / (2 * eps)
+    np.testing.assert_allclose(grads @ direction, fd, rtol=1e-4)
+    assert np.abs(free @ direction - fd).max() > 1e-2 * np.abs(fd).max()  # the unscaled gradient is not it
+
+
+def test_first_length_halves_the_step_to_the_linear_models_zero():
+    assert first_length(np.array([0.02, 0.01]), np.array([-0.01, -0.1])) == pytest.approx(0.05)
+    assert first_length(np.array([0.02]), np.array([-0.001])) == 1.0  # at most the whole step
+    assert first_length(np.array([0.02]), np.array([0.001])) == 1.0  # nothing falls: the whole step
+
+
+def test_a_round_whose_re_control_is_worse_keeps_the_round_before(designs, targets, monkeypatch):
+    """Round 2's re-control made worse on one target: co-design returns round 1's design and results."""
+    import warp_shape.designer.codesign as cd
+
+    off, _ = designs
+    kw = dict(mode="rest", volume_bound=off.settings.volume_scale * min(t.volume() for t in targets),
+              control_settings=KW["control_settings"], passive_ipams=off.passive_ipams,
+              passive_cells=off.passive_cells)
+    one = cd.codesign(off.design, off.targets, off.results, settings=CodesignSettings(steps=1, rounds=1), **kw)
+    calls, control_many = [], cd.control_many
+
+    def worse_second_time(*a, **k):
+        out = control_many(*a, **k)
+        calls.append(1)
+        return out if len(calls) == 1 else [dataclasses.replace(out[0], objective=1.0)] + out[1:]
+
+    monkeypatch.setattr(cd, "control_many", worse_second_time)
+    two = cd.codesign(off.design, off.targets, off.results, settings=CodesignSettings(steps=1, rounds=2), **kw)
+    rec = two[2]
+    assert len(calls) == 2 and rec.kept and [rc["kept"] for rc in rec.recontrols] == [True, False]
+    assert "round 2: re-controlled, target 0 got worse" in rec.reason and "round 1's design is kept" in rec.reason
+    np.testing.assert_array_equal(two[0].rest.vertices, one[0].rest.vertices)
+    assert rec.after == one[2].after == [r.objective for r in two[1]]
+
+
 def test_codesign_on_a_runs_workers_takes_the_steps_it_takes_in_one_process(designs, targets):
     """The targets' gradients and replays as one job each on the run's workers: the same steps, rest
     shape and IPAM sizes bit for bit (the re-control, sharded, within 1e-5)."""
@@ -108,7 +168,7 @@ def test_codesign_on_a_runs_workers_takes_the_steps_it_takes_in_one_process(desi
     off, _ = designs
     kw = dict(mode="rest+ipams", volume_bound=off.settings.volume_scale * min(t.volume() for t in targets),
               control_settings=KW["control_settings"], passive_ipams=off.passive_ipams,
-              passive_cells=off.passive_cells, settings=CodesignSettings(steps=1))
+              passive_cells=off.passive_cells, settings=CodesignSettings(steps=1, rounds=1))
     here = codesign(off.design, off.targets, off.results, **kw)
     with worker_pool(2) as pool:
         pool.start()

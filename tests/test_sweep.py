@@ -20,8 +20,8 @@ from warp_shape.sweeps import SweepError, execute, parse_param
 from warp_shape.sweeps.backends import check_address, start_ray
 from warp_shape.sweeps.plan import grid_plan, load_problem, subsets_plan
 
-#: a tiny run: 162-vertex base mesh, one IPAM, the paper's law, short control
-TINY = {"subdivisions": 2, "method": "paper", "max_steps": 60}
+#: a tiny run: 162-vertex base mesh, one IPAM, the paper's law, short control, the placed design (co-design off)
+TINY = {"subdivisions": 2, "method": "paper", "max_steps": 60, "codesign": "off"}
 NUMBERS = ("objective", "pcc_oval", "pcc_heart", "mare_oval_m", "mare_heart_m", "mpre_oval_pct", "mpre_heart_pct")
 
 

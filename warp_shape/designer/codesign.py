@@ -28,18 +28,20 @@ from ..sampling import RadialSampler
 from .settings import CODESIGN_MODES
 
 __all__ = ["CODESIGN_MODES", "CodesignSettings", "CodesignProblem", "codesign", "radial_modes", "min_norm_direction",
-           "replayed_objectives"]
+           "first_length", "volume_gradient", "replayed_objectives"]
 
 
 
 @dataclass(frozen=True)
 class CodesignSettings:
-    """Co-design's parameters: ``steps`` descent steps, ``degree`` of the radial modes, the largest
+    """Co-design's parameters: ``rounds`` of at most ``steps`` descent steps each (every round ends
+    with a re-control of every target), ``degree`` of the radial modes, the largest
     radial change per step ``max_radial_step`` (relative), the largest IPAM size change per step
     ``max_size_step`` (in log scale) and the IPAM size bounds ``size_bounds`` (x the placed value),
     ``halvings`` step shortenings tried before co-design stops."""
 
     steps: int = 4
+    rounds: int = 2
     degree: int = 4
     max_radial_step: float = 0.03
     max_size_step: float = 0.3
@@ -50,12 +52,14 @@ class CodesignSettings:
 
 @dataclass
 class CodesignRecord:
-    """What co-design did: the mode, each accepted step's replayed objectives, the objectives before
-    and after (the design's controller), the rest shape's largest displacement (m), the IPAM sizes
-    before and after, whether the co-designed design was kept and why."""
+    """What co-design did: the mode, each accepted step's replayed objectives, each round's re-control
+    (``recontrols``: after which step, every target's objective, whether it was kept), the objectives
+    before and after (the design's controller), the rest shape's largest displacement (m), the IPAM
+    sizes before and after, whether the co-designed design was kept and why."""
 
     mode: str
     steps: list = field(default_factory=list)
+    recontrols: list = field(default_factory=list)
     before: list = field(default_factory=list)
     after: list = field(default_factory=list)
     max_displacement: float = 0.0
@@ -65,7 +69,7 @@ class CodesignRecord:
     reason: str = ""
 
     def as_dict(self) -> dict:
-        return dict(mode=self.mode, steps=self.steps, before=self.before, after=self.after,
+        return dict(mode=self.mode, steps=self.steps, recontrols=self.recontrols, before=self.before, after=self.after,
                     max_displacement_m=self.max_displacement, kept=self.kept, reason=self.reason,
                     ipam_area_m2=[list(map(float, a)) for a in self.ipam_area],
                     ipam_stiffness_n_per_m=[list(map(float, k)) for k in self.ipam_stiffness])
@@ -85,6 +89,16 @@ def radial_modes(rest: np.ndarray, degree: int) -> np.ndarray:
     basis = basis - basis.mean(axis=0)  # a uniform scale is the volume bound's, not a mode
     q, sv, _ = np.linalg.svd(basis, full_matrices=False)
     return (q[:, sv > 1e-8 * sv[0]] * np.sqrt(len(rest))).T
+
+
+def volume_gradient(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) d(enclosed volume)/d(vertex) of the closed mesh (``x``, ``faces``): per face corner
+    a of (a, b, c), (x_b x x_c) / 6, summed over the faces at each vertex."""
+    out = np.zeros_like(x)
+    p = x[faces]
+    for k in range(3):
+        np.add.at(out, faces[:, k], np.cross(p[:, (k + 1) % 3], p[:, (k + 2) % 3]) / 6.0)
+    return out
 
 
 def min_norm_direction(grads: np.ndarray, iterations: int = 200) -> np.ndarray:
@@ -119,6 +133,9 @@ class CodesignProblem:
         self.modes = radial_modes(self.x0, settings.degree) if settings.move_rest else np.zeros((0, len(self.x0)))
         self.area0 = np.array([ip.area for ip in design.ipams])
         self.k0 = np.array([ip.stiffness for ip in design.ipams])
+        # a rest shape placed at the volume bound stays at it (every trial scaled to it): the objective
+        # of the scaled design is smooth, and so is its gradient (``chain``)
+        self.hold_volume = bool(len(self.modes)) and design.rest.volume() >= volume_bound * (1.0 - 1e-9)
         self.sizes = mode == "rest+ipams" and design.n_ipams > 0
         self.n_sizes = 2 * design.n_ipams if self.sizes else 0
 
@@ -131,7 +148,7 @@ class CodesignProblem:
         x = self.x0 * np.exp(p[:M] @ self.modes)[:, None] if M else self.x0
         rest = TriMesh(x, self.base.rest.faces)
         vol = rest.volume()
-        if M and vol > self.volume_bound:
+        if M and (vol > self.volume_bound or self.hold_volume):
             rest = rest.scaled((self.volume_bound / vol) ** (1.0 / 3.0))
         n = self.base.n_ipams
         area = self.area0 * np.exp(p[M:M + n]) if self.sizes else self.area0
@@ -150,6 +167,13 @@ class CodesignProblem:
         """d objective / d parameters from the gradient's values on ``design``."""
         x = design.rest.vertices
         g_modes = self.modes @ np.einsum("vi,vi->v", values["rest_positions"], x)
+        if self.hold_volume:
+            # the design is scaled to the volume bound: the gradient of the scaled design
+            # x (V_b / V(x))^(1/3), whose radial part d/dc_m is sum_v (g_v . x_v) Y_m - J_s dV/dc_m / (3 V)
+            # with J_s = sum_v g_v . x_v (the objective's response to a uniform scale)
+            dvol = self.modes @ np.einsum("vi,vi->v", volume_gradient(x, design.rest.faces), x)
+            uniform = float(np.einsum("vi,vi->", values["rest_positions"], x))
+            g_modes = g_modes - uniform * dvol / (3.0 * design.rest.volume())
         if not self.sizes:
             return g_modes
         area = np.array([ip.area for ip in design.ipams])
@@ -163,19 +187,34 @@ class CodesignProblem:
         values = run_jobs(_gradient_job, [(design, r, t, wrt, device) for r, t in zip(results, targets)])
         return np.stack([self.chain(design, v) for v in values])
 
-    def clip_step(self, p: np.ndarray, step: np.ndarray) -> np.ndarray:
-        """``step`` scaled into the per-step limits, and p + step into the size bounds."""
+    def limit_step(self, step: np.ndarray) -> np.ndarray:
+        """``step`` scaled down (as a whole) to at most ``max_radial_step`` radial change and
+        ``max_size_step`` log size change."""
         M, s = len(self.modes), self.settings
         radial = np.abs(step[:M] @ self.modes).max() if M else 0.0
         scale = min(1.0, s.max_radial_step / radial) if radial > 0 else 1.0
         if self.n_sizes:
             big = np.abs(step[M:]).max()
             scale = min(scale, s.max_size_step / big) if big > 0 else scale
-        q = p + step * scale
+        return step * scale
+
+    def bounded(self, q: np.ndarray) -> np.ndarray:
+        """``q`` with the IPAM log sizes clipped into ``size_bounds``."""
+        q = q.copy()
         if self.n_sizes:
-            lo, hi = np.log(s.size_bounds[0]), np.log(s.size_bounds[1])
+            M, (lo, hi) = len(self.modes), np.log(self.settings.size_bounds)
             q[M:] = np.clip(q[M:], lo, hi)
         return q
+
+
+def first_length(objectives: np.ndarray, slopes: np.ndarray) -> float:
+    """The fraction of a step tried first: half the length at which the first-order model of the
+    objective that falls fastest relative to its value reaches zero (each objective is an RMS of
+    residuals, so its linear model reaches zero at J / |dJ/ds|), at most the whole step."""
+    falling = slopes < 0
+    if not np.any(falling):
+        return 1.0
+    return float(min(1.0, 0.5 * np.min(objectives[falling] / -slopes[falling])))
 
 
 def _gradient_job(design: Design, result, target, wrt, device: str, *, progress=None) -> dict:
@@ -194,12 +233,45 @@ def replayed_objectives(design: Design, results, targets, device: str = "cpu") -
     return np.array(run_jobs(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)]))
 
 
+def _descend(problem: CodesignProblem, p, current, objectives, results, targets, settings, device, record,
+             progress, done: int):
+    """Up to ``settings.steps`` accepted steps from ``p`` (design ``current``, replayed ``objectives``)
+    with ``results``' sequences held. Returns (p, design, objectives, accepted steps, why it stopped)."""
+    accepted_steps, stop = 0, ""
+    for step in range(settings.steps):
+        grads = problem.gradients(current, results, targets, device)
+        direction = -min_norm_direction(grads)
+        if not np.any(direction):
+            stop = "no direction lowers every target's objective"
+            break
+        full = problem.limit_step(direction / np.abs(direction).max())
+        length, accepted = first_length(objectives, grads @ full), False
+        for _ in range(settings.halvings + 1):
+            q = problem.bounded(p + full * length)
+            trial = problem.design(q)
+            trial_obj = replayed_objectives(trial, results, targets, device)
+            if np.all(trial_obj <= objectives) and np.any(trial_obj < objectives):
+                p, current, objectives, accepted = q, trial, trial_obj, True
+                break
+            length *= 0.5
+        if progress is not None:
+            progress(done + step + 1, settings.steps * settings.rounds)
+        if not accepted:
+            stop = f"step {len(record.steps) + 1}: no shortened step lowered the objectives without raising one"
+            break
+        record.steps.append([float(o) for o in objectives])
+        accepted_steps += 1
+    return p, current, objectives, accepted_steps, stop
+
+
 def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volume_bound: float,
              control_settings: ControlSettings, passive_ipams, passive_cells, device: str = "cpu",
              settings: CodesignSettings | None = None, target_names=None, progress=None):
     """Co-design ``design`` (placed; ``results``: its final control result per centred target) in
-    ``mode`` (see ``CODESIGN_MODES``). Returns (design, results, CodesignRecord): the co-designed
-    design re-controlled with ``control_settings`` where no target got worse, else the input ones."""
+    ``mode`` (see ``CODESIGN_MODES``): rounds of descent steps with every target's sequence held, each
+    round ended by re-controlling every target with ``control_settings`` on the design reached; a
+    round is kept only if no target's objective is higher than before it. Returns (design, results,
+    CodesignRecord): the last kept round's design and results, else the input ones."""
     settings = settings or CodesignSettings()
     record = CodesignRecord(mode=mode, before=[float(r.objective) for r in results])
     if mode == "off":
@@ -210,42 +282,39 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
         record.reason, record.after = "nothing to co-design (the rest shape is fixed and no IPAM sizes move)", record.before
         return design, results, record
     p = np.zeros(problem.size)
+    kept, kept_results, kept_obj = design, results, np.array(record.before)
     current, objectives = design, replayed_objectives(design, results, targets, device)
-    for step in range(settings.steps):
-        grads = problem.gradients(current, results, targets, device)
-        direction = -min_norm_direction(grads)
-        if not np.any(direction):
-            record.reason = "no direction lowers every target's objective"
+    reason = ""
+    for r in range(settings.rounds):
+        p, current, objectives, n, stop = _descend(problem, p, current, objectives, kept_results, targets, settings,
+                                                   device, record, progress, r * settings.steps)
+        if n == 0:
+            reason = stop
             break
-        trial_scale, accepted = 1.0, False
-        for _ in range(settings.halvings + 1):
-            q = problem.clip_step(p, direction * trial_scale / max(np.abs(direction).max(), 1e-300))
-            trial = problem.design(q)
-            trial_obj = replayed_objectives(trial, results, targets, device)
-            if np.all(trial_obj <= objectives) and np.any(trial_obj < objectives):
-                p, current, objectives, accepted = q, trial, trial_obj, True
-                break
-            trial_scale *= 0.5
-        if progress is not None:
-            progress(step + 1, settings.steps)
-        if not accepted:
-            record.reason = f"step {step + 1}: no shortened step lowered the objectives without raising one"
+        new = control_many(current, targets, device=device, settings=control_settings, passive_ipams=passive_ipams,
+                           passive_cells=passive_cells, target_names=target_names)
+        new_obj = np.array([x.objective for x in new])
+        worse = np.flatnonzero(new_obj > kept_obj)
+        record.recontrols.append(dict(step=len(record.steps), objectives=[float(o) for o in new_obj],
+                                      kept=not len(worse)))
+        if len(worse):
+            j = int(worse[0])
+            reason = (f"round {r + 1}: re-controlled, target {j} got worse ({new_obj[j]:.4g} > {kept_obj[j]:.4g}): "
+                      + ("the placed design is kept" if kept is design else f"round {r}'s design is kept"))
             break
-        record.steps.append([float(o) for o in objectives])
-    if current is design:
-        record.reason = record.reason or "no step accepted"
-        record.after = record.before
+        kept, kept_results, kept_obj = current, new, new_obj
+        if r + 1 < settings.rounds:  # the next round descends with the new sequences held
+            objectives = replayed_objectives(current, new, targets, device)
+        reason = stop
+    record.after = [float(o) for o in kept_obj]
+    if kept is design:
+        record.reason = reason or "no step accepted"
         return design, results, record
-    new = control_many(current, targets, device=device, settings=control_settings, passive_ipams=passive_ipams,
-                       passive_cells=passive_cells, target_names=target_names)
-    record.after = [float(r.objective) for r in new]
-    record.max_displacement = float(np.linalg.norm(current.rest.vertices - design.rest.vertices, axis=1).max())
-    record.ipam_area = (tuple(problem.area0), tuple(ip.area for ip in current.ipams))
-    record.ipam_stiffness = (tuple(problem.k0), tuple(ip.stiffness for ip in current.ipams))
-    worse = [j for j, (a, b) in enumerate(zip(record.after, record.before)) if a > b]
-    if worse:
-        record.reason = (f"re-controlled, target {worse[0]} got worse ({record.after[worse[0]]:.4g} > "
-                         f"{record.before[worse[0]]:.4g}): the placed design is kept")
-        return design, results, record
-    record.kept, record.reason = True, f"{len(record.steps)} step(s) accepted; no target worse after re-control"
-    return current, new, record
+    rounds = sum(rc["kept"] for rc in record.recontrols)
+    record.max_displacement = float(np.linalg.norm(kept.rest.vertices - design.rest.vertices, axis=1).max())
+    record.ipam_area = (tuple(problem.area0), tuple(ip.area for ip in kept.ipams))
+    record.ipam_stiffness = (tuple(problem.k0), tuple(ip.stiffness for ip in kept.ipams))
+    record.kept = True
+    record.reason = (f"{rounds} round(s) kept ({len(record.steps)} step(s) accepted); no target worse after "
+                     f"re-control" + (f"; then {reason}" if reason else ""))
+    return kept, kept_results, record

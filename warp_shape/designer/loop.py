@@ -67,7 +67,8 @@ def _codesign(run: DesignRun) -> dict:
                                     control_settings=run.control_settings,
                                     passive_ipams=run.passive_sets.passive_ipams(),
                                     passive_cells=run.passive_sets.passive_cells(), device=run.device,
-                                    settings=CodesignSettings(steps=s.codesign_steps, move_rest=s.initialize),
+                                    settings=CodesignSettings(steps=s.codesign_steps, rounds=s.codesign_rounds,
+                                                              move_rest=s.initialize),
                                     target_names=run.names)
     if run.recorder is not None:
         run.recorder.log_codesign(record.as_dict(), run.names)

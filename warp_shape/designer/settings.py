@@ -62,7 +62,8 @@ class DesignSettings:
     ipam_pressure_limits: tuple = DEFAULT_IPAM_PRESSURE_LIMITS  # Pa gauge
     round_control: str = "law"  # control of the rounds before the last: "law", "quick" or "full" (ROUND_CONTROLS)
     codesign: str = "rest+ipams"  # after placement: "off", "rest" or "rest+ipams" (CODESIGN_MODES, docs/gradients.md)
-    codesign_steps: int = 4  # co-design's descent steps at most
+    codesign_steps: int = 4  # co-design's descent steps at most per round
+    codesign_rounds: int = 2  # co-design's rounds at most (descent steps, then a re-control of every target)
     workers: int = 0  # processes the run's control jobs are sharded over (0: every core, 1: one; controller.shard)
 
     def __post_init__(self):
@@ -80,6 +81,9 @@ class DesignSettings:
         if isinstance(self.codesign_steps, bool) or not isinstance(self.codesign_steps, numbers.Integral) \
                 or not 0 <= self.codesign_steps <= 100:
             raise DesignError(f"codesign_steps must be a whole number in 0..100, got {self.codesign_steps!r}")
+        if isinstance(self.codesign_rounds, bool) or not isinstance(self.codesign_rounds, numbers.Integral) \
+                or not 1 <= self.codesign_rounds <= 20:
+            raise DesignError(f"codesign_rounds must be a whole number in 1..20, got {self.codesign_rounds!r}")
         if self.workers < 0:
             raise DesignError(f"workers must be >= 0 (0: every core, 1: one process), got {self.workers}")
         whole = isinstance(self.candidates, numbers.Integral) and not isinstance(self.candidates, bool)

@@ -120,8 +120,9 @@ def _placement_section(result) -> list[str]:
 
 
 def _codesign_section(result) -> list[str]:
-    """Co-design after placement: each step's replayed objectives, the objectives before and after,
-    the rest shape's largest displacement and the IPAM sizes (docs/gradients.md)."""
+    """Co-design after placement: each step's replayed objectives and each round's re-control, the
+    objectives before and after, the rest shape's largest displacement and the IPAM sizes
+    (docs/gradients.md)."""
     rec = getattr(result, "codesign", None) or {}
     if not rec or rec.get("mode", "off") == "off":
         return []
@@ -133,7 +134,13 @@ def _codesign_section(result) -> list[str]:
         lines += ["", "| step | " + " | ".join(f"{n} replayed objective" for n in names) + " |",
                   "|---" * (len(names) + 1) + "|",
                   "| 0 | " + " | ".join(f"{v:.4f}" for v in rec["before"]) + " |"]
-        lines += [f"| {k + 1} | " + " | ".join(f"{v:.4f}" for v in row) + " |" for k, row in enumerate(rec["steps"])]
+        recontrols = {rc["step"]: rc for rc in rec.get("recontrols", [])}
+        for k, row in enumerate(rec["steps"]):
+            lines.append(f"| {k + 1} | " + " | ".join(f"{v:.4f}" for v in row) + " |")
+            if k + 1 in recontrols:  # the round's end: every target re-controlled on the design reached
+                rc = recontrols[k + 1]
+                lines.append("| re-controlled" + ("" if rc["kept"] else " (worse: not kept)") + " | "
+                             + " | ".join(f"{v:.4f}" for v in rc["objectives"]) + " |")
     if rec.get("after"):
         lines += ["", "Under the design's controller: " + ", ".join(
             f"{n} {b:.4f} -> {a:.4f}" for n, b, a in zip(names, rec["before"], rec["after"]))
