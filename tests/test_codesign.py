@@ -134,16 +134,22 @@ def test_first_length_halves_the_step_to_the_linear_models_zero():
     assert first_length(np.array([0.02]), np.array([0.001])) == 1.0  # nothing falls: the whole step
 
 
-def test_a_round_whose_re_control_is_worse_keeps_the_round_before(designs, targets, monkeypatch):
-    """Round 2's re-control made worse on one target: co-design returns round 1's design and results."""
+def _kw(off, targets):
+    return dict(mode="rest", volume_bound=off.settings.volume_scale * min(t.volume() for t in targets),
+                control_settings=KW["control_settings"], passive_ipams=off.passive_ipams,
+                passive_cells=off.passive_cells)
+
+
+def test_a_round_whose_re_control_and_held_sequence_are_worse_keeps_the_round_before(designs, targets,
+                                                                                      monkeypatch):
+    """Round 2's re-control and target 0's held sequence made worse: co-design returns round 1's
+    design and results."""
     import warp_shape.designer.codesign as cd
 
     off, _ = designs
-    kw = dict(mode="rest", volume_bound=off.settings.volume_scale * min(t.volume() for t in targets),
-              control_settings=KW["control_settings"], passive_ipams=off.passive_ipams,
-              passive_cells=off.passive_cells)
+    kw = _kw(off, targets)
     one = cd.codesign(off.design, off.targets, off.results, settings=CodesignSettings(steps=1, rounds=1), **kw)
-    calls, control_many = [], cd.control_many
+    calls, control_many, replay_result = [], cd.control_many, cd.replay_result
 
     def worse_second_time(*a, **k):
         out = control_many(*a, **k)
@@ -151,12 +157,39 @@ def test_a_round_whose_re_control_is_worse_keeps_the_round_before(designs, targe
         return out if len(calls) == 1 else [dataclasses.replace(out[0], objective=1.0)] + out[1:]
 
     monkeypatch.setattr(cd, "control_many", worse_second_time)
+    monkeypatch.setattr(cd, "replay_result", lambda *a, **k: dataclasses.replace(
+        replay_result(*a, **k), **(dict(objective=2.0) if len(calls) == 2 else {})))
     two = cd.codesign(off.design, off.targets, off.results, settings=CodesignSettings(steps=1, rounds=2), **kw)
     rec = two[2]
     assert len(calls) == 2 and rec.kept and [rc["kept"] for rc in rec.recontrols] == [True, False]
+    assert rec.recontrols[1]["held"] == []
     assert "round 2: re-controlled, target 0 got worse" in rec.reason and "round 1's design is kept" in rec.reason
     np.testing.assert_array_equal(two[0].rest.vertices, one[0].rest.vertices)
     assert rec.after == one[2].after == [r.objective for r in two[1]]
+
+
+def test_a_target_whose_re_control_is_worse_than_its_held_sequence_keeps_the_sequence(designs, targets,
+                                                                                       monkeypatch):
+    """Re-control made worse on target 0: its held sequence, replayed on the co-designed design, is
+    its result (the replay's objective, history and frames), the round is kept, and the objective is
+    the one the descent reached for it."""
+    import warp_shape.designer.codesign as cd
+
+    off, _ = designs
+    control_many = cd.control_many
+    monkeypatch.setattr(cd, "control_many", lambda *a, **k: [dataclasses.replace(r, objective=1.0) if j == 0 else r
+                                                             for j, r in enumerate(control_many(*a, **k))])
+    design, results, rec = cd.codesign(off.design, off.targets, off.results,
+                                       settings=CodesignSettings(steps=1, rounds=1), **_kw(off, targets))
+    assert rec.kept and rec.recontrols[0]["held"] == [0] and rec.recontrols[0]["kept"]
+    r, placed = results[0], off.results[0]
+    assert r.objective < placed.objective and r.design is design
+    assert r.objective == pytest.approx(rec.steps[-1][0], rel=1e-9)  # the descent's replayed objective
+    assert len(r.history["time"]) == len(placed.history["time"]) == len(r.frames)
+    for k in ("time", "air_mol", "ipam0_pressure_pa", "cell0_jammed", "phase"):
+        np.testing.assert_array_equal(r.history[k], placed.history[k])
+    assert r.history["objective"][-1] == r.objective
+    np.testing.assert_allclose(r.achieved.vertices, ws.replay(design, placed), rtol=0, atol=0)
 
 
 def test_codesign_on_a_runs_workers_takes_the_steps_it_takes_in_one_process(designs, targets):

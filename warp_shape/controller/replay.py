@@ -15,15 +15,21 @@ replays it exactly.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..design import Design
 from ..errors import DesignError
+from ..sampling import RadialSampler
 from ..simulator import Simulator
+from .history import History
+from .laws import Controls
+from .observe import Observer
 from .result import ControlResult
 from .worlds import mask_passive, passive_masks
 
-__all__ = ["replay", "replay_simulator", "control_schedule", "drive_schedules"]
+__all__ = ["replay", "replay_result", "replay_simulator", "control_schedule", "drive_schedules"]
 
 
 def control_schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -64,12 +70,12 @@ def replay_simulator(design: Design, results, *, device: str = "cpu"):
     return sim
 
 
-def drive_schedules(sim, schedules, end: int | None = None) -> None:
+def drive_schedules(sim, schedules, end: int | None = None, after=None) -> None:
     """Step ``sim`` (one world per schedule, from its state at step 0) through ``schedules``, each
     (steps, air, pressures, jammed) as ``control_schedule`` gives them: before each row's step, the
     cells the row shows newly jammed are jammed and its controls set, then the simulator steps to the
     next row of any world; a world whose schedule ended holds its last controls. ``end``: on to that
-    step, every world holding its last controls."""
+    step, every world holding its last controls. ``after(step)``: called at every row reached."""
     n = len(schedules)
     marks = np.unique(np.concatenate([s[0] for s in schedules] + ([[end]] if end is not None else [])))
     for a, b in zip(marks[:-1], marks[1:]):
@@ -82,9 +88,52 @@ def drive_schedules(sim, schedules, end: int | None = None) -> None:
         if schedules[0][2].shape[1]:
             sim.ipam_pressures = np.stack([s[2][k] for s, k in zip(schedules, rows)])
         sim.step(int(b - a))
+        if after is not None:
+            after(int(b))
 
 
 def replay(design: Design, result, *, device: str = "cpu") -> np.ndarray:
     """(V, 3) float64 positions, m, at the end of ``result``'s control sequence replayed open loop
     from rest on ``design``."""
     return np.asarray(replay_simulator(design, [result], device=device).positions).reshape(-1, 3)
+
+
+def replay_result(design: Design, result, *, device: str = "cpu") -> ControlResult:
+    """``result`` as its sequence plays open loop on ``design`` (another design of the same actuators
+    and cells, e.g. a co-designed one): the same controls, jam events and rows, and the membrane, fit
+    and forces measured at every row of the replay. ``converged`` also asks the replay to end at rest."""
+    target = result.target
+    if target is None:
+        raise DesignError("replay_result needs a result that carries its target (control results do)")
+    sim = Simulator(design, device=device, settings=result.settings.simulation, worlds=1)
+    sched = control_schedule(result, sim.dt)
+    if sched[3].shape[1] != design.n_cells or sched[2].shape[1] != design.n_ipams:
+        raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
+    mask_passive(sim, *passive_masks([result], design.n_ipams, design.n_cells))
+    host = sim.model.host
+    observer = Observer(host, RadialSampler(target, device=device), 1, [target.volume()])
+    history = History(1, host)
+    steps, air, press, _ = sched
+    phases = np.asarray(result.history["phase"])
+    last = []
+
+    def observe(step: int) -> None:
+        k = int(np.searchsorted(steps, step))
+        controls = Controls(air=air[k:k + 1], pressures=press[k:k + 1])
+        obs = observer.observe(sim, k, controls.air, controls.pressures)
+        history.record(obs, phases[k:k + 1], controls, np.zeros(1, bool))
+        last[:] = [obs]
+
+    observe(0)
+    drive_schedules(sim, [sched], after=observe)
+    obs = last[0]
+    x, sampled = obs.positions[0].copy(), obs.sampled[0].copy()
+    settled = bool(obs.max_speed[0] < result.settings.settle_speed)
+    return dataclasses.replace(
+        result, achieved=design.rest.copy_with(x), sampled_target=design.rest.copy_with(sampled),
+        objective=float(obs.objective[0]), pcc=float(obs.pcc[0]), mare=float(obs.mare[0]), mpre=float(obs.mpre[0]),
+        volume_error=float((obs.volume[0] - obs.target_volume[0]) / obs.target_volume[0]),
+        ipam_forces=obs.ipam_forces[0].copy(), jammed=obs.jammed[0].copy().astype(bool),
+        converged=bool(result.converged and settled), settled=settled, max_speed=float(obs.max_speed[0]),
+        reason=f"{result.reason}; the sequence replayed open loop on this design", history=history.columns(0),
+        frames=history.frame_stack(0), design=design)

@@ -7,8 +7,9 @@ orthonormal over the vertices), so it stays closed, star-shaped and smooth; the 
 within the initialisation's bound. IPAM areas and stiffnesses move in log scale within
 ``size_bounds`` x their placed values. A step follows the common descent direction of the targets
 (the min-norm point of their gradients' convex hull), is shortened until no target's replayed
-objective rises, and the design is re-controlled with the design's controller at the end; it is
-kept only if no target's final objective is worse than before co-design. docs/gradients.md.
+objective rises, and the design is re-controlled with the design's controller at the end of each
+round; a target whose re-control ends above its held sequence replayed keeps that sequence. A round
+is kept only if no target's final objective is worse than before it. docs/gradients.md.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..controller import ControlSettings, control_many
-from ..controller.replay import replay
+from ..controller.replay import replay, replay_result
 from ..controller.shard import run_jobs
 from ..design import Design
 from ..gradients import gradient
@@ -53,7 +54,8 @@ class CodesignSettings:
 @dataclass
 class CodesignRecord:
     """What co-design did: the mode, each accepted step's replayed objectives, each round's re-control
-    (``recontrols``: after which step, every target's objective, whether it was kept), the objectives
+    (``recontrols``: after which step, every target's objective, the targets whose held sequence
+    replayed beat their re-control (``held``), whether the round was kept), the objectives
     before and after (the design's controller), the rest shape's largest displacement (m), the IPAM
     sizes before and after, whether the co-designed design was kept and why."""
 
@@ -227,6 +229,10 @@ def _objective_job(design: Design, result, target, device: str, *, progress=None
     return float(fit_objective_and_gradient(x, sampler, 0, design.rest.faces, target.volume())[0])
 
 
+def _replay_job(design: Design, result, device: str, *, progress=None):
+    return replay_result(design, result, device=device)
+
+
 def replayed_objectives(design: Design, results, targets, device: str = "cpu") -> np.ndarray:
     """(T,) the objective of each result's sequence replayed open loop on ``design`` (one job per
     target on the run's workers where they are running)."""
@@ -269,8 +275,9 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
              settings: CodesignSettings | None = None, target_names=None, progress=None):
     """Co-design ``design`` (placed; ``results``: its final control result per centred target) in
     ``mode`` (see ``CODESIGN_MODES``): rounds of descent steps with every target's sequence held, each
-    round ended by re-controlling every target with ``control_settings`` on the design reached; a
-    round is kept only if no target's objective is higher than before it. Returns (design, results,
+    round ended by re-controlling every target with ``control_settings`` on the design reached (a
+    target whose re-control ends above its held sequence replayed keeps that sequence,
+    ``replay_result``); a round is kept only if no target's objective is higher than before it. Returns (design, results,
     CodesignRecord): the last kept round's design and results, else the input ones."""
     settings = settings or CodesignSettings()
     record = CodesignRecord(mode=mode, before=[float(r.objective) for r in results])
@@ -293,9 +300,15 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
             break
         new = control_many(current, targets, device=device, settings=control_settings, passive_ipams=passive_ipams,
                            passive_cells=passive_cells, target_names=target_names)
+        above = [j for j in range(len(new)) if new[j].objective > objectives[j]]
+        held = []
+        for j, res in zip(above, run_jobs(_replay_job, [(current, kept_results[j], device) for j in above])):
+            if res.objective < new[j].objective:  # the held sequence, replayed, fits better
+                new[j] = res
+                held.append(j)
         new_obj = np.array([x.objective for x in new])
         worse = np.flatnonzero(new_obj > kept_obj)
-        record.recontrols.append(dict(step=len(record.steps), objectives=[float(o) for o in new_obj],
+        record.recontrols.append(dict(step=len(record.steps), objectives=[float(o) for o in new_obj], held=held,
                                       kept=not len(worse)))
         if len(worse):
             j = int(worse[0])

@@ -139,8 +139,10 @@ def _codesign_section(result) -> list[str]:
             lines.append(f"| {k + 1} | " + " | ".join(f"{v:.4f}" for v in row) + " |")
             if k + 1 in recontrols:  # the round's end: every target re-controlled on the design reached
                 rc = recontrols[k + 1]
+                held = set(rc.get("held", []))  # targets whose held sequence, replayed, beat the re-control
                 lines.append("| re-controlled" + ("" if rc["kept"] else " (worse: not kept)") + " | "
-                             + " | ".join(f"{v:.4f}" for v in rc["objectives"]) + " |")
+                             + " | ".join(f"{v:.4f}" + (" (held sequence)" if j in held else "")
+                                          for j, v in enumerate(rc["objectives"])) + " |")
     if rec.get("after"):
         lines += ["", "Under the design's controller: " + ", ".join(
             f"{n} {b:.4f} -> {a:.4f}" for n, b, a in zip(names, rec["before"], rec["after"]))
