@@ -31,6 +31,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--subdivisions", type=int, default=3)
     parser.add_argument("--actuators", type=int, default=2)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--codesign", default="rest+ipams", choices=["off", "rest", "rest+ipams"],
+                        help="after placement, optimise the rest shape (and the IPAMs' sizes) by gradient")
     args = parser.parse_args(argv)
 
     path = Path(args.mesh) if args.mesh else write_egg(Path(tempfile.mkdtemp()) / "egg.ply")
@@ -40,7 +42,7 @@ def main(argv=None) -> dict:
 
     # single-target design: the rest shape follows the target, then IPAMs go where the error is largest
     out = ws.design(ws.icosphere(args.subdivisions, 0.035), [target], actuators=args.actuators,
-                    target_names=[path.stem], device=args.device)
+                    target_names=[path.stem], device=args.device, codesign=args.codesign)
     for i, res in enumerate(out.rounds):
         r = res[0]
         print(f"{i} IPAMs: PCC {r.pcc:.4f}, MARE {r.mare * 1e3:.2f} mm, MPRE {r.mpre:.1f} %")

@@ -3,7 +3,7 @@
 The designer averages the targets into a rest shape, then adds IPAMs with jamming cells one at a
 time where the radial error is largest, controlling the device to both targets after each addition.
 
-    python examples/design_oval_heart.py [--actuators 4] [--subdivisions 3]
+    python examples/design_oval_heart.py [--actuators 4] [--subdivisions 3] [--codesign off]
 """
 
 import argparse
@@ -16,12 +16,14 @@ def main(argv=None) -> dict:
     parser.add_argument("--actuators", type=int, default=4)
     parser.add_argument("--subdivisions", type=int, default=3)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--codesign", default="rest+ipams", choices=["off", "rest", "rest+ipams"],
+                        help="after placement, optimise the rest shape (and the IPAMs' sizes) by gradient")
     args = parser.parse_args(argv)
 
     base = ws.icosphere(args.subdivisions, 0.035)
     names = ["oval", "heart"]
     out = ws.design(base, [ws.target(n) for n in names], actuators=args.actuators, target_names=names,
-                    device=args.device)
+                    device=args.device, codesign=args.codesign)
 
     print(f"{out.design.n_ipams} IPAMs, {out.design.n_cells} cells on a {out.design.rest.n_vertices}-vertex membrane")
     print("round  " + "  ".join(f"{n:>8}" for n in names) + "   (PCC)")

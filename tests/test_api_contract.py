@@ -47,7 +47,7 @@ def test_spec_section_8_api(tmp_path):
     for name in ("pcc", "mare", "mpre", "volume_error"):
         assert np.isfinite(getattr(res, name))
     assert res.ipam_forces.shape == (1,) and res.jammed.shape == (1,) and len(res.history["pcc"]) > 0
-    out = ws.design(ws.icosphere(2, 0.035), [ws.target("oval"), tgt], actuators=1)
+    out = ws.design(ws.icosphere(2, 0.035), [ws.target("oval"), tgt], actuators=1, codesign="off")
     assert isinstance(out.design, ws.Design) and len(out.results) == 2
     assert out.pcc_by_round.shape == (2, 2)
     scene = ws.Scene(design=d, targets=[tgt], settings=None)

@@ -58,7 +58,7 @@ def test_a_registered_law_controls_through_the_api():
 
 def test_a_registered_law_and_placement_design_through_the_api():
     base, oval = ws.icosphere(2, 0.035), ws.target("oval")
-    res = ws.design(base, [oval], actuators=1, placement="lowest_face",
+    res = ws.design(base, [oval], actuators=1, placement="lowest_face", codesign="off",
                     control_settings=ControlSettings(method="air_only", max_steps=60))
     a = res.design.ipams[0].face_a
     first_round_free = free_faces(res.designs[0])

@@ -115,9 +115,10 @@ def test_a_run_is_the_design_command_with_the_same_settings(tmp_path):
     """A sweep run and ``warp-shape design`` with the same problem and settings reach the same fit and
     write the same files."""
     assert main(["design", "--targets", "oval", "--actuators", "1", "--subdivisions", "2", "--placement", "paper",
-                 "--out", str(tmp_path / "design")]) == 0
-    res = ws.sweep("grid", targets=["oval"], params={"actuators": [1]}, fixed={"subdivisions": 2, "placement": "paper"},
-                   out=tmp_path / "sweep", backend="serial")
+                 "--codesign", "off", "--out", str(tmp_path / "design")]) == 0
+    res = ws.sweep("grid", targets=["oval"], params={"actuators": [1]},
+                   fixed={"subdivisions": 2, "placement": "paper", "codesign": "off"}, out=tmp_path / "sweep",
+                   backend="serial")
     row = res.rows[0]
     by_design = json.loads((tmp_path / "design" / "report.json").read_text())
     by_sweep = json.loads((tmp_path / "sweep" / row["out_dir"] / "report.json").read_text())
