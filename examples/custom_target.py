@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 import warp_shape as ws
+from warp_shape.designer.settings import CODESIGN_MODES
 
 
 def write_egg(path: Path) -> Path:
@@ -31,7 +32,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--subdivisions", type=int, default=3)
     parser.add_argument("--actuators", type=int, default=2)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--codesign", default="rest+ipams", choices=["off", "rest", "rest+ipams"],
+    parser.add_argument("--codesign", default=ws.DesignSettings().codesign, choices=CODESIGN_MODES,
                         help="after placement, optimise the rest shape (and the IPAMs' sizes) by gradient")
     args = parser.parse_args(argv)
 

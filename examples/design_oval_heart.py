@@ -9,6 +9,7 @@ time where the radial error is largest, controlling the device to both targets a
 import argparse
 
 import warp_shape as ws
+from warp_shape.designer.settings import CODESIGN_MODES
 
 
 def main(argv=None) -> dict:
@@ -16,7 +17,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--actuators", type=int, default=4)
     parser.add_argument("--subdivisions", type=int, default=3)
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--codesign", default="rest+ipams", choices=["off", "rest", "rest+ipams"],
+    parser.add_argument("--codesign", default=ws.DesignSettings().codesign, choices=CODESIGN_MODES,
                         help="after placement, optimise the rest shape (and the IPAMs' sizes) by gradient")
     args = parser.parse_args(argv)
 
