@@ -133,6 +133,9 @@ def test_first_length_halves_the_step_to_the_linear_models_zero():
     assert first_length(np.array([0.02, 0.01]), np.array([-0.01, -0.1])) == pytest.approx(0.05)
     assert first_length(np.array([0.02]), np.array([-0.001])) == 1.0  # at most the whole step
     assert first_length(np.array([0.02]), np.array([0.001])) == 1.0  # nothing falls: the whole step
+    # at most the length the step before was accepted at
+    assert first_length(np.array([0.02]), np.array([-0.001]), 0.25) == 0.25
+    assert first_length(np.array([0.02, 0.01]), np.array([-0.01, -0.1]), 0.25) == pytest.approx(0.05)
 
 
 def _kw(off, targets):

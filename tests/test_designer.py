@@ -70,7 +70,7 @@ def test_paper_placement_uses_every_actuator_and_ends_far_below_no_actuators(cub
 @pytest.fixture(scope="module")
 def default_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("out")
-    rc = main(["design", "--out", str(out)])
+    rc = main(["design", "--out", str(out), "--workers", "0"])  # the command's default: a worker per core
     return rc, out
 
 

@@ -204,7 +204,14 @@ def test_a_second_run_into_the_same_folder_is_refused(tmp_path, monkeypatch, cap
 KILLER = r"""
 import os, shutil, signal, sys
 import warp_shape.io.atomic as atomic
+import warp_shape.io.figures as figures
 k, log, watched = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+def figure_files(kind, what, path, title, timing, *, progress=None):
+    # a figure's file events (its PNG and SVG, each written atomically), without drawing it
+    atomic.atomic_write(path, b"\x89PNG\r\n\x1a\n" + kind.encode())
+    atomic.atomic_write(figures.svg_path(path), b"<svg/>")
+    return path
+figures.draw_figure = figure_files
 count = [0]
 def counted(name, fn):
     def wrapper(*a, **kw):
@@ -238,7 +245,8 @@ def run_killed_at(k: int, log: Path, args) -> int:
 def test_sigkill_at_ten_points_leaves_one_whole_set(tmp_path):
     """A design run into a folder holding a different finished run, SIGKILLed at 10 points (file
     writes, renames, the folder swap, the removal of the old set): the folder holds one whole set
-    every time, the old one until the swap, the new one after."""
+    every time, the old one until the swap, the new one after. The killed runs write their figures'
+    files as the real ones are written (two atomic writes each) without drawing them."""
     out, ref, log = tmp_path / "out", tmp_path / "ref", tmp_path / "events.log"
     # the paper's law controls: the runs write the same files as the model-based controller's, sooner
     problem = ws.save_scene(ws.Scene(design=ws.Design(rest=ws.icosphere(2, 0.04)), targets=[ws.target("pear")],

@@ -209,14 +209,15 @@ class CodesignProblem:
         return q
 
 
-def first_length(objectives: np.ndarray, slopes: np.ndarray) -> float:
+def first_length(objectives: np.ndarray, slopes: np.ndarray, longest: float = 1.0) -> float:
     """The fraction of a step tried first: half the length at which the first-order model of the
     objective that falls fastest relative to its value reaches zero (each objective is an RMS of
-    residuals, so its linear model reaches zero at J / |dJ/ds|), at most the whole step."""
+    residuals, so its linear model reaches zero at J / |dJ/ds|), at most ``longest`` (the length the
+    step before was accepted at; 1: the whole step)."""
     falling = slopes < 0
     if not np.any(falling):
-        return 1.0
-    return float(min(1.0, 0.5 * np.min(objectives[falling] / -slopes[falling])))
+        return float(longest)
+    return float(min(longest, 0.5 * np.min(objectives[falling] / -slopes[falling])))
 
 
 def _gradient_job(design: Design, result, target, wrt, device: str, *, progress=None) -> dict:
@@ -240,9 +241,11 @@ def replayed_objectives(design: Design, results, targets, device: str = "cpu") -
 
 
 def _descend(problem: CodesignProblem, p, current, objectives, results, targets, settings, device, record,
-             progress, done: int):
+             progress, done: int, longest: float = 1.0):
     """Up to ``settings.steps`` accepted steps from ``p`` (design ``current``, replayed ``objectives``)
-    with ``results``' sequences held. Returns (p, design, objectives, accepted steps, why it stopped)."""
+    with ``results``' sequences held, each tried first at no more than the length the step before was
+    accepted at (``longest`` for the first). Returns (p, design, objectives, accepted steps, why it
+    stopped, the last accepted length)."""
     accepted_steps, stop = 0, ""
     for step in range(settings.steps):
         grads = problem.gradients(current, results, targets, device)
@@ -251,13 +254,13 @@ def _descend(problem: CodesignProblem, p, current, objectives, results, targets,
             stop = "no direction lowers every target's objective"
             break
         full = problem.limit_step(direction / np.abs(direction).max())
-        length, accepted = first_length(objectives, grads @ full), False
+        length, accepted = first_length(objectives, grads @ full, longest), False
         for _ in range(settings.halvings + 1):
             q = problem.bounded(p + full * length)
             trial = problem.design(q)
             trial_obj = replayed_objectives(trial, results, targets, device)
             if np.all(trial_obj <= objectives) and np.any(trial_obj < objectives):
-                p, current, objectives, accepted = q, trial, trial_obj, True
+                p, current, objectives, accepted, longest = q, trial, trial_obj, True, length
                 break
             length *= 0.5
         if progress is not None:
@@ -267,7 +270,7 @@ def _descend(problem: CodesignProblem, p, current, objectives, results, targets,
             break
         record.steps.append([float(o) for o in objectives])
         accepted_steps += 1
-    return p, current, objectives, accepted_steps, stop
+    return p, current, objectives, accepted_steps, stop, longest
 
 
 def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volume_bound: float,
@@ -291,10 +294,11 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
     p = np.zeros(problem.size)
     kept, kept_results, kept_obj = design, results, np.array(record.before)
     current, objectives = design, replayed_objectives(design, results, targets, device)
-    reason = ""
+    reason, longest = "", 1.0
     for r in range(settings.rounds):
-        p, current, objectives, n, stop = _descend(problem, p, current, objectives, kept_results, targets, settings,
-                                                   device, record, progress, r * settings.steps)
+        p, current, objectives, n, stop, longest = _descend(problem, p, current, objectives, kept_results, targets,
+                                                            settings, device, record, progress, r * settings.steps,
+                                                            longest)
         if n == 0:
             reason = stop
             break
