@@ -27,8 +27,9 @@ def targets():
 
 @pytest.fixture(scope="module")
 def designs(targets):
-    off = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", **KW)
-    on = ws.design(ws.icosphere(2, 0.04), targets, **KW)  # the default: rest+ipams
+    # on a worker per core, as the command runs (each target's gradient and replay one job)
+    off = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", workers=0, **KW)
+    on = ws.design(ws.icosphere(2, 0.04), targets, workers=0, **KW)  # the default: rest+ipams
     return off, on
 
 
@@ -83,7 +84,7 @@ def test_codesign_is_never_worse_on_any_target_and_off_is_todays_design(designs,
 
 def test_codesign_off_reproduces_the_design_bit_for_bit(designs, targets):
     off, _ = designs
-    again = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", **KW)
+    again = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", workers=0, **KW)
     np.testing.assert_array_equal(again.design.rest.vertices, off.design.rest.vertices)
     np.testing.assert_array_equal(again.results[1].achieved.vertices, off.results[1].achieved.vertices)
 
@@ -230,7 +231,8 @@ def test_the_command_codesigns_and_saves_the_codesigned_rest_shape(tmp_path):
     problem = ws.save_scene(ws.Scene(design=ws.Design(ws.icosphere(2, 0.04)), targets=[ws.target("oval")],
                                      target_names=["oval"],
                                      settings={"controller": {"method": "paper"},
-                                               "designer": {"actuators": 1, "codesign": "off"}}),
+                                               "designer": {"actuators": 1, "codesign": "off", "codesign_steps": 2,
+                                                            "codesign_rounds": 1}}),
                             tmp_path / "problem.usda")
     assert main(["design", str(problem), "--placement", "paper", "--codesign", "rest", "--rerun", str(rrd),
                  "--out", str(out)]) == 0  # the flag over the scene's designer group
@@ -240,6 +242,7 @@ def test_the_command_codesigns_and_saves_the_codesigned_rest_shape(tmp_path):
     assert scene.settings["designer"]["codesign"] == "rest"
     rec = json.loads((out / "report.json").read_text())["codesign"]
     assert rec["kept"] and all(a <= b for a, b in zip(rec["after"], rec["before"]))
+    assert len(rec["steps"]) <= 2 and len(rec["recontrols"]) == 1  # the scene's co-design settings
     # the saved rest shape is the co-designed one: within the volume bound, moved from the placed one
     assert scene.design.rest.volume() <= 0.8 * ws.target("oval").volume() * (1 + 1e-9)
     assert rec["max_displacement_m"] > 1e-4
