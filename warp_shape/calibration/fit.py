@@ -8,13 +8,14 @@ it), updated by Broyden's rank-one rule between fresh ones. docs/calibration.md 
 
 from __future__ import annotations
 
+import hashlib
 import warnings
 
 import numpy as np
 
 from ..design import Design
 from ..errors import DesignError, ShapeError
-from ..scan import IcpConvergenceWarning, closest_points_query, compare_scan, icp
+from ..scan import ICP_POINTS, IcpConvergenceWarning, closest_points_query, compare_scan, icp
 from .observations import ScanObservation
 from .parameters import DEFAULT_WRT, ParameterSet, check_wrt
 from .regions import region_faces
@@ -198,15 +199,18 @@ def robust_poses(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *,
                  seed: int = 0, alternatives: int = 0) -> list[tuple[float, np.ndarray, np.ndarray]]:
     """[(trimmed RMS distance m, R, t), ...] taking ``points`` (a partial scan, any pose) onto the surface
     (``vertices``, ``faces``), the best first: ``POSE_TRIALS`` random rotations and the scan's own, each
-    refined by point-to-plane ICP on a subset; the best two by trimmed RMS refined on all points, the
-    best trial of each of ``POSE_ALTERNATIVES`` other turns (more than ``REPOSE_DEGREES`` apart), and the
-    best two half turns of the best about ``HALF_TURN_AXES`` axes; ranked by trimmed RMS on all points,
-    the first ``alternatives + 1`` returned. A nearly round membrane has no clear principal axes, so the
+    refined by point-to-plane ICP on 300 points; the best two by trimmed RMS, the best trial of each of
+    ``POSE_ALTERNATIVES`` other turns (more than ``REPOSE_DEGREES`` apart), and the best two half turns
+    of the best about ``HALF_TURN_AXES`` axes refined on ``ICP_POINTS`` points (as ``compare`` refines;
+    ``calibrate`` then refines the pose on all its points, ``_realign``) and ranked by trimmed RMS on
+    all points, the first ``alternatives + 1`` returned. A nearly round membrane has no clear principal axes, so the
     random starts are what find its pose; its other turns are what ``calibrate`` tries when a scan
     will not fit."""
     q = closest_points_query((vertices, faces), device=device)
     scale = float(np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))
-    sub = points[np.random.default_rng(seed).choice(len(points), size=min(300, len(points)), replace=False)]
+    rng = np.random.default_rng(seed)
+    sub = points[rng.choice(len(points), size=min(300, len(points)), replace=False)]
+    dense = points[rng.choice(len(points), size=min(ICP_POINTS, len(points)), replace=False)]
     cs, cm = points.mean(axis=0), vertices.mean(axis=0)
     trials = []
     with warnings.catch_warnings():
@@ -217,7 +221,7 @@ def robust_poses(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *,
         trials.sort(key=lambda e: e[0])
 
         def refine(r0, t0):
-            r1, t1, _, _ = icp(points, q, r0, t0, max_iterations=40, tolerance=1e-6, scale=scale)
+            r1, t1, _, _ = icp(dense, q, r0, t0, max_iterations=40, tolerance=1e-6, scale=scale)
             return _trimmed(q(points @ r1.T + t1)[1]), r1, t1
 
         out = [min((refine(r0, t0) for _, r0, t0 in trials[:2]), key=lambda e: e[0])]
@@ -245,14 +249,31 @@ def robust_poses(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, *,
     return out[:alternatives + 1]
 
 
+#: robust_poses' last results by their inputs (the same scans calibrated again, with other parameters
+#: or regions, start from the same replayed shapes: their alignment is the same)
+_POSES_CACHE: dict = {}
+_POSES_CACHE_SIZE = 16
+
+
+def _cached_robust_poses(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, **kwargs) -> list:
+    """``robust_poses`` of these exact inputs, computed once (copies returned)."""
+    key = (hashlib.sha1(b"".join(np.ascontiguousarray(a).tobytes() for a in (points, vertices, faces))).hexdigest(),
+           points.shape, vertices.shape, tuple(sorted(kwargs.items())))
+    if key not in _POSES_CACHE:
+        if len(_POSES_CACHE) >= _POSES_CACHE_SIZE:
+            _POSES_CACHE.pop(next(iter(_POSES_CACHE)))
+        _POSES_CACHE[key] = robust_poses(points, vertices, faces, **kwargs)
+    return [(d, r.copy(), t.copy()) for d, r, t in _POSES_CACHE[key]]
+
+
 def _initial_poses(fit: _Fit, shapes: np.ndarray) -> list:
     """Each scan aligned to its replayed shape (``robust_poses``: unknown pose); a scan that does not
     match the display (too far from it after alignment, or covering too little of it, measured as
     ``compare`` does) is an error."""
     poses, faces = [], fit.design.rest.faces
     for o, pts, x in zip(fit.obs, fit.points, shapes):
-        (score, rot, t), *others = robust_poses(pts, x, faces, device=fit.device, seed=fit.seed,
-                                                alternatives=POSE_ALTERNATIVES)
+        (score, rot, t), *others = _cached_robust_poses(pts, x, faces, device=str(fit.device), seed=fit.seed,
+                                                        alternatives=POSE_ALTERNATIVES)
         fit.other_turns.append([(r, u) for d, r, u in others if d < AMBIGUOUS_RATIO * score])
         radius = float(np.mean(np.linalg.norm(x - x.mean(axis=0), axis=1)))
         d = closest_points_query((x, faces), device=fit.device)(pts @ rot.T + t)[1]
@@ -356,14 +377,50 @@ class _State:
     def jacobian(self) -> np.ndarray:
         return np.hstack([self.jp, _pose_columns(self.p, self.n, self.sizes)])
 
+    def normal(self) -> tuple[np.ndarray, np.ndarray]:
+        """(J^T W J, J^T W r) of the full Jacobian (parameters, then 6 pose columns per scan), summed scan
+        by scan: a scan's rows see only its own pose, so the zero blocks of ``jacobian()`` are skipped.
+        Summed by ``np.einsum`` (no BLAS threads: on a busy machine a threaded product of these tall
+        matrices waits for a core, measured 30 x slower and more on two cores with one taken)."""
+        n_par, n_pose = self.jp.shape[1], 6 * len(self.sizes)
+        a, g = np.zeros((n_par + n_pose,) * 2), np.zeros(n_par + n_pose)
+        start = 0
+        for w, m in enumerate(self.sizes + [len(self.r) - sum(self.sizes)]):
+            sl = slice(start, start + m)
+            start += m
+            if w < len(self.sizes):  # a scan: its parameters' and its pose's columns
+                idx = np.r_[0:n_par, n_par + 6 * w:n_par + 6 * w + 6]
+                jb = np.concatenate([self.jp[sl], np.cross(self.p[sl], self.n[sl]), self.n[sl]], axis=1)
+            else:  # the pressure readings: no pose
+                idx = np.arange(n_par)
+                jb = self.jp[sl]
+            jw = jb * self.w[sl, None]
+            a[np.ix_(idx, idx)] += np.einsum("ij,ik->jk", jw, jb)
+            g[idx] += np.einsum("ij,i->j", jw, self.r[sl])
+        return a, g
 
-def _step(s: _State, lam: float, n_par: int) -> np.ndarray:
-    j = s.jacobian()
-    jw = j * s.w[:, None]
-    a, g = jw.T @ j, jw.T @ s.r
+    def predicted(self, dx: np.ndarray) -> np.ndarray:
+        """r + J dx, the residuals the linearisation predicts after the step ``dx`` (parameters, poses)."""
+        n_par = self.jp.shape[1]
+        out = self.r + np.einsum("ij,j->i", self.jp, dx[:n_par])
+        start = 0
+        for w, m in enumerate(self.sizes):
+            sl = slice(start, start + m)
+            start += m
+            d = dx[n_par + 6 * w:n_par + 6 * w + 6]
+            out[sl] += np.einsum("ij,j->i", np.cross(self.p[sl], self.n[sl]), d[:3]) \
+                + np.einsum("ij,j->i", self.n[sl], d[3:])
+        return out
+
+
+def _step(s: _State, lam: float, n_par: int) -> tuple[np.ndarray, float]:
+    """(the damped step, the largest gain of the robust cost that any step can make on the linearised
+    model: the undamped step's, which bounds every damped one's)."""
+    a, g = s.normal()
     d = np.diag(a).copy()
     d = d + 1e-9 * max(float(d.max()), 1e-30)
-    return np.linalg.solve(a + lam * np.diag(d), -g)
+    full = np.linalg.solve(a + np.diag(d - np.diag(a)), -g)  # only the tiny regularisation
+    return np.linalg.solve(a + lam * np.diag(d), -g), float(-(2.0 * g @ full + full @ a @ full))
 
 
 def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: float) -> tuple[_State, dict]:
@@ -371,7 +428,8 @@ def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: f
     step, the closest points recomputed: a point-to-plane ICP update within the fit). A fresh
     finite-difference Jacobian at the start; Broyden updates after each accepted step; a fresh one when
     a step fails or gains less than ``tolerance`` noise variances; converged when a step on a fresh
-    Jacobian gains less than that."""
+    Jacobian gains less than that, or fails where the linearised model's largest gain (the undamped
+    step's) is below that: a larger damping would only shorten the step (each try costs a replay)."""
     n_par, lam = len(s.x), 1e-3
     info = dict(iterations=0, jacobians=0, costs=[s.cost()], converged=False)
     while info["iterations"] < max_iterations:
@@ -379,7 +437,7 @@ def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: f
         if s.jp is None or info.pop("refresh", False):
             s.jp, s.fresh = _jacobian(fit, s.x, s.poses, s.r), True
             info["jacobians"] += 1
-        delta = _step(s, lam, n_par)
+        delta, most = _step(s, lam, n_par)
         x1 = fit.params.clip(s.x + delta[:n_par])
         poses1 = _moved(s.poses, delta[n_par:])
         shapes1 = fit.shapes(x1)
@@ -388,7 +446,7 @@ def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: f
         sigma2 = c0 / max(float((s.w > 0).sum()), 1.0)
         if c1 < c0:
             dx = np.concatenate([x1 - s.x, delta[n_par:]])
-            pred = s.r + s.jacobian() @ dx
+            pred = s.predicted(dx)
             jp = s.jp + np.outer(r1 - pred, (x1 - s.x)) / max(float((x1 - s.x) @ (x1 - s.x)), 1e-30)
             fresh = s.fresh
             s = _State(fit, x1, poses1, shapes1)  # re-aligned: the poses are unknowns of the step (ICP's update)
@@ -402,7 +460,7 @@ def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: f
                 info["refresh"] = True
         elif s.fresh:
             lam *= 4.0
-            if lam > 1e4:
+            if lam > 1e4 or most < tolerance * sigma2:  # no step on this Jacobian can gain the tolerance
                 info["converged"] = True
                 break
         else:
@@ -412,9 +470,8 @@ def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: f
 
 def _parameter_normal(s: _State) -> np.ndarray:
     """The parameters' normal matrix with the poses eliminated (Schur complement of J^T W J)."""
-    j = s.jacobian()
     n_par = s.jp.shape[1]
-    a = (j * s.w[:, None]).T @ j
+    a = s.normal()[0]
     app, apq, aqq = a[:n_par, :n_par], a[:n_par, n_par:], a[n_par:, n_par:]
     return app - apq @ np.linalg.pinv(aqq) @ apq.T
 
