@@ -13,10 +13,12 @@ import pytest
 
 import warp_shape as ws
 from generated_shapes import shape
+from warp_shape.controller.shard import available_cores
 from warp_shape.io.report import design_markdown
 from warp_shape.designer.codesign import (CodesignProblem, CodesignSettings, first_length, min_norm_direction,
                                          radial_modes, replayed_objectives)
 
+CORES = available_cores()  # a design on a worker per core, as the command runs (the suite's own default is one process)
 KW = dict(actuators=2, refine_rounds=0, control_settings=ws.ControlSettings(method="paper"))
 
 
@@ -27,9 +29,9 @@ def targets():
 
 @pytest.fixture(scope="module")
 def designs(targets):
-    # on a worker per core, as the command runs (each target's gradient and replay one job)
-    off = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", workers=0, **KW)
-    on = ws.design(ws.icosphere(2, 0.04), targets, workers=0, **KW)  # the default: rest+ipams
+    # each target's gradient and replay one job on the workers
+    off = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", workers=CORES, **KW)
+    on = ws.design(ws.icosphere(2, 0.04), targets, workers=CORES, **KW)  # the default: rest+ipams
     return off, on
 
 
@@ -84,7 +86,7 @@ def test_codesign_is_never_worse_on_any_target_and_off_is_todays_design(designs,
 
 def test_codesign_off_reproduces_the_design_bit_for_bit(designs, targets):
     off, _ = designs
-    again = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", workers=0, **KW)
+    again = ws.design(ws.icosphere(2, 0.04), targets, codesign="off", workers=CORES, **KW)
     np.testing.assert_array_equal(again.design.rest.vertices, off.design.rest.vertices)
     np.testing.assert_array_equal(again.results[1].achieved.vertices, off.results[1].achieved.vertices)
 
