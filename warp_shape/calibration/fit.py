@@ -137,16 +137,10 @@ def _robust_weights(r: np.ndarray, sizes: list[int]) -> np.ndarray:
     return np.concatenate(out)
 
 
-def _pose_columns(p: np.ndarray, n: np.ndarray, sizes: list[int]) -> np.ndarray:
-    """(M, 6 W) d r / d (rotation vector, shift) of each scan's pose: r = n . (p - q)."""
-    cols = np.zeros((len(p), 6 * len(sizes)))
-    start = 0
-    for w, m in enumerate(sizes):
-        sl = slice(start, start + m)
-        cols[sl, 6 * w:6 * w + 3] = np.cross(p[sl], n[sl])
-        cols[sl, 6 * w + 3:6 * w + 6] = n[sl]
-        start += m
-    return cols
+def _pose_block(p: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(m, 6) d r / d (rotation vector, shift) of one scan's pose at its points ``p`` with normals ``n``:
+    r = n . (p - q)."""
+    return np.concatenate([np.cross(p, n), n], axis=1)
 
 
 def _rotation(omega: np.ndarray) -> np.ndarray:
@@ -374,12 +368,9 @@ class _State:
         r = self.r if r is None else r
         return float(np.sum(self.w * r * r))
 
-    def jacobian(self) -> np.ndarray:
-        return np.hstack([self.jp, _pose_columns(self.p, self.n, self.sizes)])
-
     def normal(self) -> tuple[np.ndarray, np.ndarray]:
         """(J^T W J, J^T W r) of the full Jacobian (parameters, then 6 pose columns per scan), summed scan
-        by scan: a scan's rows see only its own pose, so the zero blocks of ``jacobian()`` are skipped.
+        by scan: a scan's rows see only its own pose, so the full Jacobian's zero blocks are never formed.
         Summed by ``np.einsum`` (no BLAS threads: on a busy machine a threaded product of these tall
         matrices waits for a core, measured 30 x slower and more on two cores with one taken)."""
         n_par, n_pose = self.jp.shape[1], 6 * len(self.sizes)
@@ -390,7 +381,7 @@ class _State:
             start += m
             if w < len(self.sizes):  # a scan: its parameters' and its pose's columns
                 idx = np.r_[0:n_par, n_par + 6 * w:n_par + 6 * w + 6]
-                jb = np.concatenate([self.jp[sl], np.cross(self.p[sl], self.n[sl]), self.n[sl]], axis=1)
+                jb = np.concatenate([self.jp[sl], _pose_block(self.p[sl], self.n[sl])], axis=1)
             else:  # the pressure readings: no pose
                 idx = np.arange(n_par)
                 jb = self.jp[sl]
@@ -407,9 +398,8 @@ class _State:
         for w, m in enumerate(self.sizes):
             sl = slice(start, start + m)
             start += m
-            d = dx[n_par + 6 * w:n_par + 6 * w + 6]
-            out[sl] += np.einsum("ij,j->i", np.cross(self.p[sl], self.n[sl]), d[:3]) \
-                + np.einsum("ij,j->i", self.n[sl], d[3:])
+            b, d = _pose_block(self.p[sl], self.n[sl]), dx[n_par + 6 * w:n_par + 6 * w + 6]
+            out[sl] += np.einsum("ij,j->i", b[:, :3], d[:3]) + np.einsum("ij,j->i", b[:, 3:], d[3:])
         return out
 
 
