@@ -191,7 +191,8 @@ def test_a_target_whose_re_control_is_worse_than_its_held_sequence_keeps_the_seq
     assert rec.kept and rec.recontrols[0]["held"] == [0] and rec.recontrols[0]["kept"]
     r, placed = results[0], off.results[0]
     assert r.objective < placed.objective and r.design is design
-    assert r.objective == pytest.approx(rec.steps[-1][0], rel=1e-9)  # the descent's replayed objective
+    # the descent's replayed objective (its replays are float64, for its gradients; this one float32 as the run)
+    assert r.objective == pytest.approx(rec.steps[-1][0], rel=1e-5)
     assert len(r.history["time"]) == len(placed.history["time"]) == len(r.frames)
     for k in ("time", "air_mol", "ipam0_pressure_pa", "cell0_jammed", "phase"):
         np.testing.assert_array_equal(r.history[k], placed.history[k])

@@ -14,6 +14,8 @@ import pytest
 import warp_shape as ws
 from warp_shape.calibration import apply_values
 from warp_shape.gradients import DifferentiableReplay
+from warp_shape.gradients.api import replay_gradient
+from warp_shape.gradients.replay import plan_replay
 from warp_shape.objective_grad import fit_objective_and_gradient
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.settings import SimulationSettings
@@ -180,6 +182,21 @@ def test_the_pipelined_backward_is_the_serial_one_bit_for_bit(case):
     for name, value in serial.items():
         assert np.array_equal(np.asarray(value), np.asarray(pipelined[name])), name
     assert np.any(serial["rest_positions"]) and np.any(serial["air"])
+
+
+def test_a_plan_made_already_gives_the_gradient_bit_for_bit_and_one_of_another_precision_is_refused(case):
+    """Co-design's accepting replay hands its plan to the gradient there (``replay_gradient(plan=)``):
+    only the adjoint runs, and it computes what the gradient with its own forward replay computes."""
+    wrt = ("rest_positions", "ipam_area", "air")
+    own = replay_gradient(case.design, case.result, case.target, wrt, threads=1)
+    given = replay_gradient(case.design, case.result, case.target, wrt, threads=1, plan=case.plan)
+    assert given.objective == own.objective
+    for name in wrt:
+        assert np.array_equal(given.values[name], own.values[name]), name
+    single = plan_replay(case.design, case.result, precision="float32")
+    assert np.abs(single.final - case.plan.final).max() > 0  # another replay, not a copy
+    with pytest.raises(ws.DesignError, match="another precision .float32. or mesh than this float64 replay"):
+        replay_gradient(case.design, case.result, case.target, wrt, plan=single)
 
 
 def test_a_membrane_stiffer_in_places_replays_as_the_simulator_and_differentiates(case):

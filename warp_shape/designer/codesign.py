@@ -19,17 +19,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..controller import ControlSettings, control_many
-from ..controller.replay import replay, replay_result
-from ..controller.shard import run_jobs
+from ..controller.replay import replay_result
+from ..controller.shard import available_cores, run_jobs
 from ..design import Design
-from ..gradients import gradient
+from ..gradients.api import replay_gradient
+from ..gradients.replay import plan_replay
 from ..mesh import TriMesh
 from ..objective_grad import fit_objective_and_gradient
 from ..sampling import RadialSampler
 from .settings import CODESIGN_MODES
 
 __all__ = ["CODESIGN_MODES", "CodesignSettings", "CodesignProblem", "codesign", "radial_modes", "min_norm_direction",
-           "first_length", "volume_gradient", "replayed_objectives"]
+           "first_length", "volume_gradient", "replayed", "replayed_objectives"]
 
 
 
@@ -182,11 +183,13 @@ class CodesignProblem:
         k = np.array([ip.stiffness for ip in design.ipams])
         return np.concatenate([g_modes, values["ipam_area"] * area, values["ipam_stiffness"] * k])
 
-    def gradients(self, design: Design, results, targets, device: str = "cpu") -> np.ndarray:
+    def gradients(self, design: Design, results, targets, device: str = "cpu", plans=None) -> np.ndarray:
         """(T, P) d objective / d parameters of each target's sequence replayed on ``design`` (one job
-        per target on the run's workers where they are running)."""
+        per target on the run's workers where they are running); ``plans``: each sequence's replay plan
+        on ``design`` where it was made already (``replayed``), so only the adjoints run."""
         wrt = ("rest_positions", "ipam_area", "ipam_stiffness")
-        values = run_jobs(_gradient_job, [(design, r, t, wrt, device) for r, t in zip(results, targets)])
+        plans = [None] * len(results) if plans is None else plans
+        values = run_jobs(_gradient_job, [(design, r, t, wrt, device, pl) for r, t, pl in zip(results, targets, plans)])
         return np.stack([self.chain(design, v) for v in values])
 
     def limit_step(self, step: np.ndarray) -> np.ndarray:
@@ -220,35 +223,52 @@ def first_length(objectives: np.ndarray, slopes: np.ndarray, longest: float = 1.
     return float(min(longest, 0.5 * np.min(objectives[falling] / -slopes[falling])))
 
 
-def _gradient_job(design: Design, result, target, wrt, device: str, *, progress=None) -> dict:
-    return gradient(design, result, target, wrt=wrt, device=device).values
+#: the precision of co-design's gradients and of the replays that accept its steps (their plans are
+#: the gradients' forward replays)
+PRECISION = "float64"
 
 
-def _objective_job(design: Design, result, target, device: str, *, progress=None) -> float:
-    x = replay(design, result, device=device)
+def _gradient_job(design: Design, result, target, wrt, device: str, plan=None, *, progress=None) -> dict:
+    # the adjoint recomputes on a second thread even on a run's worker: where one target's sequence is
+    # longer than the others', the cores their jobs leave idle serve it (the same gradient bit for bit)
+    threads = 2 if available_cores() >= 2 else 1
+    return replay_gradient(design, result, target, wrt, precision=PRECISION, device=device, plan=plan,
+                           threads=threads).values
+
+
+def _objective_job(design: Design, result, target, device: str, *, progress=None):
+    plan = plan_replay(design, result, precision=PRECISION, device=device)
     sampler = RadialSampler(target, device=device)
-    return float(fit_objective_and_gradient(x, sampler, 0, design.rest.faces, target.volume())[0])
+    return float(fit_objective_and_gradient(plan.final, sampler, 0, design.rest.faces, target.volume())[0]), plan
 
 
 def _replay_job(design: Design, result, device: str, *, progress=None):
     return replay_result(design, result, device=device)
 
 
+def replayed(design: Design, results, targets, device: str = "cpu"):
+    """((T,) the objective of each result's sequence replayed open loop on ``design`` in ``PRECISION``,
+    [T] their replay plans, for the gradients there): one job per target on the run's workers where
+    they are running."""
+    out = run_jobs(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)])
+    return np.array([o for o, _ in out]), [pl for _, pl in out]
+
+
 def replayed_objectives(design: Design, results, targets, device: str = "cpu") -> np.ndarray:
-    """(T,) the objective of each result's sequence replayed open loop on ``design`` (one job per
-    target on the run's workers where they are running)."""
-    return np.array(run_jobs(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)]))
+    """(T,) the objective of each result's sequence replayed open loop on ``design`` (``replayed``)."""
+    return replayed(design, results, targets, device)[0]
 
 
-def _descend(problem: CodesignProblem, p, current, objectives, results, targets, settings, device, record,
+def _descend(problem: CodesignProblem, p, current, replays, results, targets, settings, device, record,
              progress, done: int, longest: float = 1.0):
-    """Up to ``settings.steps`` accepted steps from ``p`` (design ``current``, replayed ``objectives``)
-    with ``results``' sequences held, each tried first at no more than the length the step before was
-    accepted at (``longest`` for the first). Returns (p, design, objectives, accepted steps, why it
-    stopped, the last accepted length)."""
+    """Up to ``settings.steps`` accepted steps from ``p`` (design ``current``, ``replays`` its
+    (objectives, plans) from ``replayed``) with ``results``' sequences held, each tried first at no more
+    than the length the step before was accepted at (``longest`` for the first). Returns (p, design,
+    objectives, accepted steps, why it stopped, the last accepted length)."""
     accepted_steps, stop = 0, ""
+    objectives, plans = replays
     for step in range(settings.steps):
-        grads = problem.gradients(current, results, targets, device)
+        grads = problem.gradients(current, results, targets, device, plans)
         direction = -min_norm_direction(grads)
         if not np.any(direction):
             stop = "no direction lowers every target's objective"
@@ -258,9 +278,9 @@ def _descend(problem: CodesignProblem, p, current, objectives, results, targets,
         for _ in range(settings.halvings + 1):
             q = problem.bounded(p + full * length)
             trial = problem.design(q)
-            trial_obj = replayed_objectives(trial, results, targets, device)
+            trial_obj, trial_plans = replayed(trial, results, targets, device)
             if np.all(trial_obj <= objectives) and np.any(trial_obj < objectives):
-                p, current, objectives, accepted, longest = q, trial, trial_obj, True, length
+                p, current, objectives, plans, accepted, longest = q, trial, trial_obj, trial_plans, True, length
                 break
             length *= 0.5
         if progress is not None:
@@ -293,10 +313,10 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
         return design, results, record
     p = np.zeros(problem.size)
     kept, kept_results, kept_obj = design, results, np.array(record.before)
-    current, objectives = design, replayed_objectives(design, results, targets, device)
+    current, replays = design, replayed(design, results, targets, device)
     reason, longest = "", 1.0
     for r in range(settings.rounds):
-        p, current, objectives, n, stop, longest = _descend(problem, p, current, objectives, kept_results, targets,
+        p, current, objectives, n, stop, longest = _descend(problem, p, current, replays, kept_results, targets,
                                                             settings, device, record, progress, r * settings.steps,
                                                             longest)
         if n == 0:
@@ -321,7 +341,7 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
             break
         kept, kept_results, kept_obj = current, new, new_obj
         if r + 1 < settings.rounds:  # the next round descends with the new sequences held
-            objectives = replayed_objectives(current, new, targets, device)
+            replays = replayed(current, new, targets, device)
         reason = stop
     record.after = [float(o) for o in kept_obj]
     if kept is design:

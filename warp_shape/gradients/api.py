@@ -15,7 +15,7 @@ from ..objective_grad import fit_objective_and_gradient
 from ..sampling import RadialSampler
 from .replay import DifferentiableReplay
 
-__all__ = ["gradient", "Gradient", "GRADIENT_PARAMETERS"]
+__all__ = ["gradient", "replay_gradient", "Gradient", "GRADIENT_PARAMETERS"]
 
 #: the parameters ``gradient`` differentiates by, with their units (d objective / d parameter is in 1 / unit)
 GRADIENT_PARAMETERS = {
@@ -87,9 +87,19 @@ def gradient(design: Design, result: ControlResult, target: TriMesh | None = Non
         raise DesignError(f"gradient needs the target as a ws.TriMesh, got {type(target).__name__}")
     if len(result.ipam_pressures) != design.n_ipams or len(result.jammed) != design.n_cells:
         raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
+    return replay_gradient(design, result, target, names, precision=precision, device=device, segment=segment,
+                           threads=threads)
+
+
+def replay_gradient(design: Design, result: ControlResult, target: TriMesh, names: tuple, *,
+                    precision: str = "float64", device: str = "cpu", segment: int | None = None,
+                    threads: int | None = None, plan=None) -> Gradient:
+    """``gradient``'s work on checked arguments (``names`` of ``GRADIENT_PARAMETERS``); ``plan``: the
+    forward replay's plan where it was made already (``replay.plan_replay`` of this design and result
+    in this precision, e.g. by the replay that accepted a co-design step), so only the adjoint runs."""
     target = target.centered()
     replay = DifferentiableReplay(design, result, precision=precision, device=device, segment=segment)
-    plan = replay.forward()
+    plan = replay.forward(plan)
     sampler = RadialSampler(target, device=device)
     objective, dj_dx = fit_objective_and_gradient(plan.final, sampler, 0, design.rest.faces, target.volume())
     values = replay.backward(dj_dx, objective, threads=threads).values

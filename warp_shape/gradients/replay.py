@@ -42,7 +42,7 @@ class ReplayPlan:
     (R, n_ipam) Pa the rows' controls; ``jam_steps`` (J,) the output steps before which cells jam and
     ``jam_edges`` J x (edges newly jammed there); ``checkpoints`` {output step: (2, V, 3) float64
     state}, ``edges`` J + 1 x (4, E) the edge fields of each jam phase; ``final`` (V, 3) positions at
-    the end; ``segment`` the internal steps between checkpoints at most."""
+    the end; ``segment`` the internal steps between checkpoints at most; ``precision`` the replay's."""
 
     h: np.ndarray
     substeps: np.ndarray
@@ -57,6 +57,7 @@ class ReplayPlan:
     jam_states: list
     final: np.ndarray
     segment: int
+    precision: str = "float64"
 
     @property
     def n_steps(self) -> int:
@@ -119,7 +120,8 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
     return ReplayPlan(h=h, substeps=sub, row=row, air=air, pressures=pressures,
                       enabled=(~pi[0]).astype(np.int32), jam_steps=jam_steps, jam_edges=jam_edges,
                       checkpoints=checkpoints, edges=edges, jam_states=jam_states,
-                      final=np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3), segment=seg)
+                      final=np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3), segment=seg,
+                      precision=precision)
 
 
 def _state_of(sim) -> np.ndarray:
@@ -446,10 +448,16 @@ class DifferentiableReplay:
         return self._graphs[key]
 
     # ------------------------------------------------------------------ forward and backward
-    def forward(self) -> ReplayPlan:
-        """Replay on the simulator and keep the plan (schedule, checkpoints, jam phases)."""
-        self.plan = plan_replay(self.design, self.result, precision=self.precision, device=self.device,
-                                segment=self.segment)
+    def forward(self, plan: ReplayPlan | None = None) -> ReplayPlan:
+        """Replay on the simulator and keep the plan (schedule, checkpoints, jam phases); ``plan``: the
+        one ``plan_replay`` made already for this design and result in this precision (nothing replayed)."""
+        if plan is None:
+            plan = plan_replay(self.design, self.result, precision=self.precision, device=self.device,
+                               segment=self.segment)
+        elif plan.precision != self.precision or plan.final.shape != (len(self.host.rest_vertices), 3):
+            raise DesignError(f"the replay plan is of another precision ({plan.precision}) or mesh than this "
+                              f"{self.precision} replay's: make it with plan_replay on the same design and result")
+        self.plan = plan
         for lane in self.lanes:
             lane.loaded[:] = [None, None, None]
         return self.plan
