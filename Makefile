@@ -28,8 +28,10 @@ $(DEMO_STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# the suite's files shared out over a pytest process per core (pytest-xdist; at most 4, tests/conftest.py),
+# each file's tests in one process, as its module fixtures are; `pytest -q` alone runs them one by one
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 demo: $(DEMO_STAMP)
 	$(BIN)/warp-shape design

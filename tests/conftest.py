@@ -22,6 +22,13 @@ import warp_shape as ws  # noqa: E402
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
 
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_auto_num_workers(config):
+    """``make test``'s ``-n auto``: a pytest process per core this one may use, at most 4 (a test that
+    designs on a run's workers starts its own processes, and each process compiles what it loads)."""
+    return max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+
+
 def with_pressure_max(design: ws.Design, p_max: float) -> ws.Design:
     """A copy of ``design`` whose IPAMs' upper pressure limit is ``p_max`` (Pa gauge)."""
     out = ws.Design(design.rest, design.material)
