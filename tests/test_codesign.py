@@ -147,6 +147,18 @@ def _kw(off, targets):
                 passive_cells=off.passive_cells)
 
 
+def test_a_round_ends_after_a_step_that_lowered_no_objective_by_more_than_min_gain(designs, targets):
+    """``min_gain``: a step's replayed gain (at most the fraction asked, here 90 %) ends its round, so
+    of 3 steps allowed one is taken, and the record says why; the re-control still follows it."""
+    import warp_shape.designer.codesign as cd
+
+    off, _ = designs
+    _, _, rec = cd.codesign(off.design, off.targets, off.results,
+                            settings=CodesignSettings(steps=3, rounds=1, min_gain=0.9), **_kw(off, targets))
+    assert len(rec.steps) == 1 and len(rec.recontrols) == 1
+    assert "step 1: no target's objective fell by more than 90.0%" in rec.reason
+
+
 def test_a_round_whose_re_control_and_held_sequence_are_worse_keeps_the_round_before(designs, targets,
                                                                                       monkeypatch):
     """Round 2's re-control and target 0's held sequence made worse: co-design returns round 1's

@@ -40,7 +40,9 @@ class CodesignSettings:
     with a re-control of every target), ``degree`` of the radial modes, the largest
     radial change per step ``max_radial_step`` (relative), the largest IPAM size change per step
     ``max_size_step`` (in log scale) and the IPAM size bounds ``size_bounds`` (x the placed value),
-    ``halvings`` step shortenings tried before co-design stops."""
+    ``halvings`` step shortenings tried before co-design stops, and ``min_gain``: a round ends after a
+    step that lowered no target's replayed objective by more than this fraction (a gain below the
+    re-control's own noise of about 1 %, docs/gradients.md)."""
 
     steps: int = 4
     rounds: int = 2
@@ -49,6 +51,7 @@ class CodesignSettings:
     max_size_step: float = 0.3
     size_bounds: tuple = (0.5, 2.0)
     halvings: int = 3
+    min_gain: float = 0.005
     move_rest: bool = True  # False: the rest shape is the user's (single-target mode); only sizes move
 
 
@@ -275,6 +278,7 @@ def _descend(problem: CodesignProblem, p, current, replays, results, targets, se
             break
         full = problem.limit_step(direction / np.abs(direction).max())
         length, accepted = first_length(objectives, grads @ full, longest), False
+        before = objectives
         for _ in range(settings.halvings + 1):
             q = problem.bounded(p + full * length)
             trial = problem.design(q)
@@ -290,6 +294,10 @@ def _descend(problem: CodesignProblem, p, current, replays, results, targets, se
             break
         record.steps.append([float(o) for o in objectives])
         accepted_steps += 1
+        if np.max(1.0 - objectives / before) <= settings.min_gain:
+            stop = (f"step {len(record.steps)}: no target's objective fell by more than "
+                    f"{settings.min_gain:.1%}")
+            break
     return p, current, objectives, accepted_steps, stop, longest
 
 
