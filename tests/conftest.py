@@ -18,6 +18,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 import reference as ref  # noqa: E402
 
 import warp_shape as ws  # noqa: E402
+from warp_shape.controller.shard import available_cores  # noqa: E402
 
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
@@ -26,7 +27,7 @@ DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 def pytest_xdist_auto_num_workers(config):
     """``make test``'s ``-n auto``: a pytest process per core this one may use, at most 4 (a test that
     designs on a run's workers starts its own processes, and each process compiles what it loads)."""
-    return max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+    return min(4, available_cores())
 
 
 def with_pressure_max(design: ws.Design, p_max: float) -> ws.Design:

@@ -232,9 +232,10 @@ PRECISION = "float64"
 
 
 def _gradient_job(design: Design, result, target, wrt, device: str, plan=None, *, progress=None) -> dict:
-    # the adjoint recomputes on a second thread even on a run's worker: where one target's sequence is
-    # longer than the others', the cores their jobs leave idle serve it (the same gradient bit for bit)
-    threads = 2 if available_cores() >= 2 else 1
+    # on a CPU the adjoint recomputes on a second thread even on a run's worker: where one target's
+    # sequence is longer than the others', the cores their jobs leave idle serve it (the same gradient
+    # bit for bit); elsewhere the gradient's own rule (None)
+    threads = 2 if str(device).startswith("cpu") and available_cores() >= 2 else None
     return replay_gradient(design, result, target, wrt, precision=PRECISION, device=device, plan=plan,
                            threads=threads).values
 
