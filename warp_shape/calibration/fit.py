@@ -398,8 +398,7 @@ class _State:
         for w, m in enumerate(self.sizes):
             sl = slice(start, start + m)
             start += m
-            b, d = _pose_block(self.p[sl], self.n[sl]), dx[n_par + 6 * w:n_par + 6 * w + 6]
-            out[sl] += np.einsum("ij,j->i", b[:, :3], d[:3]) + np.einsum("ij,j->i", b[:, 3:], d[3:])
+            out[sl] += np.einsum("ij,j->i", _pose_block(self.p[sl], self.n[sl]), dx[n_par + 6 * w:n_par + 6 * w + 6])
         return out
 
 
