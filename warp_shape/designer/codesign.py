@@ -246,8 +246,33 @@ def _objective_job(design: Design, result, target, device: str, *, progress=None
     return float(fit_objective_and_gradient(plan.final, sampler, 0, design.rest.faces, target.volume())[0]), plan
 
 
-def _replay_job(design: Design, result, device: str, *, progress=None):
-    return replay_result(design, result, device=device)
+def _round_end_job(design: Design, result, target, device: str, held: bool, *, progress=None):
+    # a held sequence replayed as the product replays it (a result), else the next round's start (objective, plan)
+    return replay_result(design, result, device=device) if held else _objective_job(design, result, target, device)
+
+
+def _round_end(design: Design, new: list, held_results, targets, replays, device: str, again: bool):
+    """A round's end on ``design``: the re-controlled results ``new``, each target whose re-control ends
+    above its held sequence's replayed objective (``replays``: (objectives, plans) of the sequences
+    ``held_results`` on ``design``) given that sequence as it replays where it fits better. With ``again``
+    (another round follows), also the next round's start replays: a held target's is the one it has
+    (the same sequence on the same design), the others' run in the same batch of jobs as the held
+    replays. Returns (results, held targets, the next round's (objectives, plans) or None)."""
+    objectives, plans = replays
+    new = list(new)
+    above = {j for j in range(len(new)) if new[j].objective > objectives[j]}
+    order = [j for j in range(len(new)) if j in above or again]
+    out = dict(zip(order, run_jobs(_round_end_job, [(design, held_results[j] if j in above else new[j], targets[j],
+                                                      device, j in above) for j in order])))
+    held = [j for j in sorted(above) if out[j].objective < new[j].objective]  # the held sequence fits better
+    for j in held:
+        new[j] = out[j]
+    if not again:
+        return new, held, None
+    lost = [j for j in sorted(above) if j not in held]  # re-controlled after all: their own start replays
+    out.update(zip(lost, run_jobs(_objective_job, [(design, new[j], targets[j], device) for j in lost])))
+    starts = [(objectives[j], plans[j]) if j in held else out[j] for j in range(len(new))]
+    return new, held, (np.array([o for o, _ in starts]), [pl for _, pl in starts])
 
 
 def replayed(design: Design, results, targets, device: str = "cpu"):
@@ -268,7 +293,7 @@ def _descend(problem: CodesignProblem, p, current, replays, results, targets, se
     """Up to ``settings.steps`` accepted steps from ``p`` (design ``current``, ``replays`` its
     (objectives, plans) from ``replayed``) with ``results``' sequences held, each tried first at no more
     than the length the step before was accepted at (``longest`` for the first). Returns (p, design,
-    objectives, accepted steps, why it stopped, the last accepted length)."""
+    (objectives, plans) of its replays, accepted steps, why it stopped, the last accepted length)."""
     accepted_steps, stop = 0, ""
     objectives, plans = replays
     for step in range(settings.steps):
@@ -299,7 +324,7 @@ def _descend(problem: CodesignProblem, p, current, replays, results, targets, se
             stop = (f"step {len(record.steps)}: no target's objective fell by more than "
                     f"{settings.min_gain:.1%}")
             break
-    return p, current, objectives, accepted_steps, stop, longest
+    return p, current, (objectives, plans), accepted_steps, stop, longest
 
 
 def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volume_bound: float,
@@ -325,20 +350,15 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
     current, replays = design, replayed(design, results, targets, device)
     reason, longest = "", 1.0
     for r in range(settings.rounds):
-        p, current, objectives, n, stop, longest = _descend(problem, p, current, replays, kept_results, targets,
-                                                            settings, device, record, progress, r * settings.steps,
-                                                            longest)
+        p, current, replays, n, stop, longest = _descend(problem, p, current, replays, kept_results, targets,
+                                                         settings, device, record, progress, r * settings.steps,
+                                                         longest)
         if n == 0:
             reason = stop
             break
         new = control_many(current, targets, device=device, settings=control_settings, passive_ipams=passive_ipams,
                            passive_cells=passive_cells, target_names=target_names)
-        above = [j for j in range(len(new)) if new[j].objective > objectives[j]]
-        held = []
-        for j, res in zip(above, run_jobs(_replay_job, [(current, kept_results[j], device) for j in above])):
-            if res.objective < new[j].objective:  # the held sequence, replayed, fits better
-                new[j] = res
-                held.append(j)
+        new, held, replays = _round_end(current, new, kept_results, targets, replays, device, r + 1 < settings.rounds)
         new_obj = np.array([x.objective for x in new])
         worse = np.flatnonzero(new_obj > kept_obj)
         record.recontrols.append(dict(step=len(record.steps), objectives=[float(o) for o in new_obj], held=held,
@@ -348,9 +368,7 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
             reason = (f"round {r + 1}: re-controlled, target {j} got worse ({new_obj[j]:.4g} > {kept_obj[j]:.4g}): "
                       + ("the placed design is kept" if kept is design else f"round {r}'s design is kept"))
             break
-        kept, kept_results, kept_obj = current, new, new_obj
-        if r + 1 < settings.rounds:  # the next round descends with the new sequences held
-            replays = replayed(current, new, targets, device)
+        kept, kept_results, kept_obj = current, new, new_obj  # the next round descends with these sequences held
         reason = stop
     record.after = [float(o) for o in kept_obj]
     if kept is design:
