@@ -222,14 +222,14 @@ def test_a_held_targets_next_round_starts_from_its_trial_replay_bit_for_bit(desi
     off, _ = designs
     replays = cd.replayed(off.design, off.results, targets)
     new = [dataclasses.replace(off.results[0], objective=1.0), off.results[1]]  # target 0's re-control worse
-    out, held, starts = cd._round_end(off.design, new, off.results, targets, replays, "cpu", True)
+    out, held, starts = cd.round_end(off.design, new, off.results, targets, replays, "cpu", True)
     assert held == [0] and out[0].objective < 1.0 and out[1] is off.results[1]
     assert starts[1][0] is replays[1][0]  # the held target's plan is the one it had
     fresh = cd.replayed(off.design, out, targets)
     np.testing.assert_array_equal(starts[0], fresh[0])
     for a, b in zip(starts[1], fresh[1]):
         np.testing.assert_array_equal(a.final, b.final)
-    assert cd._round_end(off.design, new, off.results, targets, replays, "cpu", False)[2] is None
+    assert cd.round_end(off.design, new, off.results, targets, replays, "cpu", False)[2] is None
 
 
 def test_codesign_on_a_runs_workers_takes_the_steps_it_takes_in_one_process(designs, targets):

@@ -30,7 +30,7 @@ from ..sampling import RadialSampler
 from .settings import CODESIGN_MODES
 
 __all__ = ["CODESIGN_MODES", "CodesignSettings", "CodesignProblem", "codesign", "radial_modes", "min_norm_direction",
-           "first_length", "volume_gradient", "replayed", "replayed_objectives"]
+           "first_length", "volume_gradient", "replayed", "replayed_objectives", "round_end"]
 
 
 
@@ -251,7 +251,7 @@ def _round_end_job(design: Design, result, target, device: str, held: bool, *, p
     return replay_result(design, result, device=device) if held else _objective_job(design, result, target, device)
 
 
-def _round_end(design: Design, new: list, held_results, targets, replays, device: str, again: bool):
+def round_end(design: Design, new: list, held_results, targets, replays, device: str, again: bool):
     """A round's end on ``design``: the re-controlled results ``new``, each target whose re-control ends
     above its held sequence's replayed objective (``replays``: (objectives, plans) of the sequences
     ``held_results`` on ``design``) given that sequence as it replays where it fits better. With ``again``
@@ -358,7 +358,7 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
             break
         new = control_many(current, targets, device=device, settings=control_settings, passive_ipams=passive_ipams,
                            passive_cells=passive_cells, target_names=target_names)
-        new, held, replays = _round_end(current, new, kept_results, targets, replays, device, r + 1 < settings.rounds)
+        new, held, replays = round_end(current, new, kept_results, targets, replays, device, r + 1 < settings.rounds)
         new_obj = np.array([x.objective for x in new])
         worse = np.flatnonzero(new_obj > kept_obj)
         record.recontrols.append(dict(step=len(record.steps), objectives=[float(o) for o in new_obj], held=held,
