@@ -199,6 +199,50 @@ def test_a_plan_made_already_gives_the_gradient_bit_for_bit_and_one_of_another_p
         replay_gradient(case.design, case.result, case.target, wrt, plan=single)
 
 
+OVERLOADS_SCRIPT = """
+import json, sys
+import numpy as np
+import warp as wp
+import warp_shape as ws
+import warp_shape.kernels.adjoint as ka
+from warp_shape.gradients import DifferentiableReplay
+from warp_shape.scenarios import cube_fig6_design
+sys.path.insert(0, sys.argv[1])
+from conftest import with_pressure_max
+
+def signatures():
+    kernels = [k for k in vars(ka).values() if isinstance(k, wp.Kernel) and k.is_generic]
+    return sorted(f"{k.key}:{sig}" for k in kernels for sig in k.overloads)
+
+design = with_pressure_max(cube_fig6_design(subdivisions=1), 100e3)
+result = ws.control(design, ws.target("cube").centered(), settings=ws.ControlSettings(method="paper"))
+replay = DifferentiableReplay(design, result, precision="float64")
+made = signatures()
+plan = replay.forward()
+replay.backward(np.ones((len(plan.final), 3)), threads=2)
+replay.positions(rest=design.rest.vertices * 1.001)
+print(json.dumps(dict(made=made, after=signatures(), jams=len(plan.jam_steps), segments=len(plan.checkpoints))))
+"""
+
+
+def test_a_replays_overloads_are_made_before_its_first_launch_so_its_module_builds_once():
+    """A Warp module compiles every overload it has when first loaded and rebuilds when a launch adds
+    one: in a fresh process, a differentiable replay makes every overload its forward, its backward
+    (both lanes, a jam event) and its replay with changed parameters launch before it launches any, so
+    the module is built once (with a cold cache it was built 14 times over, 20 s)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = subprocess.run([sys.executable, "-c", OVERLOADS_SCRIPT, str(Path(__file__).parent)], capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["jams"] >= 1 and got["segments"] > 2  # the backward ran through a jam event and on two lanes
+    assert len(got["made"]) >= 10 and got["after"] == got["made"]
+
+
 def test_a_membrane_stiffer_in_places_replays_as_the_simulator_and_differentiates(case):
     """Per-face E t (a calibration's regions: ``Design.stretch_scale``): the kernel replay builds each
     edge's stiffness from its two faces' multipliers as the simulator's model does, and its E t
