@@ -27,6 +27,7 @@ from warp_shape.kernels import equilibrium as ke
 from .forces import eval_actuators, eval_hinges
 from .model import Control, Model, State
 from .physics.pressure import eval_pressure_gradient
+from .step_plan import create_overloads
 
 __all__ = ["StaticSettle", "Equilibrium", "FORCE_TOLERANCE", "MAX_ITERATIONS", "MEMORY", "STATUS_NAMES"]
 
@@ -99,6 +100,7 @@ class StaticSettle:
         self.cpu = wp.get_device(dev).is_cpu
         self._flags_view = self.flags.numpy() if self.cpu else None  # host memory: read in place
         self._plans: dict = {}  # (id(state), id(control), tolerance) -> prepared iteration
+        self._overloads_made = False
 
     def _launch(self, kernel, dim, inputs):
         wp.launch(kernel, dim, inputs, device=self.model.device)
@@ -147,12 +149,20 @@ class StaticSettle:
         tolerance = FORCE_TOLERANCE[m.precision] if tolerance is None else float(tolerance)
         if state.worlds != W:
             raise ValueError(f"this settle holds {W} worlds, got a state of {state.worlds}")
-        self._launch(ke.lbfgs_start_kernel, (W, V), [state.x, self.xv, self.fg, self.volume, self.flags, self.scalars])
+        start = (ke.lbfgs_start_kernel, (W, V), [state.x, self.xv, self.fg, self.volume, self.flags, self.scalars])
+        precondition = [(ke.diagonal_stiffness_kernel, (W, m.n_edges), [m.hinges, state.edge, self.precond]),
+                        (ke.invert_diagonal_kernel, (W, V), [m.scalar(self._stiffness_floor()), self.precond])]
+        if not self._overloads_made:  # every module of the solve loads once with all its overloads
+            iteration = []
+            self._iteration(state, control, tolerance, lambda *launch: iteration.append(launch))
+            create_overloads([start] + precondition + iteration)
+            self._overloads_made = True
+        self._launch(*start)
         wp.copy(self.x0, state.x)
         self.d.zero_()
         self.precond.zero_()
-        self._launch(ke.diagonal_stiffness_kernel, (W, m.n_edges), [m.hinges, state.edge, self.precond])
-        self._launch(ke.invert_diagonal_kernel, (W, V), [m.scalar(self._stiffness_floor()), self.precond])
+        for launch in precondition:
+            self._launch(*launch)
         run = self._plan(state, control, tolerance)
         done = 0
         while done < max_iterations:

@@ -16,6 +16,7 @@ from warp_shape.kernels import common as kc
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
+from .step_plan import create_overloads
 from .actuators import families
 from .physics import ipam as ipam_family  # noqa: F401  (registers the IPAM family, the first)
 from .physics.bending_law import dihedral_angles_np
@@ -416,9 +417,13 @@ def copy_worlds(src: State, src_control: Control, src_worlds, dst: State, dst_co
     d_idx = wp.array(di.astype(np.int32), dtype=wp.int32, device=device)
     pairs = [(src.xv, dst.xv), (src.edge, dst.edge), (src.jammed, dst.jammed), (src_control.air, dst_control.air)]
     pairs += [(a, dst_control.values[k]) for k, a in src_control.values.items()]
+    launches = []
     for a, b in pairs:
         a3 = a if a.ndim == 3 else a.reshape((1, a.shape[0], -1))
         b3 = b if b.ndim == 3 else b.reshape((1, b.shape[0], -1))
-        wp.launch(kc.copy_worlds_kernel, (len(si), a3.shape[0], a3.shape[2]), [a3, s_idx, d_idx, b3], device=device)
+        launches.append((kc.copy_worlds_kernel, (len(si), a3.shape[0], a3.shape[2]), [a3, s_idx, d_idx, b3]))
+    create_overloads(launches)  # one per field type: the module loads once with them all
+    for kernel, dim, inputs in launches:
+        wp.launch(kernel, dim, inputs, device=device)
     dst.cell_jammed[di] = src.cell_jammed[si]
     dst.cell_jam_time[di] = src.cell_jam_time[si]

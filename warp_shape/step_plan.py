@@ -7,7 +7,18 @@ import warp as wp
 
 from .settings import LAUNCH_MODES
 
-__all__ = ["StepPlan", "Checkpoint"]
+__all__ = ["StepPlan", "Checkpoint", "create_overloads"]
+
+
+def create_overloads(launches) -> None:
+    """Create the overload of every generic kernel among ``launches`` ((kernel, dim, inputs)) before any
+    of them is launched. A Warp module compiles every overload it has when it is loaded, and a launch
+    that adds one rebuilds it: with a cold cache the differentiable replay's module, whose kernels are
+    generic in the precision, was built 14 times over (20 s) as its launches added their overloads one
+    by one. An overload that exists already is left as it is (no rebuild)."""
+    for kernel, _, inputs in launches:
+        if kernel.is_generic:
+            wp.overload(kernel, kernel.infer_argument_types(inputs))
 
 
 class StepPlan:
@@ -52,15 +63,11 @@ class StepPlan:
         wp.launch(kernel, dim, inputs, device=self.device)
 
     def _record(self, solver, h: float, state_in, state_out, control) -> tuple[list, list]:
-        names: list[str] = []
-        cmds: list = []
-
-        def record(kernel, dim, inputs):
-            names.append(kernel.key)
-            cmds.append(wp.launch(kernel, dim, inputs, device=self.device, record_cmd=True))
-
-        solver.step(state_in, state_out, control, h, record)
-        return names, cmds
+        launches: list = []
+        solver.step(state_in, state_out, control, h, lambda *launch: launches.append(launch))
+        create_overloads(launches)  # each module of the step loads once with them all
+        return ([kernel.key for kernel, _, _ in launches],
+                [wp.launch(kernel, dim, inputs, device=self.device, record_cmd=True) for kernel, dim, inputs in launches])
 
     def _capture(self, cmds: list):
         with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:

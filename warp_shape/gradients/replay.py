@@ -29,6 +29,7 @@ from ..design import Design
 from ..errors import DesignError
 from ..model import PRECISIONS, host_model
 from ..simulator import Simulator
+from ..step_plan import create_overloads
 
 __all__ = ["ReplayPlan", "DifferentiableReplay", "ReplayGradient"]
 
@@ -674,17 +675,6 @@ class DifferentiableReplay:
                 wp.capture_launch(fwd)
         lane.loaded[:] = [None, None, None]
         return b.xv_out.numpy()[0, 0].astype(np.float64)
-
-
-def create_overloads(launches) -> None:
-    """Create the overload of every generic kernel among ``launches`` ((kernel, dim, inputs)) before any
-    is launched. A Warp module compiles every overload it has when first loaded, and a launch that adds
-    one rebuilds it: the replay's module, whose kernels are generic in the precision, was built 14
-    times over with a cold cache (20 s) as its launches added their overloads one by one; made here
-    first, it is built once. An overload that exists already is left as it is (no rebuild)."""
-    for kernel, _, inputs in launches:
-        if kernel.is_generic:
-            wp.overload(kernel, kernel.infer_argument_types(inputs))
 
 
 def adjoint_argument(a):
