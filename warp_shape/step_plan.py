@@ -12,10 +12,9 @@ __all__ = ["StepPlan", "Checkpoint", "create_overloads"]
 
 def create_overloads(launches) -> None:
     """Create the overload of every generic kernel among ``launches`` ((kernel, dim, inputs)) before any
-    of them is launched. A Warp module compiles every overload it has when it is loaded, and a launch
-    that adds one rebuilds it: with a cold cache the differentiable replay's module, whose kernels are
-    generic in the precision, was built 14 times over (20 s) as its launches added their overloads one
-    by one. An overload that exists already is left as it is (no rebuild)."""
+    of them is launched, so that each module they use is built once with all of them (a Warp module
+    compiles every overload it has when loaded, and a launch that adds one rebuilds it; the cost with a
+    cold cache: docs/performance.md). An overload that exists already is left as it is (no rebuild)."""
     for kernel, _, inputs in launches:
         if kernel.is_generic:
             wp.overload(kernel, kernel.infer_argument_types(inputs))
