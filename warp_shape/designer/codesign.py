@@ -271,16 +271,19 @@ def round_end(design: Design, new: list, held_results, targets, replays, device:
         return new, held, None
     lost = [j for j in sorted(above) if j not in held]  # re-controlled after all: their own start replays
     out.update(zip(lost, run_jobs(_objective_job, [(design, new[j], targets[j], device) for j in lost])))
-    starts = [(objectives[j], plans[j]) if j in held else out[j] for j in range(len(new))]
-    return new, held, (np.array([o for o, _ in starts]), [pl for _, pl in starts])
+    return new, held, _split([(objectives[j], plans[j]) if j in held else out[j] for j in range(len(new))])
+
+
+def _split(pairs) -> tuple:
+    """[(objective, plan)] as ((T,) objectives, [T] plans)."""
+    return np.array([o for o, _ in pairs]), [pl for _, pl in pairs]
 
 
 def replayed(design: Design, results, targets, device: str = "cpu"):
     """((T,) the objective of each result's sequence replayed open loop on ``design`` in ``PRECISION``,
     [T] their replay plans, for the gradients there): one job per target on the run's workers where
     they are running."""
-    out = run_jobs(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)])
-    return np.array([o for o, _ in out]), [pl for _, pl in out]
+    return _split(run_jobs(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)]))
 
 
 def replayed_objectives(design: Design, results, targets, device: str = "cpu") -> np.ndarray:
