@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .force_family import ForceFamily
 from .registry import Registry
 
 __all__ = ["ActuatorFamily", "ACTUATOR_FAMILIES", "SceneAttribute", "families", "SCENE_NAMESPACE"]
@@ -56,25 +57,23 @@ class SceneAttribute:
         return self.usd_type.startswith("int")
 
 
-class ActuatorFamily:
-    """A kind of actuator. Subclasses set the class attributes and implement the methods that raise
-    ``NotImplementedError``; the others have defaults that add nothing.
+class ActuatorFamily(ForceFamily):
+    """A kind of actuator: a force family (``force_family.ForceFamily``: arrays, forces, energy,
+    stable-step terms, adjoint) whose elements each take one control per world. Subclasses set the
+    class attributes and implement the methods that raise ``NotImplementedError``; the others have
+    defaults that add nothing.
 
-    ``name``: identifier (the key of its elements, arrays and controls). ``summary``: one line.
-    ``label`` / ``plural``: how messages name one element / several ("tendon", "tendons").
     ``control_unit``: the unit of its control (e.g. "Pa", "m"). ``scene_prim``: the prim under the
     scene's default prim holding its elements; ``scene_attributes``: its attribute table (the first
     row is the one every other row's length is checked against). ``history_columns``: the record's
-    per-element columns, ``{i}`` the element index. ``color``: its display colour in scenes.
-    ``owner``: what a storability error names as the place to change a value. ``always``: its
-    arrays and controls exist in every model, even one without its elements (else only in models
-    of designs that have some).
+    per-element columns, ``{i}`` the element index; the first is its control, which a replay of the
+    record sets row by row. ``color``: its display colour in scenes.
     """
 
-    name = ""
-    summary = ""
     label = "actuator"
     plural = "actuators"
+    owner = "the actuator's constructor"  # where a storability error says to change a value
+    controlled = True
     control_unit = ""
     control_name = "control"  # what messages call its control ("pressure")
     limits_name = "its limits"  # what messages call the limits of its control ("pressure_limits")
@@ -82,54 +81,15 @@ class ActuatorFamily:
     scene_attributes: tuple = ()
     history_columns: tuple = ()
     color = (0.08, 0.08, 0.08)
-    owner = "the actuator's constructor"  # where a storability error says to change a value
-    always = False  # True: its arrays and controls exist in every model, even with no elements
 
-    # ------------------------------------------------------------------ host and device
-    def count(self, design) -> int:
-        """Number of this family's elements in ``design``."""
-        return len(design.elements(self.name))
-
-    def host_arrays(self, design) -> dict:
-        """float64 / int64 host arrays of the elements of ``design`` (``HostModel.actuators[name]``)."""
-        raise NotImplementedError
-
-    def device_arrays(self, host: dict, arr) -> dict:
-        """Device arrays from the host arrays; ``arr(array, dtype=None)`` copies one to the device in
-        the model's precision (or as ``dtype``). Called only when the design has elements."""
-        raise NotImplementedError
-
-    def rest_controls(self, host: dict) -> np.ndarray:
-        """(n,) float64 control of every element when a Control is allocated (default zeros)."""
-        return np.zeros(len(next(iter(host.values()))) if host else 0)
+    @property
+    def control_column(self) -> str:
+        """The history column of element ``{i}``'s control (the first of ``history_columns``)."""
+        return self.history_columns[0] if self.history_columns else ""
 
     def control_limits(self, host: dict) -> np.ndarray | None:
         """(n, 2) allowed range of each element's control, or None when any finite value is allowed."""
         return None
-
-    # ------------------------------------------------------------------ physics
-    def eval_forces(self, model, state, control, x, v, f, launch) -> None:
-        """Accumulate the elements' forces at (x, v) (W, V) into f; launch nothing without elements."""
-        raise NotImplementedError
-
-    def energy(self, host: dict, x: np.ndarray, controls: np.ndarray, enabled: np.ndarray) -> np.ndarray:
-        """(W,) float64 elastic energy in J at positions x (W, V, 3) with controls (W, n) and mask
-        enabled (W, n) bool; its negative gradient is the force ``eval_forces`` adds."""
-        raise NotImplementedError
-
-    def stiffness_rows(self, stiff: np.ndarray, damp: np.ndarray, host: dict, inv_m: np.ndarray,
-                       inv_sqrt: np.ndarray) -> None:
-        """Add the elements' Gershgorin rows of M^-1/2 K M^-1/2 to stiff (W, V) and of the damping rates
-        to damp (W, V)."""
-
-    def operator_terms(self, xT: np.ndarray, host: dict):
-        """(a, b, axial k, transverse k, directions (3, n)) of the elements' springs for the elastic
-        operator at positions xT (3, V), or None (no spring terms)."""
-        return None
-
-    def storable_values(self, host: dict) -> dict:
-        """{description: array} of the model values a precision must hold (see ``check_storable``)."""
-        return {}
 
     # ------------------------------------------------------------------ controller
     def observe(self, dev, x: np.ndarray, sampled: np.ndarray, centroids: np.ndarray, target_centroids: np.ndarray,

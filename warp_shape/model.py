@@ -18,6 +18,7 @@ from .errors import DesignError
 from .material import GAS_CONSTANT
 from .step_plan import create_overloads
 from .actuators import families
+from .force_family import force_families
 from .physics import ipam as ipam_family  # noqa: F401  (registers the IPAM family, the first)
 from .physics.bending_law import dihedral_angles_np
 
@@ -57,7 +58,7 @@ class Model:
     cell_edges: list  # n_cell x wp.array (n_c,) int32
     # host copies (float64) used for estimates, energies, observations and read-outs
     host: HostModel = field(repr=False)
-    # actuator family name -> its device arrays (ActuatorFamily.device_arrays; empty without elements)
+    # force family name -> its device arrays (ForceFamily.device_arrays; empty without elements)
     actuators: dict = field(default_factory=dict, repr=False)
 
     # the IPAM family's device arrays (``actuators["ipam"]``; None without IPAMs)
@@ -70,7 +71,8 @@ class Model:
 
     @property
     def families(self) -> tuple:
-        """The model's actuator families (``HostModel.families``)."""
+        """The model's force families besides the membrane's own (``HostModel.families``: its actuator
+        families, then its passive ones)."""
         return self.host.families
 
     @property
@@ -162,7 +164,7 @@ class HostModel:
     gas_rt: float  # R T, J/mol
     atmospheric_pressure: float  # Pa absolute
     rest_air: float  # mol: the air that holds the rest volume at atmospheric pressure
-    families: tuple = ()  # the model's actuator families (ActuatorFamily), in the order their forces add
+    families: tuple = ()  # the model's force families (ActuatorFamily, then passive ForceFamily), in the order their forces add
     actuators: dict = field(default_factory=dict)  # family name -> its host arrays (ActuatorFamily.host_arrays)
 
     # the IPAM family's host arrays (``actuators["ipam"]``), n IPAMs
@@ -218,9 +220,11 @@ def host_model(design: Design) -> HostModel:
 
 
 def model_families(design: Design) -> tuple:
-    """The actuator families a model of ``design`` holds: every registered one that is ``always`` held
-    or has elements in the design, in registration order."""
-    return tuple(f for f in families() if f.always or f.count(design))
+    """The force families a model of ``design`` holds besides the membrane's own: every registered
+    actuator family that is ``always`` held or has elements in the design, then every registered
+    passive force family (``FORCE_FAMILIES``) with elements, each in registration order."""
+    return (tuple(f for f in families() if f.always or f.count(design))
+            + tuple(f for f in force_families() if f.count(design)))
 
 
 def check_device(device) -> str:

@@ -228,6 +228,8 @@ class Simulator:
         if fam is None:
             raise DesignError(f"this design has no actuators of family {family!r}; its families: "
                               f"{[f.name for f in self.model.families]}")
+        if not fam.controlled:
+            raise DesignError(f"force family {family!r} is passive: its {fam.plural} take no control and no mask")
         return fam
 
     def actuator_controls(self, family: str) -> np.ndarray:

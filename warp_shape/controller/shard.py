@@ -37,6 +37,7 @@ import numpy as np
 import warp as wp
 
 from ..actuators import ACTUATOR_FAMILIES
+from ..force_family import FORCE_FAMILIES
 from ..errors import DesignError, WarpShapeError
 from ..registry import load_plugins
 from .result import screened
@@ -398,8 +399,8 @@ def shard_modules(settings, design) -> list[str] | None:
     None when one is defined in ``__main__`` (the job then runs in-process)."""
     method = CONTROL_METHODS[settings.method]
     used = [getattr(method, "law", None) or method, LAWS[settings.warm_start]]
-    used += [ACTUATOR_FAMILIES[name] for name, elements in design.actuators.items() if elements
-             and name in ACTUATOR_FAMILIES]
+    used += [registry[name] for name, elements in design.actuators.items() if elements
+             for registry in (ACTUATOR_FAMILIES, FORCE_FAMILIES) if name in registry]
     modules = []
     for entry in used:
         mod = entry.__module__ if isinstance(entry, type) else type(entry).__module__

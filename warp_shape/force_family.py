@@ -1,0 +1,117 @@
+"""Force families: what a kind of force adds to a design, its model and its gradients, in one home.
+
+A ``ForceFamily`` declares, for its elements (``Design.elements(name)``): the float64 / int64 host
+arrays (``HostModel.actuators[name]``), the device arrays (``Model.actuators[name]``), the force
+launch ``eval_forces`` (skipping empty work), its float64 energy (whose negative gradient is that
+force), its rows and operator terms of the stable-step estimate, the values a precision must hold
+and, for the adjoint, the device arrays that are its parameters (``parameters``) with the launches
+that derive the others from them and the rest shape (``build``). The simulator's step and read-outs
+(``sim.forces(name)``, ``sim.energy()[name]``), the static settle, the stable-step estimate and the
+differentiable replay (``ws.gradient``) compose every family a model holds.
+
+A passive family (no control: a spring to a fixed anchor, a fingertip in contact) is registered in
+``FORCE_FAMILIES``; an actuator family (``actuators.ActuatorFamily``, a subclass that adds one
+control per element and world) in ``ACTUATOR_FAMILIES``. Either can be registered from outside the
+package (``FORCE_FAMILIES.register(family)``, e.g. in a module named in ``WARP_SHAPE_PLUGINS``);
+``tests/anchor_family.py`` is such a passive family, ``tests/toy_family.py`` such an actuator family.
+
+The adjoint: a family whose ``eval_forces`` launches kernels built with backward enabled (Warp's
+default for a ``@wp.kernel``) sets ``differentiable = True``; the differentiable replay then launches
+that same ``eval_forces`` on its own device arrays (made by the family's ``device_arrays`` with
+gradients), runs the kernels' adjoints in reverse, and reports d objective / d ``<family>_<parameter>``
+for each name of ``parameters`` (and d objective / d ``<family>_controls`` per history row for an
+actuator family). ``ws.gradient`` refuses, before any work and by name, a design holding elements of
+a family that is not differentiable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .registry import Registry
+
+__all__ = ["ForceFamily", "FORCE_FAMILIES", "force_families"]
+
+
+class ForceFamily:
+    """A kind of force. Subclasses set the class attributes and implement the methods that raise
+    ``NotImplementedError``; the others have defaults that add nothing.
+
+    ``name``: identifier (the key of its elements, arrays, force term and energy term). ``summary``:
+    one line. ``label`` / ``plural``: how messages name one element / several. ``owner``: what a
+    storability error names as the place to change a value. ``controlled``: whether its elements
+    take a control (``ActuatorFamily``). ``differentiable``: whether ``eval_forces``'s kernels have
+    adjoints (see the module's docstring); ``parameters``: {device array name: unit} of the arrays the
+    gradient is taken with respect to (as ``<name>_<array>``)."""
+
+    name = ""
+    summary = ""
+    label = "element"
+    plural = "elements"
+    owner = "the family's constructor"
+    controlled = False
+    always = False  # True: its arrays exist in every model, even with no elements (the IPAM's)
+    differentiable = False
+    parameters: dict = {}
+
+    # ------------------------------------------------------------------ host and device
+    def count(self, design) -> int:
+        """Number of this family's elements in ``design``."""
+        return len(design.elements(self.name))
+
+    def host_arrays(self, design) -> dict:
+        """float64 / int64 host arrays of the elements of ``design`` (``HostModel.actuators[name]``)."""
+        raise NotImplementedError
+
+    def device_arrays(self, host: dict, arr) -> dict:
+        """Device arrays from the host arrays; ``arr(array, dtype=None)`` copies one to the device in
+        the model's precision (or as ``dtype``). Called only when the design has elements. The
+        differentiable replay calls it too, with an ``arr`` that gives floating-point arrays gradients."""
+        raise NotImplementedError
+
+    def rest_controls(self, host: dict) -> np.ndarray:
+        """(n,) float64 control of every element when a Control is allocated (default zeros; a passive
+        family's controls are placeholders that its forces do not read)."""
+        return np.zeros(len(next(iter(host.values()))) if host else 0)
+
+    # ------------------------------------------------------------------ physics
+    def eval_forces(self, model, state, control, x, v, f, launch) -> None:
+        """Accumulate the elements' forces at (x, v) (W, V) into f; launch nothing without elements.
+        ``model.actuators[name]`` holds the family's device arrays, ``model.host`` the host model,
+        ``control.values[name]`` / ``control.enabled[name]`` its controls and mask (actuators only).
+        In the differentiable replay ``state`` is None: a family's forces read positions, velocities,
+        its arrays and its controls only."""
+        raise NotImplementedError
+
+    def build(self, model, rest, launch) -> None:
+        """Launches that derive the family's device arrays from its parameter arrays and the rest
+        positions ``rest`` (V,) vec3 (m), recorded on the differentiable replay's build tape so that
+        d objective / d rest positions flows through them (default: nothing derived)."""
+
+    def energy(self, host: dict, x: np.ndarray, controls: np.ndarray, enabled: np.ndarray) -> np.ndarray:
+        """(W,) float64 energy in J at positions x (W, V, 3) with controls (W, n) and mask enabled
+        (W, n) bool (both unused by a passive family); its negative gradient is ``eval_forces``'s force."""
+        raise NotImplementedError
+
+    def stiffness_rows(self, stiff: np.ndarray, damp: np.ndarray, host: dict, inv_m: np.ndarray,
+                       inv_sqrt: np.ndarray) -> None:
+        """Add the elements' Gershgorin rows of M^-1/2 K M^-1/2 to stiff (W, V) and of the damping rates
+        to damp (W, V)."""
+
+    def operator_terms(self, xT: np.ndarray, host: dict):
+        """(a, b, axial k, transverse k, directions (3, n)) of the elements' springs for the elastic
+        operator at positions xT (3, V), or None (no spring terms)."""
+        return None
+
+    def storable_values(self, host: dict) -> dict:
+        """{description: array} of the model values a precision must hold (see ``check_storable``)."""
+        return {}
+
+
+#: every passive force family registered (the actuator families are in ``actuators.ACTUATOR_FAMILIES``)
+FORCE_FAMILIES = Registry("force family")
+
+
+def force_families() -> tuple:
+    """The registered passive force families, in registration order."""
+    return tuple(FORCE_FAMILIES.get(n) for n in FORCE_FAMILIES)
