@@ -134,6 +134,7 @@ def history_slot(head: int, back: int, memory: int):
 def lbfgs_direction(
     w: int,
     n: int,  # vertices
+    rigid_free: int,  # 1: the energy is invariant under rigid motions, whose part of d is removed; 0: kept
     memory: int,
     x0: wp.array2d(dtype=Any),  # (W, V) accepted positions, m
     g0: wp.array2d(dtype=Any),  # (W, V) gradient there, N
@@ -223,6 +224,9 @@ def lbfgs_direction(
         eye = wp.identity(n=3, dtype=wp.float64)
         inertia = eye * (wp.trace(sxx) - nv * wp.dot(cen, cen)) - (sxx - wp.outer(cen, cen) * nv)
         omega = wp.inverse(inertia) * L
+        if rigid_free == 0:  # a force holds the membrane in space: its rigid motions are part of the settle
+            m = wp.vec3d(0.0, 0.0, 0.0)
+            omega = wp.vec3d(0.0, 0.0, 0.0)
         gd = wp.float64(0.0)
         dmax = wp.float64(0.0)
         for i in range(n):
@@ -283,6 +287,7 @@ def lbfgs_iterate_kernel(
     x_bound: wp.float64,  # m: a trial vertex beyond |x| = x_bound is rejected (runaway)
     sufficient: wp.float64,  # c1 of the sufficient-decrease test
     patience: int,  # accepted steps without the residual halving after which a world stops at its floor
+    rigid_free: int,  # 1: no force holds the membrane in space (rigid motions removed from each step); 0: one does
     precond: wp.array2d(dtype=Any),  # (W, V) inverse diagonal stiffness, m/N
     # State in:
     volume: wp.array2d(dtype=wp.float64),  # (W, 1) chamber volume at the trial point, m^3 (zeroed here)
@@ -349,7 +354,7 @@ def lbfgs_iterate_kernel(
             flags[w, F_ACTIVE] = 0
             return
         flags[w, F_PHASE] = 1
-        lbfgs_direction(w, n, memory, x0, g0, precond, hist_s, hist_y, rho, coef, d, flags, scalars)
+        lbfgs_direction(w, n, rigid_free, memory, x0, g0, precond, hist_s, hist_y, rho, coef, d, flags, scalars)
         write_trial(w, n, first_alpha(w, max_move, scalars), x0, d, xv, fg, volume, scalars)
         return
     alpha = scalars[w, S_ALPHA]
@@ -386,7 +391,7 @@ def lbfgs_iterate_kernel(
             flags[w, F_STATUS] = STATUS_FLOOR
             flags[w, F_ACTIVE] = 0
             return
-        lbfgs_direction(w, n, memory, x0, g0, precond, hist_s, hist_y, rho, coef, d, flags, scalars)
+        lbfgs_direction(w, n, rigid_free, memory, x0, g0, precond, hist_s, hist_y, rho, coef, d, flags, scalars)
         write_trial(w, n, first_alpha(w, max_move, scalars), x0, d, xv, fg, volume, scalars)
         return
     # rejected: a shorter step along the same direction
@@ -399,7 +404,7 @@ def lbfgs_iterate_kernel(
     if alpha * scalars[w, S_DMAX] < min_move:
         if flags[w, F_COUNT] > 0:  # the quasi-Newton direction failed: restart from the preconditioned gradient
             flags[w, F_COUNT] = 0
-            lbfgs_direction(w, n, memory, x0, g0, precond, hist_s, hist_y, rho, coef, d, flags, scalars)
+            lbfgs_direction(w, n, rigid_free, memory, x0, g0, precond, hist_s, hist_y, rho, coef, d, flags, scalars)
             write_trial(w, n, first_alpha(w, max_move, scalars), x0, d, xv, fg, volume, scalars)
             return
         flags[w, F_STATUS] = STATUS_STALLED

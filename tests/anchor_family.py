@@ -57,6 +57,13 @@ def anchor_force_kernel(vertex: wp.array(dtype=wp.int32), point: wp.array(dtype=
     wp.atomic_add(f, w, a, d * (-stiffness[i] * (length - rest_length[i]) / length))
 
 
+@wp.kernel
+def anchor_diagonal_kernel(vertex: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=Any),
+                           diag: wp.array2d(dtype=Any)):
+    w, i = wp.tid()
+    wp.atomic_add(diag, w, vertex[i], stiffness[i])
+
+
 class AnchorFamily(ForceFamily):
     name = "anchor"
     summary = "a linear spring from a vertex to a fixed point (test toy)"
@@ -64,6 +71,7 @@ class AnchorFamily(ForceFamily):
     owner = "anchor_family.add_anchor"
     differentiable = True
     parameters = {"stiffness": "N/m", "point": "m"}
+    rigid_invariant = False  # it holds the membrane to points in space
 
     def host_arrays(self, design) -> dict:
         els = design.elements(self.name)
@@ -91,6 +99,10 @@ class AnchorFamily(ForceFamily):
         dev = model.actuators[self.name]
         launch(anchor_force_kernel, (x.shape[0], n), [dev["vertex"], dev["point"], dev["stiffness"],
                                                       dev["rest_length"], x, f])
+
+    def diagonal_stiffness(self, model, state, diag, launch):
+        dev = model.actuators[self.name]
+        launch(anchor_diagonal_kernel, (diag.shape[0], len(dev["stiffness"])), [dev["vertex"], dev["stiffness"], diag])
 
     def energy(self, host, x, controls, enabled):
         length = np.linalg.norm(x[:, host["vertex"]] - host["point"], axis=-1)

@@ -27,7 +27,7 @@ LAYERS = [
     ("warp_shape.integrators", 2), ("warp_shape.crossing", 2), ("warp_shape.stability", 2), ("warp_shape.step_plan", 2),
     ("warp_shape.equilibrium", 2),
     ("warp_shape.simulator", 2),
-    ("warp_shape.targets", 3), ("warp_shape.sampling", 3), ("warp_shape.scan", 3), ("warp_shape.objective_grad", 3),
+    ("warp_shape.targets", 3), ("warp_shape.sampling", 3), ("warp_shape.scan", 3), ("warp_shape.objectives", 3),
     ("warp_shape.controller", 4), ("warp_shape.gradients", 4),
     ("warp_shape.designer", 5), ("warp_shape.scenarios", 5), ("warp_shape.molds", 5),
     ("warp_shape.calibration", 5), ("warp_shape.calibration.files", 6),

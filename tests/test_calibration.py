@@ -25,7 +25,7 @@ from warp_shape.calibration.regions import region_faces
 from warp_shape.io.recording_read import read_recording
 from warp_shape.cli import main
 from warp_shape.model import host_model
-from warp_shape.objective_grad import fit_objective_and_gradient
+from warp_shape.objectives.radial import fit_objective_and_gradient
 from warp_shape.scan import surface_samples
 from warp_shape.scenarios import cube_fig6_design
 

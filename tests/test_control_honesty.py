@@ -11,7 +11,7 @@ import pytest
 import warp_shape as ws
 from warp_shape.controller import control
 from warp_shape.controller.observe import fit_of, vertex_area_shares
-from warp_shape.sampling import fit_objective
+from warp_shape.objectives.radial import fit_objective
 from warp_shape.scenarios import cube_fig6_design
 from conftest import with_pressure_max
 

@@ -14,7 +14,7 @@ from warp_shape.controller.settings import ControlSettings
 from warp_shape.errors import DesignError
 from warp_shape.gradients.equilibrium import EquilibriumGradient
 from warp_shape.model import host_model
-from warp_shape.objective_grad import fit_objective_and_gradient
+from warp_shape.objectives.radial import fit_objective_and_gradient
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.settings import SimulationSettings
 from warp_shape.simulator import Simulator
@@ -100,7 +100,7 @@ def test_implicit_gradient_matches_central_differences(equilibrium):
 
 
 def test_fit_objective_gradient_matches_central_differences(equilibrium):
-    """The same for the fit objective (its radial sampling differentiated, objective_grad), every
+    """The same for the fit objective (its radial sampling differentiated, objectives.radial), every
     component within 1e-4 relative."""
     e, g = equilibrium, equilibrium["grad"]
     assert g.converged and g.residual <= 1e-6

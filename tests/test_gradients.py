@@ -16,7 +16,7 @@ from warp_shape.calibration import apply_values
 from warp_shape.gradients import DifferentiableReplay
 from warp_shape.gradients.api import replay_gradient
 from warp_shape.gradients.replay import plan_replay
-from warp_shape.objective_grad import fit_objective_and_gradient
+from warp_shape.objectives.radial import fit_objective_and_gradient
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.settings import SimulationSettings
 from conftest import with_pressure_max

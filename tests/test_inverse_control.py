@@ -14,7 +14,7 @@ from warp_shape.controller import ControlSettings, control, control_many
 from warp_shape.controller.gauss_newton import bounded_step
 from warp_shape.controller.inverse import control_inverse
 from warp_shape.controller.replay import replay
-from warp_shape.sampling import fit_objective
+from warp_shape.objectives.radial import fit_objective
 from warp_shape.scenarios import cube_fig6_design
 
 TARGETS = list(ws.TARGET_NAMES) + list(NAMES)

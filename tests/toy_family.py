@@ -39,7 +39,7 @@ def add_tendon(design, a, b, stiffness: float = 20.0, rest_length: float | None 
     return design.add_element("tendon", Tendon((a, b), float(stiffness), rest))
 
 
-@wp.kernel(enable_backward=False)
+@wp.kernel
 def eval_tendon_kernel(pairs: wp.array(dtype=wp.vec2i), stiffness: wp.array(dtype=Any), x: wp.array2d(dtype=Any),
                        rest: wp.array2d(dtype=wp.float64), enabled: wp.array2d(dtype=wp.int32),
                        f: wp.array2d(dtype=Any)):
@@ -71,6 +71,8 @@ class TendonFamily(ActuatorFamily):
                         SceneAttribute(f"{NS}:restLength", "double[]", "rest_length", 1, True))
     history_columns = ("tendon{i}_rest_length_m", "tendon{i}_length_m")
     color = (0.8, 0.2, 0.1)
+    differentiable = True  # its kernel has Warp's adjoint: ws.gradient replays through it
+    parameters = {"stiffness": "N/m"}
 
     def host_arrays(self, design) -> dict:
         ts = design.elements(self.name)

@@ -105,6 +105,30 @@ class Design:
             raise DesignError("stretch_scale values must be positive numbers (multipliers of E t)")
         self.stretch_scale = None if np.all(s == 1.0) else s.copy()
 
+    # ------------------------------------------------------------------ copies
+    def replace(self, *, rest: TriMesh | None = None, material: Material | None = None, ipams=None,
+                stretch_scale=False) -> "Design":
+        """A copy of this design with its rest mesh, material, IPAMs or per-face stretch scale replaced where
+        given: the one rule every rebuild follows. Every other force family's elements, every cell (cells
+        that share faces stay shared) and the stretch scale (``stretch_scale`` False: kept; None: uniform)
+        are kept. ``ipams``: a list of ``Ipam`` values (e.g. ``dataclasses.replace(ip, area=...)``), None to
+        keep them; an IPAM whose free length is its rest centroid distance (``free_length_is_rest``) gets
+        the new rest shape's, others keep theirs."""
+        out = Design(self.rest if rest is None else rest, self.material if material is None else material)
+        for ip in self.ipams if ipams is None else ipams:
+            out.add_ipam(ip.face_a, ip.face_b, stiffness=ip.stiffness, area=ip.area,
+                         free_length=None if ip.free_length_is_rest else ip.free_length,
+                         pressure_limits=ip.pressure_limits, damping=ip.damping)
+        for family, elements in self.actuators.items():
+            if family != "ipam":
+                for e in elements:
+                    out.add_element(family, e)
+        shared = bool(self.cells) and np.bincount(np.concatenate([c.faces for c in self.cells])).max() > 1
+        for c in self.cells:
+            out.add_cell(c.faces, shared=shared)
+        out.set_stretch_scale(self.stretch_scale if stretch_scale is False else stretch_scale)
+        return out
+
     # ------------------------------------------------------------------ actuators
     @property
     def ipams(self) -> list[Ipam]:

@@ -114,6 +114,7 @@ class StaticSettle:
         launch(ke.lbfgs_iterate_kernel, (W,),
                [V, self.memory, wp.float64(tolerance), wp.float64(MAX_MOVE * self.size),
                 wp.float64(MIN_MOVE * self.size), wp.float64(self.x_bound), wp.float64(SUFFICIENT_DECREASE), PATIENCE,
+                int(all(f.rigid_invariant for f in m.families)),
                 self.precond, self.volume, self.fg, self.xv, self.x0, self.g0, self.d, self.hist_s, self.hist_y,
                 self.rho, self.coef, self.flags, self.scalars])
 
@@ -150,8 +151,10 @@ class StaticSettle:
         if state.worlds != W:
             raise ValueError(f"this settle holds {W} worlds, got a state of {state.worlds}")
         start = (ke.lbfgs_start_kernel, (W, V), [state.x, self.xv, self.fg, self.volume, self.flags, self.scalars])
-        precondition = [(ke.diagonal_stiffness_kernel, (W, m.n_edges), [m.hinges, state.edge, self.precond]),
-                        (ke.invert_diagonal_kernel, (W, V), [m.scalar(self._stiffness_floor()), self.precond])]
+        precondition = [(ke.diagonal_stiffness_kernel, (W, m.n_edges), [m.hinges, state.edge, self.precond])]
+        for fam in m.families:  # each family's part of the diagonal
+            fam.diagonal_stiffness(m, state, self.precond, lambda *launch: precondition.append(launch))
+        precondition.append((ke.invert_diagonal_kernel, (W, V), [m.scalar(self._stiffness_floor()), self.precond]))
         if not self._overloads_made:  # every module of the solve loads once with all its overloads
             iteration = []
             self._iteration(state, control, tolerance, lambda *launch: iteration.append(launch))

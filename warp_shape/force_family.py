@@ -3,8 +3,8 @@
 A ``ForceFamily`` declares, for its elements (``Design.elements(name)``): the float64 / int64 host
 arrays (``HostModel.actuators[name]``), the device arrays (``Model.actuators[name]``), the force
 launch ``eval_forces`` (skipping empty work), its float64 energy (whose negative gradient is that
-force), its rows and operator terms of the stable-step estimate, the values a precision must hold
-and, for the adjoint, the device arrays that are its parameters (``parameters``) with the launches
+force), its rows and operator terms of the stable-step estimate, its part of the static settle's
+preconditioner (``diagonal_stiffness``), the values a precision must hold and, for the adjoint, the device arrays that are its parameters (``parameters``) with the launches
 that derive the others from them and the rest shape (``build``). The simulator's step and read-outs
 (``sim.forces(name)``, ``sim.energy()[name]``), the static settle, the stable-step estimate and the
 differentiable replay (``ws.gradient``) compose every family a model holds.
@@ -42,7 +42,10 @@ class ForceFamily:
     storability error names as the place to change a value. ``controlled``: whether its elements
     take a control (``ActuatorFamily``). ``differentiable``: whether ``eval_forces``'s kernels have
     adjoints (see the module's docstring); ``parameters``: {device array name: unit} of the arrays the
-    gradient is taken with respect to (as ``<name>_<array>``)."""
+    gradient is taken with respect to (as ``<name>_<array>``). ``rigid_invariant``: whether its energy
+    is unchanged by moving the whole membrane rigidly (forces between vertices: True); a family whose
+    forces hold the membrane in space sets False, and the static settle then keeps rigid motions in
+    its steps (it removes them where every force of the model is invariant)."""
 
     name = ""
     summary = ""
@@ -53,6 +56,7 @@ class ForceFamily:
     always = False  # True: its arrays exist in every model, even with no elements (the IPAM's)
     differentiable = False
     parameters: dict = {}
+    rigid_invariant = True  # False: its forces hold the membrane in space (an anchor, an indenter, a held plug)
 
     # ------------------------------------------------------------------ host and device
     def count(self, design) -> int:
@@ -102,6 +106,11 @@ class ForceFamily:
         """(a, b, axial k, transverse k, directions (3, n)) of the elements' springs for the elastic
         operator at positions xT (3, V), or None (no spring terms)."""
         return None
+
+    def diagonal_stiffness(self, model, state, diag, launch) -> None:
+        """The static settle's preconditioner part: add each vertex's share of the elements' stiffness
+        (N/m, a diagonal estimate) to diag (W, V) (default: nothing, for forces much softer than the
+        membrane's; a stiff family adds its own, or the settle takes steps too long for it)."""
 
     def storable_values(self, host: dict) -> dict:
         """{description: array} of the model values a precision must hold (see ``check_storable``)."""

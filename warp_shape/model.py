@@ -183,6 +183,11 @@ class HostModel:
     def n_ipams(self) -> int:
         return len(self.ipam_faces)
 
+    @property
+    def actuator_families(self) -> tuple:
+        """The model's families that take controls (``families`` less the passive ones)."""
+        return tuple(f for f in self.families if f.controlled)
+
     def count(self, family: str) -> int:
         """Number of elements of actuator family ``family`` (0 when the model does not hold it)."""
         fam = next((f for f in self.families if f.name == family), None)

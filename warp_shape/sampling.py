@@ -27,7 +27,7 @@ from .mesh import TriMesh
 
 __all__ = [
     "RadialSampler", "radial_sample", "check_star_shaped", "fibonacci_directions",
-    "pcc", "mare", "mpre", "shape_metrics", "fit_objective", "radial_metrics", "vertex_area_shares", "fit_metrics",
+    "pcc", "mare", "mpre", "shape_metrics", "radial_metrics", "vertex_area_shares", "paired_radii",
 ]
 
 # Tilt (rad) of the retry rays cast when a ray slips between faces at a vertex or edge.
@@ -301,7 +301,7 @@ def radial_sample(target: TriMesh, points, *, device=None) -> np.ndarray:
 # ---------------------------------------------------------------------------------------- metrics
 def vertex_area_shares(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(W, V) the area each vertex stands for (a third of each adjacent face) of the (W, V, 3) ``points``
-    triangulated by ``faces``: the weights of the fit objective (``fit_objective``)."""
+    triangulated by ``faces``: the weights of the fit objective (``objectives.radial.fit_objective``)."""
     W, V = points.shape[:2]
     p = points[:, faces]  # (W, F, 3, 3)
     area = 0.5 * np.linalg.norm(np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0]), axis=2)  # (W, F)
@@ -309,7 +309,8 @@ def vertex_area_shares(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.bincount(idx, weights=np.repeat(area / 3.0, 3, axis=1).reshape(-1), minlength=W * V).reshape(W, V)
 
 
-def _pair(r, R, what: str):
+def paired_radii(r, R, what: str):
+    """r, R as flat float64 arrays of one length, finite and not empty; else ``ShapeError`` naming ``what``."""
     r = numeric_array(r, f"{what}: r (radii, m)", ShapeError).reshape(-1)
     R = numeric_array(R, f"{what}: R (radii, m)", ShapeError).reshape(-1)
     if r.shape != R.shape:
@@ -331,7 +332,7 @@ def pcc(r, R) -> float:
     most ``FLAT_SPREAD`` (1e-6) times its mean (a sphere about the origin, whose float32 radii differ
     only by rounding, ~1e-7 relative), the PCC is 0.0 exactly.
     """
-    r, R = _pair(r, R, "PCC")
+    r, R = paired_radii(r, R, "PCC")
     if r.size < 2:
         raise ShapeError("PCC needs at least two radii")
     if _flat(r) or _flat(R):
@@ -347,71 +348,16 @@ def _flat(x: np.ndarray) -> bool:
 
 def mare(r, R) -> float:
     """Mean absolute radial error mean|r - R| (m)."""
-    r, R = _pair(r, R, "MARE")
+    r, R = paired_radii(r, R, "MARE")
     return float(np.mean(np.abs(r - R)))
 
 
 def mpre(r, R) -> float:
     """Mean percent radial error 100 * mean(|r - R| / R) (%)."""
-    r, R = _pair(r, R, "MPRE")
+    r, R = paired_radii(r, R, "MPRE")
     if np.any(R <= 0):
         raise ShapeError(f"MPRE: sampled radius R[{int(np.flatnonzero(R <= 0)[0])}] is not positive")
     return float(100.0 * np.mean(np.abs(r - R) / R))
-
-
-def fit_objective(r, R, target_volume: float, weights=None) -> float:
-    """The fit objective: the weighted RMS of the scaled radial error (R - r) / V_t^(1/3) (unitless).
-
-    r: design radii, R: sampled target radii (same directions), target_volume: V_t in m^3, weights:
-    the area each sample stands for (e.g. the sampled target's vertex areas; None: equal). 0 is a
-    perfect fit; 0.01 is a radial error of about 1 % of the target's size. Used by the controller's
-    stopping rule, the designer and every report, with PCC, MARE and MPRE beside it.
-    """
-    r, R = _pair(r, R, "objective")
-    if not (np.isfinite(target_volume) and target_volume > 0):
-        raise ShapeError(f"objective: the target volume must be positive, got {target_volume} m^3")
-    w = np.ones_like(r) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
-    if w.shape != r.shape or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
-        raise ShapeError(f"objective: weights must be {r.size} finite non-negative numbers, not all zero")
-    e = (R - r) / float(target_volume) ** (1.0 / 3.0)
-    return float(np.sqrt(np.sum(w * e * e) / np.sum(w)))
-
-
-def fit_metrics(r: np.ndarray, R: np.ndarray, target_volumes, weights: np.ndarray) -> dict:
-    """Per world the fit of paired radii ``r``, ``R`` (W, N): ``objective`` (``fit_objective`` with
-    ``target_volumes`` (W,) m^3 and ``weights`` (W, N)), ``pcc``, ``mare`` (m) and ``mpre`` (%), each a
-    (W,) array with the values the single-world functions give (the same arithmetic per row), all
-    worlds checked and reduced at once."""
-    r = numeric_array(r, "fit: r (radii, m)", ShapeError)
-    R = numeric_array(R, "fit: R (radii, m)", ShapeError)
-    w = np.asarray(weights, dtype=np.float64)
-    if r.ndim != 2 or r.shape != R.shape or w.shape != r.shape or r.shape[1] < 2:
-        raise ShapeError(f"fit: r, R and weights must be (W, N) arrays of the same shape with N >= 2, got "
-                         f"{r.shape}, {R.shape} and {w.shape}")
-    vols = np.asarray(target_volumes, dtype=np.float64).reshape(-1)
-    if vols.shape != (r.shape[0],) or not np.all(np.isfinite(vols)) or np.any(vols <= 0):
-        raise ShapeError(f"fit: one positive target volume per world needed, got {vols.tolist()} m^3")
-    for arr, nm in ((r, "r"), (R, "R")):
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            k = np.argwhere(bad)[0]
-            raise ShapeError(f"fit: {nm}[{k[0]}, {k[1]}] is not finite ({int(bad.sum())} non-finite value(s))")
-    if not np.all(np.isfinite(w)) or np.any(w < 0) or np.any(w.sum(axis=1) <= 0):
-        raise ShapeError("fit: weights must be finite non-negative numbers, not all zero in a world")
-    if np.any(R <= 0):
-        k = np.argwhere(R <= 0)[0]
-        raise ShapeError(f"MPRE: sampled radius R[{k[0]}, {k[1]}] is not positive")
-    scale = np.array([float(v) ** (1.0 / 3.0) for v in vols])[:, None]
-    e = (R - r) / scale
-    objective = np.sqrt(np.sum(w * e * e, axis=1) / np.sum(w, axis=1))
-    flat = (np.std(r, axis=1) <= FLAT_SPREAD * np.mean(np.abs(r), axis=1)) | \
-        (np.std(R, axis=1) <= FLAT_SPREAD * np.mean(np.abs(R), axis=1))
-    dr, dR = r - r.mean(axis=1, keepdims=True), R - R.mean(axis=1, keepdims=True)
-    corr = np.array([0.0 if flat[k] else float(np.dot(dr[k], dR[k]) / np.sqrt(float(np.dot(dr[k], dr[k]))
-                                                                          * float(np.dot(dR[k], dR[k]))))
-                     for k in range(r.shape[0])])
-    err = np.abs(r - R)
-    return dict(objective=objective, pcc=corr, mare=np.mean(err, axis=1), mpre=100.0 * np.mean(err / R, axis=1))
 
 
 def radial_metrics(r, R) -> dict:

@@ -176,28 +176,19 @@ def apply_values(design: Design, values: dict, regions: dict | None = None) -> D
     if scale != 1.0:
         c = rest.centroid()
         rest = rest.copy_with(c + scale * (rest.vertices - c))
-    out = Design(rest, mat)
     n = design.n_ipams
     k = _per_ipam(values, "ipam_stiffness", [ip.stiffness for ip in design.ipams], n)
     a = _per_ipam(values, "ipam_area", [ip.area for ip in design.ipams], n)
-    for i, ip in enumerate(design.ipams):
-        free = None if ip.free_length_is_rest else ip.free_length * scale
-        out.add_ipam(ip.face_a, ip.face_b, stiffness=float(k[i]), area=float(a[i]), free_length=free,
-                     pressure_limits=ip.pressure_limits, damping=ip.damping)
-    for family, elements in design.actuators.items():
-        if family != "ipam":
-            for e in elements:
-                out.add_element(family, e)
-    shared = bool(design.cells) and np.bincount(np.concatenate([c.faces for c in design.cells])).max() > 1
-    for c in design.cells:
-        out.add_cell(c.faces, shared=shared)
+    ipams = [replace(ip, stiffness=float(k[i]), area=float(a[i]),
+                     free_length=ip.free_length if ip.free_length_is_rest else ip.free_length * scale)
+             for i, ip in enumerate(design.ipams)]
+    stretch = False  # kept
     if "region_stretch" in values:
         if not regions:
             raise DesignError("region_stretch values need their regions (face indices): a calibration file "
                               "without them is damaged; calibrate again")
-        out.set_stretch_scale(face_scale(design, regions, values["region_stretch"]))
-    else:
-        out.set_stretch_scale(design.stretch_scale)
+        stretch = face_scale(design, regions, values["region_stretch"])
+    out = design.replace(rest=rest, material=mat, ipams=ipams, stretch_scale=stretch)
     return out
 
 

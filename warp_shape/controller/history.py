@@ -31,7 +31,7 @@ def history_row(obs: Observation, w: int, phase: int, controls: Controls, host: 
     row = dict(step=obs.step, time=obs.time, phase=int(phase), air_mol=controls.air[w],
                pressure_pa=obs.pressure_abs[w] - host.atmospheric_pressure, volume_m3=obs.volume[w],
                target_volume_m3=obs.target_volume[w])
-    for fam in host.families:  # the IPAM's columns, then every other actuator family's
+    for fam in host.actuator_families:  # the IPAM's columns, then every other actuator family's
         part = obs.actuators[fam.name]
         row.update(fam.history_row(part, part["controls"], w, host.actuators[fam.name]))
     for j in range(host.n_cells):

@@ -145,7 +145,7 @@ def hold_neutral(sim, law, host: HostModel, obs: Observation, active: np.ndarray
     """Set every actuator family of ``sim`` that ``law`` does not control (its ``families``; the IPAM
     when it names none) to its neutral controls in the ``active`` (W,) worlds (the others keep theirs)."""
     known = getattr(law, "families", ("ipam",))
-    for fam in host.families:
+    for fam in host.actuator_families:
         if fam.name in known or not host.count(fam.name):
             continue
         part = obs.actuators[fam.name]

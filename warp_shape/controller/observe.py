@@ -17,7 +17,8 @@ import numpy as np
 from ..model import HostModel
 from ..physics.ipam import IPAM
 from ..physics.pressure import volumes_np
-from ..sampling import RadialSampler, fit_metrics, vertex_area_shares
+from ..objectives.radial import fit_metrics
+from ..sampling import RadialSampler, vertex_area_shares
 
 __all__ = ["Observation", "Observer", "ipam_lengths_and_forces",
            "ipam_neutral_pressures", "vertex_area_shares", "fit_of"]
@@ -107,7 +108,7 @@ class Observer:
         cen = x[:, host.faces].mean(axis=2)  # (W, F, 3)
         cen_t = sampled[:, host.faces].mean(axis=2)
         parts = {}
-        for fam in host.families:
+        for fam in host.actuator_families:
             controls = pressures if fam is IPAM else \
                 np.asarray(sim.actuator_controls(fam.name)).reshape(W, host.count(fam.name))
             parts[fam.name] = dict(fam.observe(host, x, sampled, cen, cen_t, controls), controls=controls)

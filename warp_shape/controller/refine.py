@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..gradients.equilibrium import EquilibriumGradient
-from ..objective_grad import fit_objective_and_gradient
+from ..objectives.radial import SCALED_RADIAL, fit_objective_and_gradient
 from .explore import Explorer
 from .gauss_newton import bounded_step
 from .settings import GRADIENTS
@@ -155,11 +155,6 @@ class _World:
         return out
 
 
-def _residual(r, R, weights, volume) -> np.ndarray:
-    """The residual whose norm is the fit objective: sqrt(w / sum w) (R - r) / V_t^(1/3)."""
-    return np.sqrt(weights / weights.sum()) * (R - r) / volume ** (1.0 / 3.0)
-
-
 def _jacobians(explorer: Explorer, worlds: list[_World], targets: np.ndarray) -> None:
     """One batch: every running world's current controls and one perturbation per active control;
     sets each world's residual ``e``, Jacobian ``J`` and settled ``objective`` (and its start)."""
@@ -180,10 +175,10 @@ def _jacobians(explorer: Explorer, worlds: list[_World], targets: np.ndarray) ->
     for wd, (b, pert) in zip(worlds, index):
         vol = explorer.target_volume[targets[wd.w]]
         wd.weights = S.weights[b]
-        wd.e = _residual(S.r[b], S.R[b], wd.weights, vol)
+        wd.e = SCALED_RADIAL.residuals(S.r[b], S.R[b], wd.weights, vol)
         wd.J = np.zeros((wd.e.size, wd.u.size))
         for n, (k, h) in enumerate(pert):
-            wd.J[:, k] = (_residual(S.r[b + 1 + n], S.R[b + 1 + n], wd.weights, vol) - wd.e) / h
+            wd.J[:, k] = (SCALED_RADIAL.residuals(S.r[b + 1 + n], S.R[b + 1 + n], wd.weights, vol) - wd.e) / h
         wd.objective, wd.fresh, wd.stale = float(S.objective[b]), True, False
         wd.state, wd.mare = S.states[b], float(S.mare[b])
         if wd.start is None:
@@ -289,7 +284,7 @@ def _line_search(explorer: Explorer, worlds: list[_World], targets: np.ndarray, 
             continue
         gain = (wd.objective - obj[best]) / wd.objective
         i = n * L + best
-        e_new = _residual(S.r[i], S.R[i], wd.weights, explorer.target_volume[targets[wd.w]])
+        e_new = SCALED_RADIAL.residuals(S.r[i], S.R[i], wd.weights, explorer.target_volume[targets[wd.w]])
         wd.mare = float(S.mare[i])
         _accept(wd, d, STEP_LENGTHS[best], e_new, float(obj[best]), S.states[i], targets[wd.w])
         if gain < tolerance and wd.running:

@@ -29,7 +29,7 @@ from .observe import Observer
 from .result import ControlResult
 from .worlds import mask_passive, passive_masks
 
-__all__ = ["replay", "replay_result", "replay_simulator", "control_schedule", "drive_schedules"]
+__all__ = ["replay", "replay_result", "replay_simulator", "control_schedule", "drive_schedules", "family_schedule"]
 
 
 def control_schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -45,6 +45,24 @@ def control_schedule(result, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndar
     jam = np.stack([h[f"cell{j}_jammed"] for j in range(n_cell)], 1).astype(bool) if n_cell \
         else np.zeros((len(air), 0), bool)
     return steps, air, p, jam
+
+
+def family_schedule(result, model) -> dict:
+    """{family name: (rows, n) controls} of every actuator family of ``model`` but the IPAM (whose
+    pressures ``control_schedule`` gives) that has elements: each row's controls, from the history
+    column the family names (``ActuatorFamily.control_column``); a missing column is an error naming it."""
+    out = {}
+    for fam in model.families:
+        n = model.host.count(fam.name)
+        if not fam.controlled or fam.name == "ipam" or not n:
+            continue
+        cols = [fam.control_column.format(i=i) for i in range(n)]
+        missing = [c for c in cols if c not in result.history]
+        if missing:
+            raise DesignError(f"the result's history has no column {missing[0]!r} (the {fam.control_name} of its "
+                              f"{fam.plural}): it was recorded on a design without them; control this design first")
+        out[fam.name] = np.stack([np.asarray(result.history[c], dtype=np.float64) for c in cols], 1)
+    return out
 
 
 def replay_simulator(design: Design, results, *, device: str = "cpu"):
@@ -66,16 +84,18 @@ def replay_simulator(design: Design, results, *, device: str = "cpu"):
         raise DesignError("the result was recorded on a design with other IPAMs or cells than the one given")
     # actuators a sequence left out are masked out, as when it was recorded
     mask_passive(sim, *passive_masks(results, design.n_ipams, design.n_cells))
-    drive_schedules(sim, sched)
+    drive_schedules(sim, sched, families=[family_schedule(r, sim.model) for r in results])
     return sim
 
 
-def drive_schedules(sim, schedules, end: int | None = None, after=None) -> None:
+def drive_schedules(sim, schedules, end: int | None = None, after=None, families=None) -> None:
     """Step ``sim`` (one world per schedule, from its state at step 0) through ``schedules``, each
     (steps, air, pressures, jammed) as ``control_schedule`` gives them: before each row's step, the
     cells the row shows newly jammed are jammed and its controls set, then the simulator steps to the
     next row of any world; a world whose schedule ended holds its last controls. ``end``: on to that
-    step, every world holding its last controls. ``after(step)``: called at every row reached."""
+    step, every world holding its last controls. ``after(step)``: called at every row reached.
+    ``families``: per schedule, the other actuator families' controls per row (``family_schedule``),
+    set with the row's air and pressures."""
     n = len(schedules)
     marks = np.unique(np.concatenate([s[0] for s in schedules] + ([[end]] if end is not None else [])))
     for a, b in zip(marks[:-1], marks[1:]):
@@ -87,6 +107,8 @@ def drive_schedules(sim, schedules, end: int | None = None, after=None) -> None:
         sim.air_moles = np.array([s[1][k] for s, k in zip(schedules, rows)])
         if schedules[0][2].shape[1]:
             sim.ipam_pressures = np.stack([s[2][k] for s, k in zip(schedules, rows)])
+        for name in (families[0] if families else {}):
+            sim.set_actuator_controls(name, np.stack([f[name][k] for f, k in zip(families, rows)]))
         sim.step(int(b - a))
         if after is not None:
             after(int(b))
@@ -125,7 +147,7 @@ def replay_result(design: Design, result, *, device: str = "cpu") -> ControlResu
         last[:] = [obs]
 
     observe(0)
-    drive_schedules(sim, [sched], after=observe)
+    drive_schedules(sim, [sched], after=observe, families=[family_schedule(result, sim.model)])
     obs = last[0]
     x, sampled = obs.positions[0].copy(), obs.sampled[0].copy()
     settled = bool(obs.max_speed[0] < result.settings.settle_speed)

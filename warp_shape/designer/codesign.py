@@ -14,6 +14,7 @@ is kept only if no target's final objective is worse than before it. docs/gradie
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,7 +26,7 @@ from ..design import Design
 from ..gradients.api import replay_gradient
 from ..gradients.replay import plan_replay
 from ..mesh import TriMesh
-from ..objective_grad import fit_objective_and_gradient
+from ..objectives.radial import fit_objective_and_gradient
 from ..sampling import RadialSampler
 from .settings import CODESIGN_MODES
 
@@ -159,15 +160,8 @@ class CodesignProblem:
         n = self.base.n_ipams
         area = self.area0 * np.exp(p[M:M + n]) if self.sizes else self.area0
         k = self.k0 * np.exp(p[M + n:]) if self.sizes else self.k0
-        out = Design(rest, self.base.material)
-        for i, ip in enumerate(self.base.ipams):
-            out.add_ipam(ip.face_a, ip.face_b, stiffness=float(k[i]), area=float(area[i]),
-                         free_length=None if ip.free_length_is_rest else ip.free_length, pressure_limits=ip.pressure_limits,
-                         damping=ip.damping)
-        for c in self.base.cells:
-            out.add_cell(c.faces)
-        out.set_stretch_scale(self.base.stretch_scale)
-        return out
+        return self.base.replace(rest=rest, ipams=[dataclasses.replace(ip, stiffness=float(k[i]), area=float(area[i]))
+                                                   for i, ip in enumerate(self.base.ipams)])
 
     def chain(self, design: Design, values: dict) -> np.ndarray:
         """d objective / d parameters from the gradient's values on ``design``."""

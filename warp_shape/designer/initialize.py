@@ -76,12 +76,6 @@ def check_cell_room(rest: TriMesh, actuators: int, cell_radius: float) -> None:
 
 
 def copy_design(d: Design, rest: TriMesh | None = None) -> Design:
-    """A new Design with the same (or a new) rest mesh, material, IPAMs and cells."""
-    out = Design(rest if rest is not None else d.rest, d.material)
-    for ip in d.ipams:
-        out.add_ipam(ip.face_a, ip.face_b, stiffness=ip.stiffness, area=ip.area, free_length=None
-                     if rest is not None else ip.free_length, pressure_limits=ip.pressure_limits, damping=ip.damping)
-    for c in d.cells:
-        out.add_cell(c.faces)
-    out.set_stretch_scale(d.stretch_scale)
-    return out
+    """A copy of ``d`` (with a new rest mesh where given): ``Design.replace``'s rule, every family, cell
+    and flag kept."""
+    return d.replace(rest=rest)

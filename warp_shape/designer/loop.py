@@ -125,7 +125,7 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
     rest = initial_rest_shape(base, targets, settings.volume_scale, device) if settings.initialize else base.centered()
     check_targets_against_rest(rest, targets, sampler, names, max_stretch=control_settings.max_stretch)
     check_cell_room(rest, actuators, settings.cell_radius)
-    ctx = PlacementContext(sampler=sampler, target_scale=np.array([t.volume() ** (1.0 / 3.0) for t in targets]),
+    ctx = PlacementContext(sampler=sampler, target_volumes=np.array([t.volume() for t in targets]),
                            rest_centroids=rest.face_centroids(), settings=settings, actuators=int(actuators))
     run = DesignRun(current=Design(rest, material), targets=targets, names=names, ctx=ctx, settings=settings,
                     control_settings=control_settings, device=device, progress=progress, recorder=recorder,

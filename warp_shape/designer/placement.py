@@ -29,6 +29,7 @@ import numpy as np
 
 from ..design import Design
 from ..errors import DesignError
+from ..objectives.radial import SCALED_RADIAL
 from ..sampling import RadialSampler
 from .settings import PLACEMENTS, DesignSettings
 
@@ -45,7 +46,7 @@ class PlacementContext:
     """What a placement needs besides the design and the round's results."""
 
     sampler: RadialSampler  # the (centred) targets, one per index
-    target_scale: np.ndarray  # (n_targets,) V_t^(1/3), m
+    target_volumes: np.ndarray  # (n_targets,) V_t, m^3
     rest_centroids: np.ndarray  # (F, 3) face centroids of the rest shape (cell radii are measured there)
     settings: DesignSettings
     actuators: int  # IPAMs the run places in all
@@ -58,7 +59,7 @@ def scaled_errors(results, ctx: PlacementContext) -> tuple[np.ndarray, list]:
     for j, r in enumerate(results):
         c = r.achieved.face_centroids()
         R = np.linalg.norm(ctx.sampler.sample(c, j), axis=1)
-        errors.append((R - np.linalg.norm(c, axis=1)) / ctx.target_scale[j])
+        errors.append(SCALED_RADIAL.errors(np.linalg.norm(c, axis=1), R, ctx.target_volumes[j]))
         cents.append(c)
     return np.array(errors), cents
 

@@ -10,12 +10,12 @@ from ..controller.result import ControlResult
 from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
-from ..model import PRECISIONS
-from ..objective_grad import fit_objective_and_gradient
+from ..model import PRECISIONS, model_families
+from ..objectives.radial import fit_objective_and_gradient
 from ..sampling import RadialSampler
-from .replay import DifferentiableReplay
+from .replay import DifferentiableReplay, check_adjoints, family_parameters
 
-__all__ = ["gradient", "replay_gradient", "Gradient", "GRADIENT_PARAMETERS"]
+__all__ = ["gradient", "replay_gradient", "Gradient", "GRADIENT_PARAMETERS", "gradient_parameters"]
 
 #: the parameters ``gradient`` differentiates by, with their units (d objective / d parameter is in 1 / unit)
 GRADIENT_PARAMETERS = {
@@ -45,12 +45,22 @@ class Gradient:
     segment: int = 0  # output steps between the adjoint's checkpoints
 
 
-def check_wrt(wrt) -> tuple:
-    """The parameter names asked for, checked against ``GRADIENT_PARAMETERS`` (a clear error naming the
+def gradient_parameters(design: Design) -> dict:
+    """{name: unit} of every parameter ``gradient`` can differentiate ``design``'s replay by:
+    ``GRADIENT_PARAMETERS``, then each of its other force families' parameters and controls
+    (``<family>_<array>``, ``<family>_controls``); a family without an adjoint is refused by name."""
+    fams = model_families(design)
+    count = {f.name: f.count(design) for f in fams}.get
+    check_adjoints(fams, count)
+    return {**GRADIENT_PARAMETERS, **family_parameters(fams, count)}
+
+
+def check_wrt(wrt, parameters: dict = GRADIENT_PARAMETERS) -> tuple:
+    """The parameter names asked for, checked against ``parameters`` (a clear error naming the
     choices for an unknown one)."""
     names = (wrt,) if isinstance(wrt, str) else tuple(wrt)
-    bad = [n for n in names if n not in GRADIENT_PARAMETERS]
-    choices = ", ".join(GRADIENT_PARAMETERS)
+    bad = [n for n in names if n not in parameters]
+    choices = ", ".join(parameters)
     if not names:
         raise DesignError(f"gradient wrt: no parameter given; choose from {choices}")
     if bad:
@@ -77,7 +87,7 @@ def gradient(design: Design, result: ControlResult, target: TriMesh | None = Non
         raise DesignError(f"gradient needs a ws.Design, got {type(design).__name__}")
     if not isinstance(result, ControlResult):
         raise DesignError(f"gradient needs a control result (ws.control returns one), got {type(result).__name__}")
-    names = check_wrt(wrt)
+    names = check_wrt(wrt, gradient_parameters(design))
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads not in (1, 2)):
         raise DesignError(f"gradient threads must be 1, 2 or None (2 where the CPU has two cores), got {threads!r}")
     if precision not in PRECISIONS:

@@ -16,13 +16,14 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 import warp as wp
 
 from warp_shape.kernels import adjoint as ka
 
-from ..controller.replay import control_schedule
+from ..controller.replay import control_schedule, family_schedule
 from ..controller.shard import available_cores, in_worker
 from ..controller.worlds import mask_passive, passive_masks
 from ..design import Design
@@ -31,7 +32,7 @@ from ..model import PRECISIONS, host_model
 from ..simulator import Simulator
 from ..step_plan import create_overloads
 
-__all__ = ["ReplayPlan", "DifferentiableReplay", "ReplayGradient"]
+__all__ = ["ReplayPlan", "DifferentiableReplay", "ReplayGradient", "check_adjoints", "family_parameters"]
 
 
 @dataclass
@@ -59,6 +60,7 @@ class ReplayPlan:
     final: np.ndarray
     segment: int
     precision: str = "float64"
+    family_controls: dict = field(default_factory=dict)  # {family: (R, n)} the other actuator families' controls
 
     @property
     def n_steps(self) -> int:
@@ -76,6 +78,35 @@ class ReplayPlan:
 MAX_SEGMENT = 32
 
 
+def replayed_families(families, count) -> tuple:
+    """The force families the replay composes through their own ``eval_forces`` (and Warp's adjoints of
+    its kernels): those of ``families`` with elements (``count(name)`` > 0) besides the IPAM, whose
+    kernels the replay holds itself."""
+    return tuple(f for f in families if f.name != "ipam" and count(f.name))
+
+
+def check_adjoints(families, count) -> tuple:
+    """``replayed_families``, each differentiable: a family that is not is refused by name."""
+    fams = replayed_families(families, count)
+    bad = next((f for f in fams if not f.differentiable), None)
+    if bad is not None:
+        raise DesignError(f"this design holds {bad.plural} (force family {bad.name!r}), which has no adjoint, so its "
+                          f"gradient cannot be taken; give the family kernels with adjoints and set differentiable = "
+                          f"True (warp_shape.force_family), or take its {bad.plural} out of the design")
+    return fams
+
+
+def family_parameters(families, count) -> dict:
+    """{gradient name: unit} of the replayed families' parameters (``<family>_<array>``) and, for an
+    actuator family, its controls per history row (``<family>_controls``, (rows, n))."""
+    out = {}
+    for f in replayed_families(families, count):
+        out.update({f"{f.name}_{p}": f"{unit}: the {f.plural}' {p}" for p, unit in f.parameters.items()})
+        if f.controlled:
+            out[f"{f.name}_controls"] = f"{f.control_unit}, (rows, n): each row's {f.control_name} of the {f.plural}"
+    return out
+
+
 def segment_budget(internal_steps: int) -> int:
     """Internal steps between checkpoints: the square root of the replay's count, at most ``MAX_SEGMENT``."""
     return max(1, min(MAX_SEGMENT, int(math.ceil(math.sqrt(max(internal_steps, 1))))))
@@ -89,6 +120,7 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
     settings = result.settings.simulation.replace(precision=precision)
     sim = Simulator(design, device=device, settings=settings, worlds=1)
     steps, air, pressures, jam = control_schedule(result, sim.dt)
+    fam_controls = family_schedule(result, sim.model)
     pi, pc = passive_masks([result], design.n_ipams, design.n_cells)
     mask_passive(sim, pi, pc)
     n = int(steps[-1])
@@ -112,6 +144,8 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
         sim.air_moles = float(air[k])
         if design.n_ipams:
             sim.ipam_pressures = pressures[k]
+        for name, rows in fam_controls.items():
+            sim.set_actuator_controls(name, rows[k])
         for s in range(int(a), int(b)):
             if s == 0 or since + last > seg:
                 checkpoints[s], since = _state_of(sim), 0
@@ -122,7 +156,7 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
                       enabled=(~pi[0]).astype(np.int32), jam_steps=jam_steps, jam_edges=jam_edges,
                       checkpoints=checkpoints, edges=edges, jam_states=jam_states,
                       final=np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3), segment=seg,
-                      precision=precision)
+                      precision=precision, family_controls=fam_controls)
 
 
 def _state_of(sim) -> np.ndarray:
@@ -179,6 +213,7 @@ class Lane:
     enabled: wp.array
     step_h: wp.array
     work: StepBuffers
+    controls: SimpleNamespace  # the other families' controls: values / enabled {family: (1, n)}
     loaded: list = field(default_factory=lambda: [None, None, None])
 
 
@@ -210,6 +245,7 @@ class DifferentiableReplay:
         self.segment = segment
         self.scalar, self.vec3, self.np_dtype = PRECISIONS[precision]
         self.host = host_model(design)
+        self.families = check_adjoints(self.host.families, self.host.count)
         self.integrator = result.settings.simulation.integrator
         self.paper_bending = int(result.settings.simulation.bending == "paper")
         self.plan: ReplayPlan | None = None
@@ -253,6 +289,9 @@ class DifferentiableReplay:
         self.free_fixed = self._arr(ip["free_length"] if n else np.ones(1), grad=False)
         self.ipam_damping = self._arr(ip["damping"] if n else np.zeros(1), grad=False)
         self.xv0 = vec((2, 1, V))
+        self.fmodel = self._family_model()
+        self._family_base = {f.name: {p: self.fmodel.actuators[f.name][p].numpy().copy() for p in f.parameters}
+                             for f in self.families}
         self._vec, self._stages = vec, 4 if self.integrator == "rk4" else 1
         # the controls and edge fields in force with the work buffers, whose intermediates every
         # recomputed internal step leaves on a tape: lane 0 (the adjoint's; a pipelined backward
@@ -267,6 +306,26 @@ class DifferentiableReplay:
         self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
         self.xv_jam = vec((2, 1, V))
 
+    def _family_model(self) -> SimpleNamespace:
+        """What the replayed families' ``eval_forces`` and ``build`` read as their model: the host model
+        and each family's device arrays, made by the family with gradients on its floating-point ones."""
+        def arr(a, dtype=None):
+            if dtype is None:
+                a, dtype = np.asarray(a).astype(self.np_dtype), self.scalar
+            grad = wp.types.type_is_float(getattr(dtype, "_wp_scalar_type_", dtype))
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device, requires_grad=grad)
+        return SimpleNamespace(host=self.host, device=self.device, precision=self.precision, scalar=self.scalar,
+                               vec3=self.vec3, n_vertices=len(self.host.rest_vertices),
+                               actuators={f.name: f.device_arrays(self.host.actuators[f.name], arr)
+                                          for f in self.families})
+
+    def _family_controls(self) -> SimpleNamespace:
+        """A lane's controls of the replayed actuator families: values (1, n) float64 and enabled (1, n)."""
+        shapes = {f.name: (1, max(self.host.count(f.name), 1)) for f in self.families if f.controlled}
+        return SimpleNamespace(
+            values={k: wp.zeros(s, dtype=wp.float64, device=self.device, requires_grad=True) for k, s in shapes.items()},
+            enabled={k: wp.ones(s, dtype=wp.int32, device=self.device) for k, s in shapes.items()})
+
     def _buffers(self, xv_in: wp.array, xv_out: wp.array) -> StepBuffers:
         V, vec, stages = len(self.host.rest_vertices), self._vec, self._stages
         return StepBuffers(xv_in=xv_in, xv_out=xv_out, fg=[vec((2, 1, V)) for _ in range(stages)],
@@ -280,7 +339,8 @@ class DifferentiableReplay:
         sc = lambda shape: wp.zeros(shape, dtype=self.scalar, device=self.device, requires_grad=True)  # noqa: E731
         return Lane(edge=sc((4, 1, E)), air=wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True),
                     pressure=sc(max(n, 1)), enabled=wp.ones(max(n, 1), dtype=wp.int32, device=self.device),
-                    step_h=wp.zeros(1, dtype=self.scalar, device=self.device), work=self._work_buffers())
+                    step_h=wp.zeros(1, dtype=self.scalar, device=self.device), work=self._work_buffers(),
+                    controls=self._family_controls())
 
     @property
     def lane(self) -> Lane:
@@ -328,6 +388,8 @@ class DifferentiableReplay:
             launch(ka.build_ipams_kernel, 3 * n, [self.faces, self.ipam_faces, self.sub_pairs, self.free_fixed,
                                                   self.derived, self.ipam_stiffness, self.ipam_area, self.rest,
                                                   self.offsets, self.free_length, self.area_over_k])
+        for fam in self.families:
+            fam.build(self.fmodel, self.rest, launch)
         launch(ka.start_state_kernel, V, [self.rest, self.xv0])
 
     def _forces(self, xv, fg, volume, stage: int, lane: Lane, tape: Tape, launch) -> None:
@@ -339,6 +401,8 @@ class DifferentiableReplay:
             launch(ka.ipam_grad_kernel, 3 * self.host.n_ipams,
                    [self.sub_pairs, self.offsets, self.ipam_stiffness, self.area_over_k, self.free_length,
                     self.ipam_damping, xv, lane.pressure, lane.enabled, fg])
+        for fam in self.families:  # the same launches as the simulator's, on the replay's arrays (state: None)
+            fam.eval_forces(self.fmodel, None, lane.controls, xv[0], xv[1], fg[0], launch)
 
     def _step(self, b: StepBuffers, launch, lane: Lane | None = None, tape: Tape | None = None) -> None:
         """One internal step (h: the lane's ``step_h``) from b.xv_in into b.xv_out, the hinges' angles
@@ -476,6 +540,8 @@ class DifferentiableReplay:
         if self.host.n_ipams:
             self._set(lane.pressure, p.pressures[row])
             self._set(lane.enabled, p.enabled)
+        for name, rows in p.family_controls.items():
+            self._set(lane.controls.values[name], rows[row])
         lane.loaded[1] = row
 
     def _recompute(self, start: int, stop: int, lane: Lane | None = None, tape: Tape | None = None) -> None:
@@ -542,7 +608,8 @@ class DifferentiableReplay:
         lane = self.lane
         for a in (self.rest, self.stretch_modulus, self.bending_stiffness, self.ipam_stiffness, self.ipam_area,
                   self.edge0, self.mass, self.inv_mass, self.offsets, self.free_length, self.area_over_k, self.xv0,
-                  lane.edge, lane.air, lane.pressure):
+                  lane.edge, lane.air, lane.pressure, *lane.controls.values.values(),
+                  *(a for arrays in self.fmodel.actuators.values() for a in arrays.values() if a.grad is not None)):
             a.grad.zero_()
 
     def _pipelined(self, threads: int | None, segments: int) -> bool:
@@ -573,6 +640,7 @@ class DifferentiableReplay:
         lam_np[0, 0] = np.asarray(dloss_dx, dtype=np.float64).reshape(-1, 3)
         self._set(lam, lam_np)
         adj_air, adj_p = np.zeros(len(p.air)), np.zeros(p.pressures.shape)
+        adj_f = {name: np.zeros(rows.shape) for name, rows in p.family_controls.items()}
         starts = sorted(p.checkpoints)
         events = {s: j for j, s in enumerate(p.jam_steps)}
         segments = list(reversed(list(zip(starts, starts[1:] + [p.n_steps]))))
@@ -607,6 +675,10 @@ class DifferentiableReplay:
                     if n:
                         adj_p[p.row[k]] += lane.pressure.grad.numpy()[:n].astype(np.float64)
                         lane.pressure.grad.zero_()
+                    for name, adj in adj_f.items():
+                        grad = lane.controls.values[name].grad
+                        adj[p.row[k]] += grad.numpy()[0, :adj.shape[1]]
+                        grad.zero_()
                     if k in events:
                         self._jam_adjoint(events[k], w.xv_out.grad)
             finally:
@@ -616,23 +688,38 @@ class DifferentiableReplay:
         wp.copy(self.edge0.grad, lane.edge.grad)
         wp.copy(self.xv0.grad, lam)
         self._run(build, adjoint=True)
-        return ReplayGradient(loss=float(loss), values=self._values(adj_air, adj_p))
+        return ReplayGradient(loss=float(loss), values=self._values(adj_air, adj_p, adj_f))
 
-    def _values(self, adj_air: np.ndarray, adj_p: np.ndarray) -> dict:
+    def _values(self, adj_air: np.ndarray, adj_p: np.ndarray, adj_f: dict) -> dict:
         n, mat = self.host.n_ipams, self.design.material
         g = lambda a: a.grad.numpy().astype(np.float64)  # noqa: E731
         stretch = float(g(self.stretch_modulus)[0])
-        return dict(rest_positions=g(self.rest).reshape(-1, 3), stretch_modulus=stretch,
-                    youngs_modulus=stretch * mat.thickness, bending_stiffness=float(g(self.bending_stiffness)[0]),
-                    ipam_stiffness=g(self.ipam_stiffness)[:n], ipam_area=g(self.ipam_area)[:n],
-                    air=adj_air, ipam_pressures=adj_p[:, :n])
+        out = dict(rest_positions=g(self.rest).reshape(-1, 3), stretch_modulus=stretch,
+                   youngs_modulus=stretch * mat.thickness, bending_stiffness=float(g(self.bending_stiffness)[0]),
+                   ipam_stiffness=g(self.ipam_stiffness)[:n], ipam_area=g(self.ipam_area)[:n],
+                   air=adj_air, ipam_pressures=adj_p[:, :n])
+        for fam in self.families:
+            count = self.host.count(fam.name)
+            out.update({f"{fam.name}_{p}": g(self.fmodel.actuators[fam.name][p])[:count] for p in fam.parameters})
+            if fam.name in adj_f:
+                out[f"{fam.name}_controls"] = adj_f[fam.name]
+        return out
+
+    def _set_families(self, given: dict | None) -> None:
+        """Every replayed family's parameter arrays at their design values, or at ``given``'s values
+        ({``<family>_<array>``: value}, the names of ``family_parameters``)."""
+        given = given or {}
+        for fam in self.families:
+            for p, base in self._family_base[fam.name].items():
+                self._set(self.fmodel.actuators[fam.name][p], given.get(f"{fam.name}_{p}", base))
 
     # ------------------------------------------------------------------ forward on the kernels alone
     def positions(self, rest=None, stretch_modulus=None, bending_stiffness=None, ipam_stiffness=None,
-                  ipam_area=None, air=None, ipam_pressures=None) -> np.ndarray:
+                  ipam_area=None, air=None, ipam_pressures=None, families: dict | None = None) -> np.ndarray:
         """(V, 3) final positions of the replay on the plan's schedule with the backward-enabled kernels,
         parameters replaced where given (rest (V, 3) m, stretch modulus N/m, bending N m/rad, IPAM
-        stiffness (n,) N/m and area (n,) m^2, air (R,) mol and IPAM pressures (R, n) Pa per row): the
+        stiffness (n,) N/m and area (n,) m^2, air (R,) mol and IPAM pressures (R, n) Pa per row, the
+        other families' parameters and controls per row by their gradient names in ``families``): the
         function ``backward`` differentiates, jams included (frozen at the state reached)."""
         if self.plan is None:
             self.forward()
@@ -647,6 +734,9 @@ class DifferentiableReplay:
                          ("bending_stiffness", self.bending_stiffness), ("ipam_stiffness", self.ipam_stiffness),
                          ("ipam_area", self.ipam_area)):
             self._set(arr, base[key] if given[key] is None else given[key])
+        self._set_families(families)
+        rows_f = {name: np.asarray((families or {}).get(f"{name}_controls", rows), dtype=np.float64)
+                  for name, rows in p.family_controls.items()}
         rows_air = p.air if air is None else np.asarray(air, dtype=np.float64)
         rows_p = p.pressures if ipam_pressures is None else np.asarray(ipam_pressures, dtype=np.float64)
         self._run(self._record(self._build))
@@ -668,6 +758,8 @@ class DifferentiableReplay:
             if n:
                 self._set(lane.pressure, rows_p[row])
                 self._set(lane.enabled, p.enabled)
+            for name, rows in rows_f.items():
+                self._set(lane.controls.values[name], rows[row])
             lane.step_h.fill_(float(p.h[k]))
             fwd = self._single_graph()
             for _ in range(int(p.substeps[k])):

@@ -1,4 +1,4 @@
-"""The fit objective's derivative with respect to the membrane's vertices (warp_shape.objective_grad).
+"""The fit objective's derivative with respect to the membrane's vertices (warp_shape.objectives.radial).
 
 J must be the objective the controller reports (``controller.observe.fit_of``) to rounding, and dJ/dx
 must match central finite differences in float64 (step 1e-7 m) on a perturbed icosphere membrane
@@ -16,8 +16,8 @@ import pytest
 import warp_shape as ws
 from warp_shape.controller.observe import fit_of
 from warp_shape.errors import ShapeError
-from warp_shape import objective_grad
-from warp_shape.objective_grad import area_gradients, fit_objective_and_gradient
+from warp_shape.objectives import radial as objective_grad
+from warp_shape.objectives.radial import area_gradients, fit_objective_and_gradient
 from warp_shape.sampling import RadialSampler
 
 from generated_shapes import shape
