@@ -10,7 +10,10 @@ module and its build are unchanged.
 
 One world (W = 1) per replay; arrays keep the world axis of the step's layout so the fused hinge
 pass is shared. The model's parameters are built here too (edge rest values and stiffness, masses,
-IPAM sub-spring offsets) from the rest positions, so the adjoint reaches the rest shape.
+IPAM sub-spring offsets) from the rest positions, so the adjoint reaches the rest shape. The IPAM's
+forces are not copied here: its family's own kernel (``kernels/ipam.eval_ipam_kernel``) is built a
+second time, with its adjoint, in this module (``eval_ipam_grad_kernel``), and the replay launches it
+through the family (``gradients/families.py``), as it does every other force family's own kernels.
 """
 
 from typing import Any
@@ -19,7 +22,7 @@ import warp as wp
 
 from .bending import bending_forces_at, dihedral_angle, hinge_angle
 from .common import world_and_index
-from .ipam import ipam_natural_length
+from . import ipam as kip
 from .pressure import add_face_volume, gauge_pressure
 from .springs import edge_frame, spring_damper_force, spring_stretch_force
 
@@ -370,35 +373,9 @@ def start_forces_kernel(
         volume_out[0, 0] = wp.float64(0.0)
 
 
-@wp.kernel(module=MODULE)
-def ipam_grad_kernel(
-    # Model:
-    sub_pairs: wp.array(dtype=wp.vec2i),  # (3 n,) vertex of face a, vertex of face b
-    sub_offsets: wp.array(dtype=Any),  # (3 n,) m
-    stiffness: wp.array(dtype=Any),  # (n,) k, N/m
-    area_over_k: wp.array(dtype=Any),  # (n,) A / k, m/Pa
-    free_length: wp.array(dtype=Any),  # (n,) L0, m
-    damping: wp.array(dtype=Any),  # (n,) N s/m per sub-spring
-    # State in:
-    xv_in: wp.array3d(dtype=Any),  # (2, 1, V) the evaluation point
-    # Control:
-    pressure_in: wp.array(dtype=Any),  # (n,) gauge Pa
-    enabled: wp.array(dtype=wp.int32),  # (n,) 0 where the IPAM is masked out
-    # Out:
-    fg_out: wp.array3d(dtype=Any),  # (2, 1, V) row 0 += sub-spring forces, N
-):
-    """IPAM sub-springs as in kernels/ipam.eval_ipam_kernel."""
-    s = wp.tid()
-    i = s // 3
-    if enabled[i] == 0:
-        return
-    pair = sub_pairs[s]
-    k = stiffness[i]
-    natural = ipam_natural_length(free_length[i], area_over_k[i], pressure_in[i]) + sub_offsets[s]
-    f = spring_damper_force(xv_in[0, 0, pair[0]], xv_in[0, 0, pair[1]], xv_in[1, 0, pair[0]], xv_in[1, 0, pair[1]],
-                            k / type(k)(3.0), natural, damping[i])
-    wp.atomic_add(fg_out, 0, 0, pair[0], f)
-    wp.atomic_sub(fg_out, 0, 0, pair[1], f)
+#: the IPAM family's sub-spring kernel (kernels/ipam.eval_ipam_kernel) built with its adjoint, for the
+#: differentiable replay and the equilibrium gradient
+eval_ipam_grad_kernel = wp.kernel(module=MODULE)(kip.eval_ipam_kernel.func)
 
 
 @wp.func

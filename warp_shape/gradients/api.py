@@ -13,7 +13,8 @@ from ..mesh import TriMesh
 from ..model import PRECISIONS, model_families
 from ..objectives.radial import fit_objective_and_gradient
 from ..sampling import RadialSampler
-from .replay import DifferentiableReplay, check_adjoints, family_parameters
+from .families import check_adjoints, family_parameters
+from .replay import DifferentiableReplay
 
 __all__ = ["gradient", "replay_gradient", "Gradient", "GRADIENT_PARAMETERS", "gradient_parameters"]
 
@@ -52,7 +53,10 @@ def gradient_parameters(design: Design) -> dict:
     fams = model_families(design)
     count = {f.name: f.count(design) for f in fams}.get
     check_adjoints(fams, count)
-    return {**GRADIENT_PARAMETERS, **family_parameters(fams, count)}
+    out = dict(GRADIENT_PARAMETERS)
+    for name, unit in family_parameters(fams, count).items():
+        out.setdefault(name, unit)
+    return out
 
 
 def check_wrt(wrt, parameters: dict = GRADIENT_PARAMETERS) -> tuple:

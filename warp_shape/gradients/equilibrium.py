@@ -25,6 +25,7 @@ import warp as wp
 from warp_shape.kernels import adjoint as ka
 
 from ..errors import DesignError
+from .families import ReplayFamilies
 from .replay import adjoint_argument, hinge_adjoint_launch
 
 __all__ = ["EquilibriumGradient", "ControlGradient", "CG_TOLERANCE", "CG_MAX_ITERATIONS"]
@@ -51,9 +52,9 @@ class EquilibriumGradient:
     """Force evaluations and their vector-Jacobian products on one world of ``host`` (a
     ``model.HostModel``) in float64, for the implicit gradient of an objective at an equilibrium.
 
-    ``load(x, edge, air, pressures, enabled)`` sets the point (positions (V, 3) m, at rest; edge fields
-    (4, E) as a simulator state holds them, jams applied; air mol; gauge pressures (n,) Pa; enabled (n,)
-    bool); ``force()`` is the net force there, ``stiffness_product(v)`` K v, ``control_gradient(dj_dx)``
+    ``load(x, edge, air, pressures, enabled, controls)`` sets the point (positions (V, 3) m, at rest; edge
+    fields (4, E) as a simulator state holds them, jams applied; air mol; gauge pressures (n,) Pa; enabled
+    (n,) bool; other actuator families' controls {family: (n,)}, their rest controls where not given); ``force()`` is the net force there, ``stiffness_product(v)`` K v, ``control_gradient(dj_dx)``
     the gradient of an objective with derivative ``dj_dx`` (V, 3) with respect to the air and the
     pressures."""
 
@@ -61,8 +62,6 @@ class EquilibriumGradient:
         self.host, self.device = host, str(device)
         V, E, n = len(host.rest_vertices), len(host.hinges), host.n_ipams
         self.V, self.E, self.n = V, E, n
-        f64 = lambda a: wp.array(np.ascontiguousarray(a, dtype=np.float64), dtype=wp.float64, device=self.device,  # noqa: E731
-                                 requires_grad=True)
         self.hinges = wp.array(host.hinges.astype(np.int32), dtype=wp.vec4i, device=self.device)
         self.owns = wp.array(np.asarray(host.hinge_owns, dtype=np.int32), dtype=wp.int32, device=self.device)
         self.spring_damping = wp.float64(material.spring_damping)
@@ -73,23 +72,18 @@ class EquilibriumGradient:
         self.volume = wp.zeros((1, 1), dtype=wp.float64, device=self.device, requires_grad=True)
         self.angles = wp.zeros((1, 1, E), dtype=wp.float64, device=self.device)
         self.slot = wp.zeros(1, dtype=wp.int32, device=self.device)
-        if n:
-            self.sub_pairs = wp.array(np.asarray(host.ipam_sub_pairs, np.int32).reshape(-1, 2), dtype=wp.vec2i,
-                                      device=self.device)
-            self.offsets = f64(host.ipam_sub_offsets)
-            self.stiffness = f64(host.ipam_stiffness)
-            self.area_over_k = f64(host.ipam_area_over_k)
-            self.free_length = f64(host.ipam_free_length)
-            self.damping = f64(host.ipam_damping)
-        self.pressure = f64(np.zeros(max(n, 1)))
-        self.enabled = wp.ones(max(n, 1), dtype=wp.int32, device=self.device)
+        # the IPAMs and every other force family, through their own launches (gradients/families.py)
+        faces = wp.array(host.faces.astype(np.int32), dtype=wp.vec3i, device=self.device)
+        self.fam = ReplayFamilies(host, faces, wp.float64, wp.vec3d, np.float64, self.device, "float64")
+        self.controls = self.fam.controls()
+        self.rigid_free = all(f.rigid_invariant for f in host.families)
         self.air = 0.0
         self._launches: list = []
         self._rigid = None
         self._diag = None
 
     # ------------------------------------------------------------------ the point
-    def load(self, x, edge, air: float, pressures, enabled=None) -> None:
+    def load(self, x, edge, air: float, pressures, enabled=None, controls: dict | None = None) -> None:
         x = np.asarray(x, dtype=np.float64).reshape(self.V, 3)
         edge = np.asarray(edge, dtype=np.float64).reshape(4, self.E)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(edge)) and np.isfinite(air) and air > 0):
@@ -100,9 +94,13 @@ class EquilibriumGradient:
         self.edge.assign(edge.reshape(4, 1, self.E))
         self.air = float(air)
         if self.n:
-            self.pressure.assign(np.asarray(pressures, dtype=np.float64).reshape(self.n))
+            self.controls.values["ipam"].assign(np.asarray(pressures, dtype=np.float64).reshape(1, self.n))
             on = np.ones(self.n, bool) if enabled is None else np.asarray(enabled, bool).reshape(self.n)
-            self.enabled.assign(on.astype(np.int32))
+            self.controls.enabled["ipam"].assign(on.astype(np.int32).reshape(1, self.n))
+        for fam in self.fam.controlled:  # other actuator families: the controls given, else their rest controls
+            if fam.name != "ipam":
+                given = (controls or {}).get(fam.name, fam.rest_controls(self.host.actuators[fam.name]))
+                self.controls.values[fam.name].assign(np.asarray(given, dtype=np.float64).reshape(1, -1))
         self._forward()
         self._rigid = _rigid_basis(x)
         self._diag = self._stiffness_diagonal(edge)
@@ -115,10 +113,7 @@ class EquilibriumGradient:
             (ka.start_forces_kernel, self.V, [self.viscous_damping, self.xv, self.fg, self.volume]),
             (ka.hinge_grad_kernel, self.E, [self.hinges, self.owns, self.spring_damping, 0, 1, self.E, self.edge,
                                             self.xv, 0, self.fg, self.volume, self.angles, self.slot, 0])]
-        if self.n:
-            self._launches.append((ka.ipam_grad_kernel, 3 * self.n,
-                                   [self.sub_pairs, self.offsets, self.stiffness, self.area_over_k, self.free_length,
-                                    self.damping, self.xv, self.pressure, self.enabled, self.fg]))
+        self.fam.forces(self.controls, self.xv, self.fg, lambda k, dim, inputs: self._launches.append((k, dim, inputs)))
         for kernel, dim, inputs in self._launches:
             wp.launch(kernel, dim, inputs, device=self.device, record_tape=False)
         fg = self.fg.numpy()
@@ -143,7 +138,7 @@ class EquilibriumGradient:
         adj[0, 0], adj[1, 0] = lam, p * lam
         self.fg.grad.assign(adj)
         self.volume.grad.assign(np.array([[p_bar * (-self.air * rt / self._vol ** 2)]]))
-        for a in (self.xv.grad, self.edge.grad, self.pressure.grad):
+        for a in (self.xv.grad, self.edge.grad, *(v.grad for v in self.controls.values.values())):
             a.zero_()
         for kernel, dim, inputs in reversed(self._launches):
             if kernel is ka.start_forces_kernel:  # at rest: only velocities, which carry no adjoint here
@@ -154,11 +149,15 @@ class EquilibriumGradient:
             wp.launch(kernel, dim, inputs, adj_inputs=[adjoint_argument(a) for a in inputs], device=self.device,
                       adjoint=True, record_tape=False)
         dx = self.xv.grad.numpy()[0, 0].astype(np.float64)
-        dp = self.pressure.grad.numpy()[:self.n].astype(np.float64)
+        dp = (self.controls.values["ipam"].grad.numpy()[0, :self.n].astype(np.float64) if self.n
+              else np.zeros(0))
         return dx, p_bar * rt / self._vol, dp
 
     def project(self, v: np.ndarray) -> np.ndarray:
-        """v without its rigid components (translations, rotations about the centroid; unit weights)."""
+        """v without its rigid components (translations, rotations about the centroid; unit weights), where
+        every force of the model is invariant under rigid motions (else K is not singular along them: v)."""
+        if not self.rigid_free:
+            return np.asarray(v, dtype=np.float64).reshape(self.V, 3)
         flat = np.asarray(v, dtype=np.float64).reshape(-1)
         return (flat - self._rigid @ (self._rigid.T @ flat)).reshape(self.V, 3)
 
@@ -232,7 +231,7 @@ class EquilibriumGradient:
         mu, it, res, ok = self.solve(dj_dx, tolerance, max_iterations, guess)
         _, d_air, d_p = self.force_vjp(mu)
         if self.n:
-            d_p = d_p * self.enabled.numpy()[:self.n]
+            d_p = d_p * self.controls.enabled["ipam"].numpy()[0, :self.n]
         return ControlGradient(air=float(d_air), pressures=d_p, iterations=it, residual=res, converged=ok, adjoint=mu)
 
 

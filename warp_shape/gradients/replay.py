@@ -31,8 +31,9 @@ from ..errors import DesignError
 from ..model import PRECISIONS, host_model
 from ..simulator import Simulator
 from ..step_plan import create_overloads
+from .families import ReplayFamilies, controls_gradient_name
 
-__all__ = ["ReplayPlan", "DifferentiableReplay", "ReplayGradient", "check_adjoints", "family_parameters"]
+__all__ = ["ReplayPlan", "DifferentiableReplay", "ReplayGradient"]
 
 
 @dataclass
@@ -76,35 +77,6 @@ class ReplayPlan:
 #: the step in hand), so this bounds its memory (measured peak: 13 MB at 642 vertices, 56 MB at 2562 in
 #: float64, ``bench gradient``)
 MAX_SEGMENT = 32
-
-
-def replayed_families(families, count) -> tuple:
-    """The force families the replay composes through their own ``eval_forces`` (and Warp's adjoints of
-    its kernels): those of ``families`` with elements (``count(name)`` > 0) besides the IPAM, whose
-    kernels the replay holds itself."""
-    return tuple(f for f in families if f.name != "ipam" and count(f.name))
-
-
-def check_adjoints(families, count) -> tuple:
-    """``replayed_families``, each differentiable: a family that is not is refused by name."""
-    fams = replayed_families(families, count)
-    bad = next((f for f in fams if not f.differentiable), None)
-    if bad is not None:
-        raise DesignError(f"this design holds {bad.plural} (force family {bad.name!r}), which has no adjoint, so its "
-                          f"gradient cannot be taken; give the family kernels with adjoints and set differentiable = "
-                          f"True (warp_shape.force_family), or take its {bad.plural} out of the design")
-    return fams
-
-
-def family_parameters(families, count) -> dict:
-    """{gradient name: unit} of the replayed families' parameters (``<family>_<array>``) and, for an
-    actuator family, its controls per history row (``<family>_controls``, (rows, n))."""
-    out = {}
-    for f in replayed_families(families, count):
-        out.update({f"{f.name}_{p}": f"{unit}: the {f.plural}' {p}" for p, unit in f.parameters.items()})
-        if f.controlled:
-            out[f"{f.name}_controls"] = f"{f.control_unit}, (rows, n): each row's {f.control_name} of the {f.plural}"
-    return out
 
 
 def segment_budget(internal_steps: int) -> int:
@@ -202,18 +174,16 @@ class Tape:
 @dataclass
 class Lane:
     """What an internal step reads besides the model arrays: the edge fields ``edge`` (4, 1, E), the
-    air ``air`` (1,) mol, the IPAM gauge pressures ``pressure`` (n,) Pa and ``enabled`` flags, the
-    internal step ``step_h`` (1,) s, with the ``work`` buffers it runs on; ``loaded`` the (jam phase,
+    air ``air`` (1,) mol, the actuator families' controls and masks ``controls`` (values / enabled
+    {family: (1, n)}: the IPAM's gauge pressures in Pa), the internal step ``step_h`` (1,) s, with the ``work`` buffers it runs on; ``loaded`` the (jam phase,
     history row, h) now in them. The adjoint runs on lane 0; a pipelined backward recomputes the next
     segment on lane 1 meanwhile, on a second thread."""
 
     edge: wp.array
     air: wp.array
-    pressure: wp.array
-    enabled: wp.array
     step_h: wp.array
     work: StepBuffers
-    controls: SimpleNamespace  # the other families' controls: values / enabled {family: (1, n)}
+    controls: SimpleNamespace  # the actuator families' controls: values / enabled {family: (1, n)}
     loaded: list = field(default_factory=lambda: [None, None, None])
 
 
@@ -245,7 +215,6 @@ class DifferentiableReplay:
         self.segment = segment
         self.scalar, self.vec3, self.np_dtype = PRECISIONS[precision]
         self.host = host_model(design)
-        self.families = check_adjoints(self.host.families, self.host.count)
         self.integrator = result.settings.simulation.integrator
         self.paper_bending = int(result.settings.simulation.bending == "paper")
         self.plan: ReplayPlan | None = None
@@ -260,7 +229,7 @@ class DifferentiableReplay:
 
     def _build_arrays(self) -> None:
         d, h = self.design, self.host
-        V, E, n = len(h.rest_vertices), len(h.hinges), h.n_ipams
+        V, E = len(h.rest_vertices), len(h.hinges)
         mat = d.material
         vec = lambda shape: wp.zeros(shape, dtype=self.vec3, device=self.device, requires_grad=True)  # noqa: E731
         sc = lambda shape: wp.zeros(shape, dtype=self.scalar, device=self.device, requires_grad=True)  # noqa: E731
@@ -273,25 +242,12 @@ class DifferentiableReplay:
         self.bending_stiffness = self._arr(np.array([mat.bending_stiffness]))
         face_scale = d.stretch_scale if d.stretch_scale is not None else np.ones(len(h.faces))
         self.wing_scale = self._arr(face_scale[h.hinge_faces].astype(self.np_dtype), grad=False)  # (E, 2)
-        ip = h.actuators["ipam"]
-        self.ipam_stiffness = self._arr(ip["stiffness"] if n else np.ones(1))
-        self.ipam_area = self._arr(np.array([i.area for i in d.ipams]) if n else np.ones(1))
         # derived model arrays (outputs of the build, inputs of every step)
         self.edge0 = sc((4, 1, E))
         self.mass, self.inv_mass = sc(V), sc(V)
-        self.offsets, self.free_length, self.area_over_k = sc(max(3 * n, 3)), sc(max(n, 1)), sc(max(n, 1))
-        self.sub_pairs = wp.array(ip["sub_pairs"].astype(np.int32).reshape(-1, 2) if n else np.zeros((3, 2), np.int32),
-                                  dtype=wp.vec2i, device=self.device)
-        self.ipam_faces = wp.array(ip["faces"].astype(np.int32).reshape(-1, 2) if n else np.zeros((1, 2), np.int32),
-                                   dtype=wp.vec2i, device=self.device)
-        derived = np.array([i.free_length_is_rest for i in d.ipams], np.int32)
-        self.derived = wp.array(derived if n else np.zeros(1, np.int32), dtype=wp.int32, device=self.device)
-        self.free_fixed = self._arr(ip["free_length"] if n else np.ones(1), grad=False)
-        self.ipam_damping = self._arr(ip["damping"] if n else np.zeros(1), grad=False)
         self.xv0 = vec((2, 1, V))
-        self.fmodel = self._family_model()
-        self._family_base = {f.name: {p: self.fmodel.actuators[f.name][p].numpy().copy() for p in f.parameters}
-                             for f in self.families}
+        self.fam = ReplayFamilies(self.host, self.faces, self.scalar, self.vec3, self.np_dtype, self.device,
+                                  self.precision)
         self._vec, self._stages = vec, 4 if self.integrator == "rk4" else 1
         # the controls and edge fields in force with the work buffers, whose intermediates every
         # recomputed internal step leaves on a tape: lane 0 (the adjoint's; a pipelined backward
@@ -306,26 +262,6 @@ class DifferentiableReplay:
         self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
         self.xv_jam = vec((2, 1, V))
 
-    def _family_model(self) -> SimpleNamespace:
-        """What the replayed families' ``eval_forces`` and ``build`` read as their model: the host model
-        and each family's device arrays, made by the family with gradients on its floating-point ones."""
-        def arr(a, dtype=None):
-            if dtype is None:
-                a, dtype = np.asarray(a).astype(self.np_dtype), self.scalar
-            grad = wp.types.type_is_float(getattr(dtype, "_wp_scalar_type_", dtype))
-            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=self.device, requires_grad=grad)
-        return SimpleNamespace(host=self.host, device=self.device, precision=self.precision, scalar=self.scalar,
-                               vec3=self.vec3, n_vertices=len(self.host.rest_vertices),
-                               actuators={f.name: f.device_arrays(self.host.actuators[f.name], arr)
-                                          for f in self.families})
-
-    def _family_controls(self) -> SimpleNamespace:
-        """A lane's controls of the replayed actuator families: values (1, n) float64 and enabled (1, n)."""
-        shapes = {f.name: (1, max(self.host.count(f.name), 1)) for f in self.families if f.controlled}
-        return SimpleNamespace(
-            values={k: wp.zeros(s, dtype=wp.float64, device=self.device, requires_grad=True) for k, s in shapes.items()},
-            enabled={k: wp.ones(s, dtype=wp.int32, device=self.device) for k, s in shapes.items()})
-
     def _buffers(self, xv_in: wp.array, xv_out: wp.array) -> StepBuffers:
         V, vec, stages = len(self.host.rest_vertices), self._vec, self._stages
         return StepBuffers(xv_in=xv_in, xv_out=xv_out, fg=[vec((2, 1, V)) for _ in range(stages)],
@@ -335,12 +271,11 @@ class DifferentiableReplay:
                            accel=[vec((1, V)) for _ in range(stages - 1)])
 
     def _lane(self) -> Lane:
-        n, E = self.host.n_ipams, len(self.host.hinges)
-        sc = lambda shape: wp.zeros(shape, dtype=self.scalar, device=self.device, requires_grad=True)  # noqa: E731
-        return Lane(edge=sc((4, 1, E)), air=wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True),
-                    pressure=sc(max(n, 1)), enabled=wp.ones(max(n, 1), dtype=wp.int32, device=self.device),
+        E = len(self.host.hinges)
+        return Lane(edge=wp.zeros((4, 1, E), dtype=self.scalar, device=self.device, requires_grad=True),
+                    air=wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True),
                     step_h=wp.zeros(1, dtype=self.scalar, device=self.device), work=self._work_buffers(),
-                    controls=self._family_controls())
+                    controls=self.fam.controls())
 
     @property
     def lane(self) -> Lane:
@@ -377,19 +312,14 @@ class DifferentiableReplay:
     # ------------------------------------------------------------------ launches
     def _build(self, launch) -> None:
         """The model arrays from the parameters (recorded on the build tape)."""
-        h, V, E, n = self.host, len(self.host.rest_vertices), len(self.host.hinges), self.host.n_ipams
+        h, V, E = self.host, len(self.host.rest_vertices), len(self.host.hinges)
         self.mass.zero_()
         launch(ka.build_edges_kernel, E, [self.hinges, self.stretch_modulus, self.bending_stiffness, self.wing_scale,
                                           self.rest, self.edge0])
         launch(ka.build_mass_kernel, len(h.faces), [self.faces, self.scalar(self.design.material.areal_density),
                                                     self.rest, self.mass])
         launch(ka.invert_kernel, V, [self.mass, self.inv_mass])
-        if n:
-            launch(ka.build_ipams_kernel, 3 * n, [self.faces, self.ipam_faces, self.sub_pairs, self.free_fixed,
-                                                  self.derived, self.ipam_stiffness, self.ipam_area, self.rest,
-                                                  self.offsets, self.free_length, self.area_over_k])
-        for fam in self.families:
-            fam.build(self.fmodel, self.rest, launch)
+        self.fam.build(self.rest, launch)
         launch(ka.start_state_kernel, V, [self.rest, self.xv0])
 
     def _forces(self, xv, fg, volume, stage: int, lane: Lane, tape: Tape, launch) -> None:
@@ -397,12 +327,7 @@ class DifferentiableReplay:
         launch(ka.start_forces_kernel, V, [self.scalar(m.viscous_damping), xv, fg, volume])
         launch(ka.hinge_grad_kernel, E, [self.hinges, self.owns, self.scalar(m.spring_damping), self.paper_bending,
                                          1, E, lane.edge, xv, 0, fg, volume, tape.angles, tape.slot, stage])
-        if self.host.n_ipams:
-            launch(ka.ipam_grad_kernel, 3 * self.host.n_ipams,
-                   [self.sub_pairs, self.offsets, self.ipam_stiffness, self.area_over_k, self.free_length,
-                    self.ipam_damping, xv, lane.pressure, lane.enabled, fg])
-        for fam in self.families:  # the same launches as the simulator's, on the replay's arrays (state: None)
-            fam.eval_forces(self.fmodel, None, lane.controls, xv[0], xv[1], fg[0], launch)
+        self.fam.forces(lane.controls, xv, fg, launch)  # the simulator's launches of the other families
 
     def _step(self, b: StepBuffers, launch, lane: Lane | None = None, tape: Tape | None = None) -> None:
         """One internal step (h: the lane's ``step_h``) from b.xv_in into b.xv_out, the hinges' angles
@@ -535,14 +460,26 @@ class DifferentiableReplay:
         """The controls of history row ``row`` (nothing to do where they are loaded already)."""
         if lane.loaded[1] == row:
             return
-        p = self.plan
-        lane.air.fill_(float(p.air[row]))
-        if self.host.n_ipams:
-            self._set(lane.pressure, p.pressures[row])
-            self._set(lane.enabled, p.enabled)
-        for name, rows in p.family_controls.items():
-            self._set(lane.controls.values[name], rows[row])
+        lane.air.fill_(float(self.plan.air[row]))
+        self._set_controls(lane, row, self._control_rows())
         lane.loaded[1] = row
+
+    def _control_rows(self, given: dict | None = None) -> dict:
+        """{family: (R, n)} every controlled family's controls per history row (the IPAM's: the plan's
+        pressures), or ``given``'s ({gradient name: (R, n)}, e.g. ``ipam_pressures``) where given."""
+        p, given = self.plan, given or {}
+        rows = {}
+        for fam in self.fam.controlled:
+            plan_rows = p.pressures if fam.name == "ipam" else p.family_controls[fam.name]
+            rows[fam.name] = np.asarray(given.get(controls_gradient_name(fam), plan_rows), dtype=np.float64)
+        return rows
+
+    def _set_controls(self, lane: Lane, row: int, rows: dict) -> None:
+        """Row ``row`` of ``rows`` ({family: (R, n)}) into the lane's controls, with the masks."""
+        for name, values in rows.items():
+            self._set(lane.controls.values[name], values[row])
+            if name == "ipam":
+                self._set(lane.controls.enabled[name], self.plan.enabled)
 
     def _recompute(self, start: int, stop: int, lane: Lane | None = None, tape: Tape | None = None) -> None:
         """Output steps start..stop-1 recomputed from the checkpoint at start on ``lane``, every internal
@@ -606,10 +543,8 @@ class DifferentiableReplay:
 
     def _zero_grads(self) -> None:
         lane = self.lane
-        for a in (self.rest, self.stretch_modulus, self.bending_stiffness, self.ipam_stiffness, self.ipam_area,
-                  self.edge0, self.mass, self.inv_mass, self.offsets, self.free_length, self.area_over_k, self.xv0,
-                  lane.edge, lane.air, lane.pressure, *lane.controls.values.values(),
-                  *(a for arrays in self.fmodel.actuators.values() for a in arrays.values() if a.grad is not None)):
+        for a in (self.rest, self.stretch_modulus, self.bending_stiffness, self.edge0, self.mass, self.inv_mass,
+                  self.xv0, lane.edge, lane.air, *lane.controls.values.values(), *self.fam.grad_arrays()):
             a.grad.zero_()
 
     def _pipelined(self, threads: int | None, segments: int) -> bool:
@@ -631,7 +566,7 @@ class DifferentiableReplay:
         None: 2 on a CPU with two cores or more (not in a run's worker)."""
         if self.plan is None:
             self.forward()
-        p, n = self.plan, self.host.n_ipams
+        p = self.plan
         build = self._record(self._build)
         self._run(build)
         self._zero_grads()
@@ -639,8 +574,8 @@ class DifferentiableReplay:
         lam_np = np.zeros((2, 1, len(self.host.rest_vertices), 3))
         lam_np[0, 0] = np.asarray(dloss_dx, dtype=np.float64).reshape(-1, 3)
         self._set(lam, lam_np)
-        adj_air, adj_p = np.zeros(len(p.air)), np.zeros(p.pressures.shape)
-        adj_f = {name: np.zeros(rows.shape) for name, rows in p.family_controls.items()}
+        adj_air = np.zeros(len(p.air))
+        adj_f = {name: np.zeros(rows.shape) for name, rows in self._control_rows().items()}
         starts = sorted(p.checkpoints)
         events = {s: j for j, s in enumerate(p.jam_steps)}
         segments = list(reversed(list(zip(starts, starts[1:] + [p.n_steps]))))
@@ -672,9 +607,6 @@ class DifferentiableReplay:
                         wp.capture_launch(adjoints[i % len(tapes)])
                     adj_air[p.row[k]] += float(lane.air.grad.numpy()[0])
                     lane.air.grad.zero_()
-                    if n:
-                        adj_p[p.row[k]] += lane.pressure.grad.numpy()[:n].astype(np.float64)
-                        lane.pressure.grad.zero_()
                     for name, adj in adj_f.items():
                         grad = lane.controls.values[name].grad
                         adj[p.row[k]] += grad.numpy()[0, :adj.shape[1]]
@@ -688,57 +620,41 @@ class DifferentiableReplay:
         wp.copy(self.edge0.grad, lane.edge.grad)
         wp.copy(self.xv0.grad, lam)
         self._run(build, adjoint=True)
-        return ReplayGradient(loss=float(loss), values=self._values(adj_air, adj_p, adj_f))
+        return ReplayGradient(loss=float(loss), values=self._values(adj_air, adj_f))
 
-    def _values(self, adj_air: np.ndarray, adj_p: np.ndarray, adj_f: dict) -> dict:
-        n, mat = self.host.n_ipams, self.design.material
+    def _values(self, adj_air: np.ndarray, adj_f: dict) -> dict:
+        mat, rows = self.design.material, len(self.plan.air)
         g = lambda a: a.grad.numpy().astype(np.float64)  # noqa: E731
         stretch = float(g(self.stretch_modulus)[0])
         out = dict(rest_positions=g(self.rest).reshape(-1, 3), stretch_modulus=stretch,
                    youngs_modulus=stretch * mat.thickness, bending_stiffness=float(g(self.bending_stiffness)[0]),
-                   ipam_stiffness=g(self.ipam_stiffness)[:n], ipam_area=g(self.ipam_area)[:n],
-                   air=adj_air, ipam_pressures=adj_p[:, :n])
-        for fam in self.families:
-            count = self.host.count(fam.name)
-            out.update({f"{fam.name}_{p}": g(self.fmodel.actuators[fam.name][p])[:count] for p in fam.parameters})
-            if fam.name in adj_f:
-                out[f"{fam.name}_controls"] = adj_f[fam.name]
+                   air=adj_air, ipam_stiffness=np.zeros(0), ipam_area=np.zeros(0), ipam_pressures=np.zeros((rows, 0)))
+        out.update(self.fam.parameter_gradients())
+        for fam in self.fam.controlled:
+            out[controls_gradient_name(fam)] = adj_f[fam.name]
         return out
-
-    def _set_families(self, given: dict | None) -> None:
-        """Every replayed family's parameter arrays at their design values, or at ``given``'s values
-        ({``<family>_<array>``: value}, the names of ``family_parameters``)."""
-        given = given or {}
-        for fam in self.families:
-            for p, base in self._family_base[fam.name].items():
-                self._set(self.fmodel.actuators[fam.name][p], given.get(f"{fam.name}_{p}", base))
 
     # ------------------------------------------------------------------ forward on the kernels alone
     def positions(self, rest=None, stretch_modulus=None, bending_stiffness=None, ipam_stiffness=None,
                   ipam_area=None, air=None, ipam_pressures=None, families: dict | None = None) -> np.ndarray:
         """(V, 3) final positions of the replay on the plan's schedule with the backward-enabled kernels,
         parameters replaced where given (rest (V, 3) m, stretch modulus N/m, bending N m/rad, IPAM
-        stiffness (n,) N/m and area (n,) m^2, air (R,) mol and IPAM pressures (R, n) Pa per row, the
-        other families' parameters and controls per row by their gradient names in ``families``): the
-        function ``backward`` differentiates, jams included (frozen at the state reached)."""
+        stiffness (n,) N/m and area (n,) m^2, air (R,) mol and IPAM pressures (R, n) Pa per row, any force
+        family's parameters and controls per row by their gradient names in ``families``): the function
+        ``backward`` differentiates, jams included (frozen at the state reached)."""
         if self.plan is None:
             self.forward()
-        p, h, n = self.plan, self.host, self.host.n_ipams
-        given = dict(rest=rest, stretch_modulus=stretch_modulus, bending_stiffness=bending_stiffness,
-                     ipam_stiffness=ipam_stiffness, ipam_area=ipam_area)
-        base = dict(rest=h.rest_vertices, stretch_modulus=[self.design.material.stretch_modulus],
-                    bending_stiffness=[self.design.material.bending_stiffness],
-                    ipam_stiffness=h.actuators["ipam"]["stiffness"] if n else [1.0],
-                    ipam_area=[i.area for i in self.design.ipams] if n else [1.0])
-        for key, arr in (("rest", self.rest), ("stretch_modulus", self.stretch_modulus),
-                         ("bending_stiffness", self.bending_stiffness), ("ipam_stiffness", self.ipam_stiffness),
-                         ("ipam_area", self.ipam_area)):
-            self._set(arr, base[key] if given[key] is None else given[key])
-        self._set_families(families)
-        rows_f = {name: np.asarray((families or {}).get(f"{name}_controls", rows), dtype=np.float64)
-                  for name, rows in p.family_controls.items()}
+        p, h = self.plan, self.host
+        given = dict(families or {})
+        given.update({k: v for k, v in (("ipam_stiffness", ipam_stiffness), ("ipam_area", ipam_area),
+                                         ("ipam_pressures", ipam_pressures)) if v is not None})
+        for arr, value, base in ((self.rest, rest, h.rest_vertices),
+                                 (self.stretch_modulus, stretch_modulus, [self.design.material.stretch_modulus]),
+                                 (self.bending_stiffness, bending_stiffness, [self.design.material.bending_stiffness])):
+            self._set(arr, base if value is None else value)
+        self.fam.set_parameters(given)
+        rows_f = self._control_rows(given)
         rows_air = p.air if air is None else np.asarray(air, dtype=np.float64)
-        rows_p = p.pressures if ipam_pressures is None else np.asarray(ipam_pressures, dtype=np.float64)
         self._run(self._record(self._build))
         self.tapes[0].slot.zero_()
         lane = self.lane
@@ -755,11 +671,7 @@ class DifferentiableReplay:
                 wp.copy(lane.edge, self.edge_after)
             row = int(p.row[k])
             lane.air.assign(np.array([rows_air[row]]))
-            if n:
-                self._set(lane.pressure, rows_p[row])
-                self._set(lane.enabled, p.enabled)
-            for name, rows in rows_f.items():
-                self._set(lane.controls.values[name], rows[row])
+            self._set_controls(lane, row, rows_f)
             lane.step_h.fill_(float(p.h[k]))
             fwd = self._single_graph()
             for _ in range(int(p.substeps[k])):

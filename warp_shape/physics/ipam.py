@@ -11,6 +11,7 @@ import math
 import numpy as np
 import warp as wp
 
+from warp_shape.kernels import adjoint as ka
 from warp_shape.kernels import ipam as kip
 
 from ..actuators import ACTUATOR_FAMILIES, SCENE_NAMESPACE as NS, ActuatorFamily, SceneAttribute
@@ -18,7 +19,7 @@ from ..design import MAX_IPAMS
 from .ipam_law import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
 from .springs import spring_rows_np
 
-__all__ = ["IpamFamily", "IPAM", "IPAM_ATTRIBUTES", "eval_ipams", "ipam_energy_np", "ipam_rows_np",
+__all__ = ["IpamFamily", "IPAM", "IPAM_ATTRIBUTES", "ipam_energy_np", "ipam_rows_np",
            "ipam_operator_terms"]
 
 #: The Ipams prim: per-IPAM attributes, one element per IPAM (``pairs`` / ``offsets``: three).
@@ -34,16 +35,6 @@ IPAM_ATTRIBUTES = (
     SceneAttribute(f"{NS}:pairs", "int2[]", "pairs", 2, False),
     SceneAttribute(f"{NS}:offsets", "double[]", "offsets", 1, False),
 )
-
-
-def eval_ipams(model, x, v, control, f, launch):
-    """Add IPAM sub-spring forces at (x, v) (W, V) into f (none from an IPAM masked out of a world,
-    ``control.ipam_enabled``); launches nothing without IPAMs."""
-    if not model.has_ipams:
-        return
-    launch(kip.eval_ipam_kernel, (x.shape[0], 3 * model.n_ipams),
-           [model.ipam_sub_pairs, model.ipam_sub_offsets, model.ipam_stiffness, model.ipam_area_over_k,
-            model.ipam_free_length, model.ipam_damping, x, v, control.ipam_pressure, control.ipam_enabled, f])
 
 
 def ipam_energy_np(x: np.ndarray, a: dict, pressure: np.ndarray, enabled: np.ndarray | None = None) -> np.ndarray:
@@ -97,6 +88,9 @@ class IpamFamily(ActuatorFamily):
     scene_attributes = IPAM_ATTRIBUTES
     history_columns = ("ipam{i}_pressure_pa", "ipam{i}_length_m", "ipam{i}_target_length_m", "ipam{i}_force_n",
                        "ipam{i}_strain")
+    differentiable = True
+    parameters = {"stiffness": "N/m", "area": "m^2"}
+    controls_gradient = "ipam_pressures"
 
     def host_arrays(self, design) -> dict:
         ips = design.ipams
@@ -105,6 +99,8 @@ class IpamFamily(ActuatorFamily):
             sub_pairs=np.concatenate([ip.pairs for ip in ips] or [np.zeros((0, 2))]).astype(np.int64),
             sub_offsets=np.concatenate([ip.offsets for ip in ips] or [np.zeros(0)]),
             stiffness=np.array([ip.stiffness for ip in ips], dtype=np.float64),
+            area=np.array([ip.area for ip in ips], dtype=np.float64),
+            derived=np.array([ip.free_length_is_rest for ip in ips], dtype=np.int64),
             area_over_k=np.array([ip.area_over_stiffness for ip in ips], dtype=np.float64),
             free_length=np.array([ip.free_length for ip in ips], dtype=np.float64),
             damping=np.array([ip.damping for ip in ips], dtype=np.float64),
@@ -112,8 +108,19 @@ class IpamFamily(ActuatorFamily):
 
     def device_arrays(self, host: dict, arr) -> dict:
         return dict(sub_pairs=arr(host["sub_pairs"].astype(np.int32), wp.vec2i),
-                    **{k: arr(host[k]) for k in ("sub_offsets", "stiffness", "area_over_k", "free_length",
+                    faces=arr(host["faces"].astype(np.int32), wp.vec2i), derived=arr(host["derived"].astype(np.int32),
+                                                                                   wp.int32),
+                    free_fixed=arr(host["free_length"]),
+                    **{k: arr(host[k]) for k in ("sub_offsets", "stiffness", "area", "area_over_k", "free_length",
                                                   "damping")})
+
+    def build(self, model, rest, launch) -> None:
+        """The sub-springs' offsets, L0 where it is the rest centroid distance and A / k from the stiffness,
+        the area and the rest positions (``Design.add_ipam``'s rule, on the device)."""
+        dev = model.actuators[self.name]
+        launch(ka.build_ipams_kernel, 3 * model.host.count(self.name),
+               [model.faces, dev["faces"], dev["sub_pairs"], dev["free_fixed"], dev["derived"], dev["stiffness"],
+                dev["area"], rest, dev["sub_offsets"], dev["free_length"], dev["area_over_k"]])
 
     def rest_controls(self, host: dict) -> np.ndarray:
         return np.zeros(len(host["faces"]))
@@ -122,7 +129,17 @@ class IpamFamily(ActuatorFamily):
         return host["limits"]
 
     def eval_forces(self, model, state, control, x, v, f, launch) -> None:
-        eval_ipams(model, x, v, control, f, launch)
+        """Add the sub-spring forces at (x, v) (W, V) into f (none from an IPAM masked out of a world);
+        launches nothing without IPAMs. A differentiable replay's model (``differentiable``) gets the
+        same kernel built with its adjoint."""
+        n = model.host.count(self.name)
+        if not n:
+            return
+        dev = model.actuators[self.name]
+        kernel = ka.eval_ipam_grad_kernel if getattr(model, "differentiable", False) else kip.eval_ipam_kernel
+        launch(kernel, (x.shape[0], 3 * n),
+               [dev["sub_pairs"], dev["sub_offsets"], dev["stiffness"], dev["area_over_k"], dev["free_length"],
+                dev["damping"], x, v, control.values[self.name], control.enabled[self.name], f])
 
     def energy(self, host: dict, x, controls, enabled) -> np.ndarray:
         if not len(host["faces"]):
