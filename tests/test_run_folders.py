@@ -385,21 +385,24 @@ def test_the_staging_folder_and_the_root_are_refused_in_one_line(tmp_path, monke
                                        "folder as a whole: give it a folder of its own, e.g. --out out\n")
 
 
-def test_commands_writing_files_one_by_one_replace_only_their_own(tmp_path, monkeypatch, capsys):
-    """simulate, control and export write into --out file by file: a file under one of their names that
-    no run wrote is refused, a design run's set is never changed, and their own files (listed in the
-    folder's manifest as they write them) are theirs to replace next time."""
+def test_every_command_replaces_only_its_own_set(tmp_path, monkeypatch, capsys):
+    """simulate, control and export stage their set and swap it into --out whole, as design does: a
+    file under one of their names that no run wrote is refused, another command's set is never
+    changed, and their own set (in the folder's manifest, with the command's name) is theirs to replace."""
     sim = ["simulate", "--subdivisions", "1", "--inflate-time", "0.01", "--actuate-time", "0.01"]
     folder = tmp_path / "sim"
     folder.mkdir()
     (folder / "simulate.json").write_text("mine")
+    (folder / "notes.txt").write_text("kept")
     assert main([*sim, "--out", str(folder)]) == 2
-    assert "holds files named as this command's outputs that no run wrote or that changed since (simulate.json)" \
-        in capsys.readouterr().err and (folder / "simulate.json").read_text() == "mine"
+    assert "holds files no run wrote (simulate.json)" in capsys.readouterr().err
+    assert (folder / "simulate.json").read_text() == "mine"
     (folder / "simulate.json").unlink()
-    for _ in range(2):  # the second run replaces the first one's file: listed in the manifest
+    for _ in range(2):  # the second run replaces the first one's set; the other file is kept
         assert main([*sim, "--out", str(folder)]) == 0
-        assert manifest_problems(folder) == [] and set(read_manifest(folder)["files"]) == {"simulate.json"}
+        manifest = read_manifest(folder)
+        assert manifest_problems(folder) == [] and set(manifest["files"]) == {"simulate.json"}
+        assert manifest["command"] == "simulate" and (folder / "notes.txt").read_text() == "kept"
     capsys.readouterr()
     no_control(monkeypatch)
     out = tmp_path / "out"
@@ -407,6 +410,8 @@ def test_commands_writing_files_one_by_one_replace_only_their_own(tmp_path, monk
     assert main(["control", str(ROOT / "scenes" / "cube_fig6.usda"), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert f"--out {out} holds a design run's set" in err and f"--out {out / 'control'}" in err
+    assert main([*sim, "--out", str(out)]) == 2
+    assert f"--out {out} holds a design run's set" in capsys.readouterr().err
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "design.usda").write_text("my scene")

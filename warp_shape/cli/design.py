@@ -225,7 +225,7 @@ def run(args) -> int:
     staged = StagedFolder(args.out, owned=is_run_output)
     check_out(staged)
     check_device(args.device)
-    check_rerun(args)
+    check_rerun(args, staged, inputs=[args.scene, args.calibration, *(args.targets or [])])
     base, named, run_opts = _problem(args)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     timing = timing_from_args(args)
