@@ -418,3 +418,88 @@ def test_every_command_replaces_only_its_own_set(tmp_path, monkeypatch, capsys):
     assert main(["export", str(out / "design.usda"), "--out", str(mine)]) == 2
     assert "(design.usda)" in capsys.readouterr().err and (mine / "design.usda").read_text() == "my scene"
     assert snapshot(out) == before
+
+
+# ------------------------------------------------------------- export, control and calibrate killed mid-write
+#: a calibration's fit (about 20 s here) replaced by the one a first run saved: the killed runs write the same
+#: files as the real one, without fitting again
+FIT_FROM_CACHE = r"""
+import pickle
+import warp_shape.cli.calibrate as cal_cli
+cache = os.environ["FIT_CACHE"]
+real_fit = cal_cli.calibrate
+def cached_fit(*a, **kw):
+    if not os.path.exists(cache):
+        with open(cache, "wb") as f:
+            pickle.dump(real_fit(*a, **kw), f)
+    with open(cache, "rb") as f:
+        result = pickle.load(f)
+    result.values["youngs_modulus"] *= float(os.environ.get("FIT_SCALE", "1"))  # another set, the same files
+    return result
+cal_cli.calibrate = cached_fit
+"""
+
+
+def run_command_killed_at(k: int, log: Path, argv, env=None) -> int:
+    """``warp-shape argv`` in a process SIGKILLed at its k-th file event in ``log``'s folder (0: none)."""
+    log.unlink(missing_ok=True)
+    script = KILLER.replace("from warp_shape.cli import main", FIT_FROM_CACHE + "from warp_shape.cli import main")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), **(env or {}))
+    return subprocess.run([sys.executable, "-c", script, str(k), str(log), str(log.parent), *argv], env=env,
+                          capture_output=True, text=True, timeout=300).returncode
+
+
+@pytest.fixture(scope="module")
+def small_lab(tmp_path_factory):
+    """A 42-vertex Fig. 6 design with the paper's law, its scene, a scan of it inflated and a manifest."""
+    import numpy as np
+    import trimesh
+
+    from warp_shape.model import host_model
+    from warp_shape.scan import surface_samples
+    from warp_shape.scenarios import cube_fig6_design
+
+    root = tmp_path_factory.mktemp("small_lab")
+    design = cube_fig6_design(subdivisions=1)
+    ws.save_scene(ws.Scene(design=design, targets=[ws.target("oval")], target_names=["oval"],
+                           settings={"controller": {"method": "paper", "max_steps": 4}}), root / "design.usda")
+    trimesh.PointCloud(surface_samples(design.rest, 400) * 1.05e3).export(root / "scan.ply")
+    state = {"air_mol": host_model(design).rest_air * 1.3, "ipam_pressures_kpa": [0] * design.n_ipams, "jammed": []}
+    (root / "manifest.json").write_text(json.dumps({"observations": [{"scan": "scan.ply", "state": state}]}))
+    return root
+
+
+def _kill_cases(lab: Path):
+    """(command, first run's flags, the next run's flags): each pair writes two different sets."""
+    scene = str(lab / "design.usda")
+    cal = ["calibrate", str(lab / "manifest.json"), "--design", scene, "--wrt", "youngs_modulus"]
+    return {"export": (["export", scene, "--what", "molds", "usd", "--units", "cm"],
+                       ["export", scene, "--what", "molds", "usd", "--units", "mm"]),
+            "control": (["control", scene, "--max-steps", "3"], ["control", scene, "--max-steps", "4"]),
+            "calibrate": (cal, cal)}
+
+
+@pytest.mark.parametrize("command", ["export", "control", "calibrate"])
+def test_a_command_killed_at_three_points_of_its_writes_keeps_the_previous_set(small_lab, tmp_path, command):
+    """export, control and calibrate SIGKILLed at their first file event, half-way and at the swap:
+    ``--out`` holds the previous set byte for byte (its manifest whole) each time, and the next run
+    into it succeeds with no hand work (today they wrote file by file: a set mixing two runs, then
+    refused as the user's files)."""
+    first, second = _kill_cases(small_lab)[command]
+    out, log, ref = tmp_path / "out", tmp_path / "events.log", tmp_path / "ref"
+    env = {"FIT_CACHE": str(tmp_path / "fit.pickle")}
+    assert run_command_killed_at(0, log, [*first, "--out", str(out)], dict(env, FIT_SCALE="1.01")) == 0
+    old = snapshot(out)
+    assert manifest_problems(out) == [] and read_manifest(out)["command"] == command
+    shutil.copytree(out, ref)
+    assert run_command_killed_at(0, log, [*second, "--out", str(ref)], env) == 0  # the same run, counting its events
+    assert snapshot(ref) != old
+    events = log.read_text().split("\n")[:-1]
+    swap = next(i for i, e in enumerate(events, 1) if e.endswith("exchange"))
+    for k in sorted({1, swap // 2, swap}):
+        rc = run_command_killed_at(k, log, [*second, "--out", str(out)], env)
+        assert rc == -signal.SIGKILL, (k, rc)
+        assert snapshot(out) == old and manifest_problems(out) == [], k
+    assert run_command_killed_at(0, log, [*second, "--out", str(out)], env) == 0  # past the killed runs' leftovers
+    assert manifest_problems(out) == [] and not (tmp_path / "out.partial").exists()
+    assert set(snapshot(out)) == set(snapshot(ref))
