@@ -503,3 +503,102 @@ def test_a_command_killed_at_three_points_of_its_writes_keeps_the_previous_set(s
     assert run_command_killed_at(0, log, [*second, "--out", str(out)], env) == 0  # past the killed runs' leftovers
     assert manifest_problems(out) == [] and not (tmp_path / "out.partial").exists()
     assert set(snapshot(out)) == set(snapshot(ref))
+
+
+# --------------------------------------------------------------------- no write through a link, nor over a file
+SIM = ["simulate", "--subdivisions", "1", "--inflate-time", "0.01", "--actuate-time", "0.01"]
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda lock, mine: lock.symlink_to(mine), "is a symbolic link"),
+    (lambda lock, mine: lock.mkdir(), "is a folder"),
+    (lambda lock, mine: lock.write_text("my notes\n"), "holds something else than a run's process id"),
+])
+def test_a_lock_that_is_not_a_runs_is_one_line_and_left_as_it_is(tmp_path, capsys, make, message):
+    """The folder lock is made anew (O_EXCL, O_NOFOLLOW) and never truncates a file it did not make:
+    a link there (today: the linked file's content replaced by a process id), a folder (today:
+    IsADirectoryError) or a file of the user's is one line; the file the link points to is unchanged."""
+    mine, lock = tmp_path / "t.tex", tmp_path / ".out.lock"
+    mine.write_text("work")
+    make(lock, mine)
+    err = one_line_error(capsys, 2, [*SIM, "--out", str(tmp_path / "out")])
+    assert f"the lock file {lock} {message}" in err
+    assert mine.read_text() == "work" and not (tmp_path / "out").exists()
+    assert lock.is_symlink() or lock.is_dir() or lock.read_text() == "my notes\n"
+
+
+def test_a_lock_left_by_a_killed_run_is_taken_and_removed(tmp_path, capsys):
+    """A lock file holding the process id of a run that ended (no one holds it): replaced, then gone."""
+    (tmp_path / ".out.lock").write_text("999999")
+    assert main([*SIM, "--out", str(tmp_path / "out")]) == 0
+    assert not (tmp_path / ".out.lock").exists() and manifest_problems(tmp_path / "out") == []
+
+
+def one_line_error(capsys, rc: int, argv) -> str:
+    assert main(argv) == rc, argv
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and err.count("\n") == 0, err
+    return err
+
+
+def test_export_waits_for_no_run_but_refuses_a_folder_a_run_is_writing(tmp_path, capsys):
+    """export honours the folder's lock (today it wrote its files while a design ran into the folder,
+    whose swap then replaced them)."""
+    import fcntl
+
+    out = tmp_path / "X"
+    with open(tmp_path / ".X.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        held.write("4242")
+        held.flush()
+        err = one_line_error(capsys, 2, ["export", "cube_fig6", "--what", "molds", "--out", str(out)])
+    assert "another run (process 4242) is writing to" in err and not out.exists()
+    assert not (tmp_path / "X.partial").exists()
+
+
+def test_rerun_never_replaces_an_input_a_file_or_an_output(tmp_path, monkeypatch, capsys):
+    """--rerun onto the scene the run reads, onto a file that is no recording, onto the output set's
+    own names: refused before any work, the file unchanged (today each was replaced)."""
+    pytest.importorskip("rerun")
+    no_control(monkeypatch)
+    scene = ws.save_scene(ws.Scene(design=ws.Design(rest=ws.icosphere(1, 0.04)), targets=[ws.target("oval")],
+                                   target_names=["oval"]), tmp_path / "design.usda")
+    before = scene.read_bytes()
+    err = one_line_error(capsys, 2, ["control", str(scene), "--out", str(tmp_path / "c"), "--rerun", str(scene)])
+    assert "is an input of this run" in err and scene.read_bytes() == before
+    thesis = tmp_path / "thesis.tex"
+    thesis.write_text("\\chapter{One}")
+    err = one_line_error(capsys, 2, ["design", *SMALL, "--out", str(tmp_path / "r"), "--rerun", str(thesis)])
+    assert "is not a rerun recording" in err and thesis.read_text() == "\\chapter{One}"
+    out = tmp_path / "out"
+    fake_previous_set(out)
+    kept = snapshot(out)
+    for name in ("manifest.json", "report.json", "control_oval.csv"):
+        err = one_line_error(capsys, 2, ["design", *SMALL, "--out", str(out), "--rerun", str(out / name)])
+        assert "is named as one of this run's outputs" in err, name
+    assert snapshot(out) == kept
+    link = tmp_path / "link.rrd"
+    link.symlink_to(thesis)
+    assert "is a symbolic link" in one_line_error(capsys, 2, [*SIM, "--out", str(tmp_path / "s"), "--rerun", str(link)])
+    assert thesis.read_text() == "\\chapter{One}"
+
+
+def test_calibrate_and_bench_refuse_the_users_files_before_any_work(tmp_path, monkeypatch, capsys):
+    """A calibration.md or calibration.json of the user's in calibrate's --out, a bench_rays.json in
+    bench's (today both replaced): one line, before the fit or the bench."""
+    import warp_shape.cli.calibrate as cal_cli
+
+    monkeypatch.setattr(cal_cli, "calibrate", lambda *a, **k: pytest.fail("the fit started"))
+    manifest = tmp_path / "m.json"
+    manifest.write_text('{"observations": []}')
+    for name in ("calibration.md", "calibration.json"):
+        out = tmp_path / name.replace(".", "_")
+        out.mkdir()
+        (out / name).write_text("my notes")
+        err = one_line_error(capsys, 2, ["calibrate", str(manifest), "--out", str(out)])
+        assert f"holds files no run wrote ({name})" in err and (out / name).read_text() == "my notes"
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    (bench / "bench_rays.json").write_text("{}")
+    err = one_line_error(capsys, 2, ["bench", "rays", "--out", str(bench)])
+    assert "holds files no run wrote (bench_rays.json)" in err and (bench / "bench_rays.json").read_text() == "{}"
