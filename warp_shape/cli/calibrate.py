@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration import CALIBRATION_PARAMETERS, DEFAULT_WRT, calibrate
-from ..calibration.files import (calibration_data, calibration_markdown, read_manifest, write_calibration,
+from ..calibration.files import (bounds_reached, calibration_data, calibration_markdown, read_manifest, write_calibration,
                                  write_residual_figures)
 from ..calibration.parameters import check_wrt
 from ..io.atomic import StagedFolder, atomic_write
@@ -48,6 +48,8 @@ def _print(result, out: Path, written) -> None:
         print(f"warning: not identifiable: {n}")
     for n in result.poorly_determined:
         print(f"warning: poorly determined: {n}")
+    for n in bounds_reached(result):
+        print(f"warning: at a bound: {n}")
     print(f"wrote {', '.join(Path(p).name for p in written)} to {out}/; use it with "
           f"warp-shape control DESIGN --calibration {out / 'calibration.json'}")
 
