@@ -446,3 +446,54 @@ def test_a_value_at_a_bound_of_the_fit_is_reported(tmp_path):
     assert [line.split(" =")[0] for line in lines] == ["youngs_modulus", "bending_stiffness", "ipam_stiffness[0]"]
     assert all("upper bound (10x its start" in line for line in lines)
     assert "## At a bound" in calibration_markdown(result)
+
+
+# ------------------------------------------------------------------------------ units, bounds, empty names
+@pytest.mark.parametrize("old, new, message", [
+    ("warpShape:area = [0.000015, 0.000015,", "warpShape:area = [15, 0.000015,",
+     "IPAM area 15 m^2 is more than the device's cross-section"),
+    ("warpShape:thickness = 0.002", "warpShape:thickness = 2", "material thickness 2 m is more than the whole device"),
+])
+def test_an_area_or_thickness_in_millimetres_is_refused_naming_the_unit(tmp_path, capsys, old, new, message):
+    """An IPAM area of 15 (mm^2 meant) controlled to "converged" at 0.01 Pa and export wrote molds from it;
+    a thickness of 2 (mm meant) made a 2 m shell on a 70 mm device. The scene, the API: one line each."""
+    from warp_shape.scenarios import cube_fig6_design
+
+    design = cube_fig6_design(subdivisions=1)
+    path = ws.save_scene(ws.Scene(design=design, targets=[ws.target("oval")], target_names=["oval"]),
+                         tmp_path / "design.usda")
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new))
+    err = error_of(capsys, ["export", path, "--what", "molds", "--out", tmp_path / "molds"])
+    assert message in err and not (tmp_path / "molds").exists()
+    with pytest.raises(ws.DesignError, match=r"if 15 mm\^2 was meant, give 1.5e-05"):
+        design.add_ipam(design.ipams[0].face_a, design.ipams[0].face_b, area=15)
+    with pytest.raises(ws.DesignError, match=r"if 2 mm was meant, give 0.002"):
+        ws.Design(design.rest, ws.Material(thickness=2.0))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["design", "--cell-radius", "1e-9"], "--cell-radius takes 0.0005..0.5, got 1e-09"),
+    (["design", "--cell-radius", "1e300"], "--cell-radius takes 0.0005..0.5, got 1e+300"),
+    (["design", "--layer-thickness", "1e-12"], "--layer-thickness takes 0.0001..0.5, got 1e-12"),
+    (["export", "cube_fig6", "--marker-height", "1e-9"], "--marker-height takes 0 or 0.0001..0.5, got 1e-09"),
+    (["design", ""], "the scene is an empty name"),
+    (["sweep", "grid", "--param", "actuators=1,2", "--set", "actuators=3"], "actuators is both swept (--param) and fixed"),
+    (["control", "--rerun-every", "0"], "--rerun-every takes 1..1e+09, got 0"),
+])
+def test_lengths_are_bounded_below_and_empty_or_conflicting_requests_refused(tmp_path, capsys, argv, message):
+    """--cell-radius 1e-9 made one-face cells 17 mm across while design.usda recorded 1e-9 (1e300: an
+    OverflowError); --layer-thickness 1e-12 wrote a 1e-9 mm layer; design "" designed the default
+    problem; a --set of a swept name was dropped: each one line, before any work or file."""
+    out = tmp_path / "out"
+    assert message in error_of(capsys, [*argv, "--out", out]) and not out.exists()
+
+
+def test_compare_scan_refuses_a_tolerance_it_can_never_meet():
+    """tolerance=nan never converged (the alignment ran to its limit)."""
+    pts = np.random.default_rng(0).random((50, 3)) * 0.03
+    for kwargs in (dict(tolerance=float("nan")), dict(tolerance=0.0), dict(max_iterations=0),
+                   dict(max_iterations=2.5), dict(inlier_sigmas=float("inf"))):
+        with pytest.raises(ws.ShapeError, match=next(iter(kwargs))):
+            ws.compare_scan(pts, "oval", **kwargs)

@@ -32,13 +32,15 @@ from ..scenarios import cube_fig6_design
 from ..targets import TARGET_NAMES, load_target, target
 from .progress import Bar, ControlProgress, DesignProgress
 
-__all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
+__all__ = ["MIN_LENGTH", "MAX_LENGTH", "add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
            "add_workers_arg", "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "commit", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
            "ControlProgress",
            "interrupts_noted", "stop_if_interrupted", "write_failure", "add_bounded", "check_bounds"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
+#: the range of a length flag (m): 0.1 mm (a printer's resolution) to 0.5 m (a display is a few cm)
+MIN_LENGTH, MAX_LENGTH = 1e-4, 0.5
 
 
 def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:
