@@ -36,7 +36,7 @@ __all__ = ["MIN_LENGTH", "MAX_LENGTH", "add_common_args", "add_rerun_args", "add
            "add_workers_arg", "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "commit", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
            "ControlProgress",
-           "interrupts_noted", "stop_if_interrupted", "write_failure", "add_bounded", "check_bounds"]
+           "interrupts_noted", "stop_if_interrupted", "check_warp_cache", "write_failure", "add_bounded", "check_bounds"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
 #: the range of a length flag (m): 0.1 mm (a printer's resolution) to 0.5 m (a display is a few cm)
@@ -125,6 +125,22 @@ def _held_stderr(drop):
             if rest:
                 sys.stderr.write(b"".join(rest).decode(errors="replace"))
                 sys.stderr.flush()
+
+
+def check_warp_cache() -> None:
+    """``WARP_CACHE_PATH`` (Warp's kernel cache), where it is set, a folder this process can write to:
+    a one-line error before Warp starts (Warp itself ends in a traceback)."""
+    path = os.environ.get("WARP_CACHE_PATH")
+    if not path:
+        return
+    try:
+        os.makedirs(path, exist_ok=True)
+        reason = creation_refused(path)
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+    if reason is not None:
+        raise DesignError(f"WARP_CACHE_PATH {path} cannot hold Warp's kernel cache ({reason}); give it a folder you "
+                          f"can write to, or unset it")
 
 
 def quiet_warp(verbose: bool = False) -> None:
@@ -230,6 +246,9 @@ def check_rerun(args, staged=None, inputs=()) -> None:
 
 def _check_rerun_path(path, staged, inputs) -> None:
     p = Path(path).expanduser().absolute()
+    if len(os.fsencode(p.name)) > 240:
+        raise DesignError(f"--rerun {path[:40]}...: the file name is {len(os.fsencode(p.name))} bytes long, more than a "
+                          f"file system allows with the recording's temporary suffix; give a shorter name")
     if p.is_dir():
         raise DesignError(f"--rerun {path} is a folder; give a file name such as {p / 'run.rrd'}")
     folder = p.parent
