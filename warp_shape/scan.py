@@ -513,9 +513,8 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
     trimesh object or (N, 3) points. ``reference``: closed TriMesh, mesh path or target name.
     ``scan_units`` / ``reference_units``: "m", "mm" or "auto" (``detect_length_unit``), the unit of
     the numbers in each (a shipped target is always in metres); either, read in its unit, must span
-    a plausible display (``PLAUSIBLE_EXTENT_M``), else ``ShapeError`` names the other unit. ``initial_transform`` (4x4, scan -> reference, metres)
-    skips the rough alignment.
-    """
+    a plausible display (``PLAUSIBLE_EXTENT_M``), else ``ShapeError`` names the other unit.
+    ``initial_transform`` (4x4, scan -> reference, metres) skips the rough alignment."""
     _check_icp_settings(max_iterations, tolerance, inlier_sigmas)
     device = wp.get_device(device)
     pts, faces = load_scan(scan)
