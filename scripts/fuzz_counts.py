@@ -691,10 +691,175 @@ def bounded_flags() -> list:
     return rows
 
 
+# ------------------------------------------------------------------- inputs: locks, recordings, schemas, units
+#: the kinds of ``run_input_case``: each must be refused in one warp_shape error with every file as it was
+#: (a stale lock: taken and released), or give a valid result only where the input is valid
+INPUT_KINDS = ("lock", "rerun", "manifest_key", "manifest_value", "units")
+
+
+def _input_lab(root: Path):
+    """A 42-vertex design, a scan file and a 3-row control CSV of it in ``root``."""
+    from warp_shape.scenarios import cube_fig6_design
+
+    import trimesh
+
+    design = cube_fig6_design(subdivisions=1)
+    trimesh.PointCloud(np.repeat(design.rest.vertices, 3, axis=0) * 1e3).export(root / "scan.ply")
+    cols = ["step", "time", "air_mol", *[f"ipam{i}_pressure_pa" for i in range(design.n_ipams)]]
+    rows = [[k, 0.5 * k, 0.01 + 0.001 * k, *[1e3 * k] * design.n_ipams] for k in range(3)]
+    (root / "control_oval.csv").write_text("\n".join(",".join(map(str, r)) for r in [cols, *rows]) + "\n")
+    return design
+
+
+def _misspelt(rng, key: str, known) -> str:
+    """``key`` with one letter dropped, doubled or swapped with the next (never a known key)."""
+    for _ in range(20):
+        i = int(rng.integers(len(key)))
+        op = int(rng.integers(3))
+        bad = key[:i] + key[i + 1:] if op == 0 else key[:i] + key[i] + key[i:] if op == 1 else \
+            key[:i] + key[i + 1:i + 2] + key[i] + key[i + 2:]
+        if bad not in known and bad:
+            return bad
+    return key + "x"
+
+
+def _valid_manifest_value(key: str, value) -> bool:
+    """Whether ``value`` is a value the manifest's ``key`` takes (so accepting it is no silent error)."""
+    number = not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float)) and math.isfinite(value)
+    if key == "row":
+        return number and isinstance(value, int) and 0 <= value <= 2
+    if key == "time_s":
+        return number and value >= 0
+    if key == "air_mol":
+        return number and value > 0
+    return number  # chamber_pressure_kpa
+
+
+def _manifest_case(rng, root: Path, kind: str) -> tuple[str, str]:
+    from warp_shape.calibration.files import MANIFEST_KEYS, OBSERVATION_KEYS, STATE_KEYS, read_manifest
+    from warp_shape.errors import WarpShapeError
+
+    design = _input_lab(root)
+    entry, top = {"scan": "scan.ply", "control": "control_oval.csv", "row": 1}, {}
+    if kind == "manifest_key":
+        where, known = [(entry, OBSERVATION_KEYS), (top, MANIFEST_KEYS)][int(rng.integers(2))]
+        key = _misspelt(rng, str(_pick(rng, [k for k in known if k not in ("scan", "observations")])), known)
+        where[key] = 1
+        bad = True
+    else:
+        key = str(_pick(rng, ["row", "time_s", "chamber_pressure_kpa", "air_mol"]))
+        value = _pick(rng, [v for v in WEIRD if isinstance(v, (int, float, str, list, type(None)))])
+        if key == "air_mol":
+            entry = {"scan": "scan.ply", "state": {"air_mol": value, "ipam_pressures_kpa": [0] * design.n_ipams}}
+        else:
+            entry.pop("row") if key == "time_s" else None
+            entry[key] = value
+        bad = not _valid_manifest_value(key, value)
+    (root / "m.json").write_text(json.dumps({"observations": [entry], **top}))
+    try:
+        read_manifest(root / "m.json", design)
+    except WarpShapeError as exc:
+        return ("clear", "") if bad and "\n" not in str(exc) else ("other", f"silent: {key} refused: {exc}")
+    return ("other", f"silent: {key}={entry.get(key, top.get(key))!r} accepted") if bad else ("valid", "")
+
+
+def _lock_case(rng, root: Path) -> tuple[str, str]:
+    from warp_shape.io.atomic import OutputError, StagedFolder
+
+    mine, lock = root / "t.tex", root / ".out.lock"
+    mine.write_text("work")
+    how = str(_pick(rng, ["link", "folder", "foreign", "stale"]))
+    {"link": lambda: lock.symlink_to(mine), "folder": lock.mkdir, "foreign": lambda: lock.write_text("notes"),
+     "stale": lambda: lock.write_text("999999")}[how]()
+    before = tree(root)
+    staged = StagedFolder(root / "out", command="simulate")
+    try:
+        staged.lock()
+    except OutputError as exc:
+        if how == "stale":
+            return "other", f"a stale lock refused: {exc}"
+        return ("clear", "") if tree(root) == before else ("other", f"data loss: {how} lock changed")
+    staged.unlock()
+    if how != "stale":
+        return "other", f"data loss: a {how} lock was taken (t.tex: {mine.read_text()!r})"
+    return ("valid", "") if not os.path.lexists(lock) and mine.read_text() == "work" else ("other", "lock left")
+
+
+def _rerun_case(rng, root: Path) -> tuple[str, str]:
+    from types import SimpleNamespace
+
+    from warp_shape.cli.options import check_rerun
+    from warp_shape.errors import WarpShapeError
+    from warp_shape.io.atomic import StagedFolder
+    from warp_shape.io.outputs import is_run_output
+
+    scene, thesis, out = root / "design.usda", root / "thesis.tex", root / "out"
+    scene.write_text("#usda 1.0\n")
+    thesis.write_text("chapter")
+    out.mkdir()
+    (out / "manifest.json").write_text('{"files": {}}')
+    target = _pick(rng, [scene, thesis, out / "manifest.json", out / "report.json", out / "control_x.csv"])
+    before = tree(root)
+    args = SimpleNamespace(rerun=str(target), rerun_spawn=False)
+    try:
+        check_rerun(args, StagedFolder(out, owned=is_run_output), inputs=[str(scene)])
+    except WarpShapeError:
+        return ("clear", "") if tree(root) == before else ("other", "data loss: a refused --rerun changed files")
+    return "other", f"data loss: --rerun {target.name} accepted (it would be replaced)"
+
+
+def _units_case(rng) -> tuple[str, str]:
+    import dataclasses
+
+    import warp_shape as ws
+    from warp_shape.scenarios import cube_fig6_design
+
+    design = cube_fig6_design(subdivisions=1)
+    scale = float(_pick(rng, [1e3, 1e4, 1e6]))
+    try:
+        if rng.integers(2):
+            design.add_ipam(design.ipams[0].face_a, design.ipams[0].face_b, area=1.5e-5 * scale)
+        else:
+            ws.Design(design.rest, dataclasses.replace(design.material, thickness=2e-3 * scale))
+    except ws.DesignError as exc:
+        return ("clear", "") if "was meant, give" in str(exc) else ("other", f"silent: no unit named: {exc}")
+    return "other", f"silent: a size x{scale:g} in another unit accepted"
+
+
+def run_input_case(rng, root: Path, kind: str) -> tuple[str, str]:
+    """One case of ``kind`` (``INPUT_KINDS``): (outcome, detail)."""
+    if kind == "lock":
+        return _lock_case(rng, root)
+    if kind == "rerun":
+        return _rerun_case(rng, root)
+    if kind == "units":
+        return _units_case(rng)
+    return _manifest_case(rng, root, kind)
+
+
+def fuzz_inputs(n: int, seed: int = 0, folder: Path | None = None) -> dict:
+    """``n`` input cases alone (``INPUT_KINDS`` in turn): {"counts": Counter, "others": [details]}."""
+    import contextlib
+
+    rng = np.random.default_rng(seed)
+    counts, others = Counter(), []
+    with contextlib.ExitStack() as stack:
+        base = Path(folder) if folder is not None else Path(stack.enter_context(tempfile.TemporaryDirectory()))
+        for i in range(n):
+            root = base / f"inputs{i}"
+            root.mkdir(parents=True)
+            kind, detail = _guarded(lambda r, i=i: run_input_case(rng, r, INPUT_KINDS[i % len(INPUT_KINDS)]), root)
+            counts[kind] += 1
+            if kind == "other":
+                others.append(f"inputs case {i} ({INPUT_KINDS[i % len(INPUT_KINDS)]}): {detail}")
+    return {"counts": counts, "others": others}
+
+
 def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | None = None,
              verbose: bool = False) -> dict:
-    """``n`` folder cases, ``n`` size cases and ``faults`` (default ``n``) fault cases (every phase in
-    turn, a random fault and call); {"counts": {class: Counter}, "others": [details]}."""
+    """``n`` folder cases, ``n`` size cases, ``n`` input cases (``INPUT_KINDS`` in turn) and ``faults``
+    (default ``n``) fault cases (every phase in turn, a random fault and call); {"counts": {class:
+    Counter}, "others": [details]}."""
     import contextlib
     import logging
 
@@ -710,6 +875,8 @@ def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | No
     jobs += [("sizes", i, lambda root: run_size_case(rng, root, flags)) for i in range(n)]
     jobs += [("faults", i, lambda root, i=i: run_fault_case(rng, root, replay, phase=PHASES[i % len(PHASES)]))
              for i in range(faults)]
+    jobs += [("inputs", i, lambda root, i=i: run_input_case(rng, root, INPUT_KINDS[i % len(INPUT_KINDS)]))
+             for i in range(n)]
     outcomes = []
     with contextlib.ExitStack() as stack:
         base = Path(folder) if folder is not None else Path(stack.enter_context(tempfile.TemporaryDirectory()))
@@ -717,7 +884,7 @@ def fuzz_cli(n: int, seed: int = 0, folder: Path | None = None, faults: int | No
             (base / f"{family}{i}").mkdir(parents=True)
             outcomes.append((family, i, *_guarded(case, base / f"{family}{i}")))
     counts = {family: Counter(kind for f, _, kind, _ in outcomes if f == family)
-              for family in ("folders", "faults", "sizes")}
+              for family in ("folders", "faults", "sizes", "inputs")}
     others = [f"{family} case {i}: {detail}" for family, i, kind, detail in outcomes if kind == "other"]
     if verbose and others:
         print("\n".join(others), file=sys.stderr)

@@ -303,3 +303,103 @@ def test_a_valve_sequence_past_its_row_bound_is_refused_before_it_is_made():
     with pytest.raises(DesignError, match=r"would have 4e\+06 rows \(4004 s at 1000 Hz\), more than 1000000"):
         valve_schedule(result, ValveTiming(rate_hz=1000.0, **slow))
 
+
+
+# ------------------------------------------------------------- what used to be a traceback or a late error
+SIM = ["simulate", "--subdivisions", "1", "--inflate-time", "0.01", "--actuate-time", "0.01"]
+
+
+def test_rerun_spawn_binds_loopback_or_is_refused_before_the_job(tmp_path, monkeypatch, capsys):
+    """--rerun-spawn printed "Rerun is disabled", ran the whole job, then ended in a gRPC traceback; the
+    viewer rerun starts by default listens on 0.0.0.0. Without a display it is refused before any work;
+    the viewer it starts listens on 127.0.0.1 only."""
+    pytest.importorskip("rerun")
+    import warp_shape.io.recorder as recorder
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    err = one_line(capsys, 2, [*SIM, "--rerun-spawn", "--out", str(tmp_path / "s")])
+    assert "--rerun-spawn cannot open a viewer: there is no display here" in err and not (tmp_path / "s").exists()
+    started = []
+    monkeypatch.setattr(recorder.subprocess, "Popen", lambda argv, **kw: started.append(argv))
+    url = recorder.spawn_viewer(port=1)  # nothing listens on port 1
+    assert url == "rerun+http://127.0.0.1:1/proxy"
+    argv = started[0]
+    assert argv[argv.index("--bind") + 1] == "127.0.0.1" and argv[argv.index("--port") + 1] == "1"
+
+
+def test_a_recording_the_disk_refuses_is_one_line_and_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """rerun's file writer stopping (a full disk) was "RuntimeError: File-writer thread shut down
+    prematurely" with a .x.rrd.*.tmp left behind."""
+    pytest.importorskip("rerun")
+    from warp_shape.errors import DesignError
+    from warp_shape.io.recorder import Recorder
+
+    rec = Recorder(tmp_path / "x.rrd")
+
+    def full(*a, **k):
+        raise RuntimeError("File-writer thread shut down prematurely")
+
+    monkeypatch.setattr(rec.stream, "flush", full)
+    with pytest.raises(DesignError, match="the recording .*x.rrd could not be written .*free some space"):
+        rec.close()
+    assert os.listdir(tmp_path) == []
+
+
+def test_calibrate_checks_its_out_folder_before_the_fit(tmp_path, monkeypatch, capsys):
+    """--out /etc/hostname/sub was a NotADirectoryError after the 20 s fit."""
+    import warp_shape.cli.calibrate as cal_cli
+
+    monkeypatch.setattr(cal_cli, "calibrate", lambda *a, **k: pytest.fail("the fit started"))
+    (tmp_path / "m.json").write_text('{"observations": []}')
+    (tmp_path / "file").write_text("x")
+    err = one_line(capsys, 2, ["calibrate", str(tmp_path / "m.json"), "--out", str(tmp_path / "file" / "sub")])
+    assert "is a file, not a folder" in err
+
+
+def test_odd_paths_and_environments_are_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    """An --out name over 255 bytes (ENAMETOOLONG), a deleted working folder, an unwritable
+    WARP_CACHE_PATH, a plugin that fails as it is imported: each was a traceback."""
+    err = one_line(capsys, 2, [*SIM, "--out", str(tmp_path / ("a" * 300))])
+    assert "more than a file system allows" in err
+    err = one_line(capsys, 2, [*SIM, "--out", str(tmp_path / "s"), "--rerun", str(tmp_path / ("r" * 300))])
+    assert "more than a file system allows" in err or "rerun-sdk" in err
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    assert "the current folder no longer exists" in one_line(capsys, 2, [*SIM, "--out", "sim"])
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "file").write_text("x")
+    monkeypatch.setenv("WARP_CACHE_PATH", str(tmp_path / "file" / "cache"))
+    assert "WARP_CACHE_PATH" in one_line(capsys, 2, [*SIM, "--out", str(tmp_path / "s")])
+    monkeypatch.delenv("WARP_CACHE_PATH")
+    (tmp_path / "broken_plugin.py").write_text("raise RuntimeError('boom')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("WARP_SHAPE_PLUGINS", "broken_plugin")
+    err = one_line(capsys, 2, [*SIM, "--out", str(tmp_path / "s")])
+    assert "'broken_plugin', which failed as it was imported (RuntimeError: boom)" in err
+    assert not (tmp_path / "s").exists()
+
+
+def test_a_ctrl_c_a_library_caught_still_ends_the_command_as_interrupted(tmp_path, monkeypatch, capsys):
+    """A SIGINT near the end of design returned 0 without the "interrupted" line (a library on the way
+    caught the KeyboardInterrupt): the press is noted, and the command ends with 130 and that line."""
+    import warp_shape.cli.simulate as simulate_cli
+
+    real = simulate_cli.run
+
+    def swallowing(args):
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            pass  # as a library that catches everything
+        return real(args)
+
+    import warp_shape.cli as cli
+
+    parser = cli.build_parser()
+    parser._subparsers._group_actions[0].choices["simulate"].set_defaults(func=swallowing)  # registered at build
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    assert main([*SIM, "--out", str(tmp_path / "s")]) == 130
+    assert capsys.readouterr().err.strip().endswith("warp-shape: interrupted")

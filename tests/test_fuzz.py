@@ -86,3 +86,34 @@ def test_fuzz_special_files_sizes_and_types_are_all_refused(tmp_path):
     counts, others = fz.fuzz_special(tmp_path, fz.base_files(tmp_path), timeout=20.0)
     assert others == []
     assert counts["clear"] > 150 and counts["valid"] == 5, dict(counts)  # valid: 4 special manifests, 1 OBJ
+
+
+# ------------------------------------------------------------------ inputs: locks, recordings, schemas, units
+def test_fuzz_inputs_lose_nothing_and_accept_nothing_wrong(tmp_path):
+    """Locks that are links, folders, user files or stale; --rerun onto inputs, files and outputs;
+    misspelt manifest keys and odd manifest values; sizes in mm or mm^2 given as SI: each refused in
+    one line with every file as it was, or (a stale lock, a valid value) accepted, never anything else."""
+    res = _fuzz_module().fuzz_inputs(60, seed=1, folder=tmp_path)
+    assert res["others"] == []
+    assert res["counts"]["clear"] >= 40 and res["counts"]["valid"] >= 3, dict(res["counts"])
+
+
+def test_fuzz_inputs_detect_a_misspelt_key_accepted_and_a_lock_through_a_link(tmp_path, monkeypatch):
+    """The harness itself: a manifest read that ignores unknown keys, and a lock that follows links and
+    truncates, are counted as silent and as data loss."""
+    import os
+
+    import warp_shape.calibration.files as files
+    import warp_shape.io.atomic as atomic
+
+    monkeypatch.setattr(files, "_known_keys", lambda *a: None)
+
+    def following(path, busy):  # the lock before: opened through a link, truncated
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        return fd
+
+    monkeypatch.setattr(atomic, "hold_lock", following)
+    res = _fuzz_module().fuzz_inputs(20, seed=1, folder=tmp_path)
+    assert any("silent: " in o for o in res["others"]) and any("data loss" in o for o in res["others"])

@@ -343,3 +343,157 @@ def test_air_scale_that_is_no_amount_of_air_names_the_flag(tmp_path, capsys):
     err = error_of(capsys, ["simulate", "--air-scale", "-1", "--out", tmp_path / "s"])
     assert "--air-scale takes 0.01..100, got -1" in err
     assert not (tmp_path / "s" / "simulate.json").exists()
+
+
+# --------------------------------------------------------------------------- calibration inputs, strictly read
+def _lab(tmp_path):
+    """A 42-vertex Fig. 6 design, a scan file (its content is not read before the manifest's check)
+    and a control CSV of three rows."""
+    from warp_shape.scenarios import cube_fig6_design
+
+    design = cube_fig6_design(subdivisions=1)
+    (tmp_path / "scan.ply").write_text("ply")
+    cols = ["step", "time", "air_mol", *[f"ipam{i}_pressure_pa" for i in range(design.n_ipams)]]
+    rows = [[0, 0.0, 0.01, *[0] * design.n_ipams], [1, 0.5, 0.012, *[1e3] * design.n_ipams],
+            [2, 1.0, 0.013, *[2e3] * design.n_ipams]]
+    (tmp_path / "control_oval.csv").write_text("\n".join(",".join(map(str, r)) for r in [cols, *rows]) + "\n")
+    return design
+
+
+@pytest.mark.parametrize("entry, top, message", [
+    ({"time": 0.5}, {}, "unknown key 'time'; did you mean 'time_s'?"),
+    ({"time_s": 0.5, "chamber_pressure": 3}, {}, "unknown key 'chamber_pressure'; did you mean 'chamber_pressure_kpa'?"),
+    ({"time_s": 0.5, "unit": "mm"}, {}, "unknown key 'unit'; did you mean 'units'?"),
+    ({"time_s": 0.5}, {"wrtt": ["youngs_modulus"]}, "unknown key 'wrtt'; did you mean 'wrt'?"),
+    ({"time_s": 0.5}, {"region": ["plug"]}, "unknown key 'region'; did you mean 'regions'?"),
+    ({"time_s": float("nan")}, {}, "time_s (s) must be a finite number, got nan"),
+    ({"time_s": "10s"}, {}, "time_s (s) must be a finite number, got '10s'"),
+    ({"row": 2.5}, {}, "row must be a whole row number >= 0, got 2.5"),
+    ({"row": True}, {}, "row must be a whole row number >= 0, got True"),
+    ({"row": 1, "time_s": 0.5}, {}, "give \"row\" or \"time_s\", not both"),
+    ({"row": 1, "chamber_pressure_kpa": [3]}, {}, "chamber_pressure_kpa must be a finite number"),
+])
+def test_a_calibration_manifest_is_read_strictly(tmp_path, entry, top, message):
+    """A misspelt key was ignored (the fit then used the schedule's end), NaN meant the end, 2.5 read as
+    row 2 and true as row 1, "10s" was a ValueError: each is now one line naming the key and the fix."""
+    import json
+
+    from warp_shape.calibration.files import read_manifest
+
+    design = _lab(tmp_path)
+    (tmp_path / "m.json").write_text(json.dumps({"observations": [{"scan": "scan.ply", "control": "control_oval.csv",
+                                                                   **entry}], **top}))
+    with pytest.raises(ws.DesignError) as info:
+        read_manifest(tmp_path / "m.json", design)
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_schedule_cell_that_is_no_number_and_odd_manifests_are_one_line(tmp_path):
+    """A NaN time in a control CSV leaked a NumPy warning and fitted; a manifest nested 100,000 deep was
+    a RecursionError; a FIFO, a folder or /dev/zero given as a manifest was "does not exist"."""
+    import json
+
+    from warp_shape.calibration.files import read_calibration, read_manifest
+
+    design = _lab(tmp_path)
+    text = (tmp_path / "control_oval.csv").read_text().replace("\n1,0.5,", "\n1,nan,")
+    (tmp_path / "control_oval.csv").write_text(text)
+    (tmp_path / "m.json").write_text(json.dumps({"observations": [{"scan": "scan.ply", "control": "control_oval.csv",
+                                                                   "row": 2}]}))
+    with pytest.raises(ws.DesignError, match=r"control_oval.csv row 1: time is 'nan', not a finite number"):
+        read_manifest(tmp_path / "m.json", design)
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ws.DesignError, match="nested too deeply"):
+        read_manifest(tmp_path / "deep.json", design)
+    os.mkfifo(tmp_path / "fifo.json")
+    (tmp_path / "folder.json").mkdir()
+    (tmp_path / "zero.json").symlink_to("/dev/zero")
+    for name, kind in (("fifo.json", "FIFO"), ("folder.json", "folder"), ("zero.json", "device")):
+        for read in (lambda p: read_manifest(p, design), read_calibration):
+            with pytest.raises(ws.DesignError, match=kind):
+                read(tmp_path / name)
+
+
+@pytest.mark.parametrize("values, message", [
+    ({"youngs_modulus": [1e6]}, "youngs_modulus must be a finite positive number"),
+    ({"ipam_area": [1e-4, [2e-4]]}, "ipam_area must be a finite positive number or a list of them"),
+    ({"youngs_modulus": float("inf")}, "youngs_modulus must be a finite positive number"),
+])
+def test_a_calibration_value_of_the_wrong_shape_is_one_line(tmp_path, values, message):
+    """A calibration value as a list was a TypeError when applied; inf passed as positive."""
+    import json
+
+    from warp_shape.calibration.files import read_calibration
+
+    (tmp_path / "c.json").write_text(json.dumps({"format": "warp-shape calibration", "version": 1,
+                                                 "values": values}).replace("Infinity", "1e999"))
+    with pytest.raises(ws.DesignError, match=message):
+        read_calibration(tmp_path / "c.json")
+
+
+def test_a_value_at_a_bound_of_the_fit_is_reported(tmp_path):
+    """E, bending and k at exactly 10x their start were reported with a +-30 % error and no word of the
+    bound: the report, the file and the command now name each one."""
+    from warp_shape.calibration.files import bounds_reached, calibration_markdown
+    from warp_shape.calibration.result import CalibrationResult
+
+    result = CalibrationResult(values={"youngs_modulus": 1.2e7, "bending_stiffness": 3e-4, "ipam_stiffness": [400.0, 55.0]},
+                               stderr={"youngs_modulus": 3.6e6, "bending_stiffness": 1e-4, "ipam_stiffness": [120.0, 5.0]},
+                               start={"youngs_modulus": 1.2e6, "bending_stiffness": 3e-5, "ipam_stiffness": [40.0, 50.0]},
+                               design=None, residual_mm=[1.0], initial_residual_mm=[2.0], unidentifiable=[],
+                               labels=["youngs_modulus", "bending_stiffness", "ipam_stiffness[0]", "ipam_stiffness[1]"])
+    lines = bounds_reached(result)
+    assert [line.split(" =")[0] for line in lines] == ["youngs_modulus", "bending_stiffness", "ipam_stiffness[0]"]
+    assert all("upper bound (10x its start" in line for line in lines)
+    assert "## At a bound" in calibration_markdown(result)
+
+
+# ------------------------------------------------------------------------------ units, bounds, empty names
+@pytest.mark.parametrize("old, new, message", [
+    ("warpShape:area = [0.000015, 0.000015,", "warpShape:area = [15, 0.000015,",
+     "IPAM area 15 m^2 is more than the device's cross-section"),
+    ("warpShape:thickness = 0.002", "warpShape:thickness = 2", "material thickness 2 m is more than the whole device"),
+])
+def test_an_area_or_thickness_in_millimetres_is_refused_naming_the_unit(tmp_path, capsys, old, new, message):
+    """An IPAM area of 15 (mm^2 meant) controlled to "converged" at 0.01 Pa and export wrote molds from it;
+    a thickness of 2 (mm meant) made a 2 m shell on a 70 mm device. The scene, the API: one line each."""
+    from warp_shape.scenarios import cube_fig6_design
+
+    design = cube_fig6_design(subdivisions=1)
+    path = ws.save_scene(ws.Scene(design=design, targets=[ws.target("oval")], target_names=["oval"]),
+                         tmp_path / "design.usda")
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new))
+    err = error_of(capsys, ["export", path, "--what", "molds", "--out", tmp_path / "molds"])
+    assert message in err and not (tmp_path / "molds").exists()
+    with pytest.raises(ws.DesignError, match=r"if 15 mm\^2 was meant, give 1.5e-05"):
+        design.add_ipam(design.ipams[0].face_a, design.ipams[0].face_b, area=15)
+    with pytest.raises(ws.DesignError, match=r"if 2 mm was meant, give 0.002"):
+        ws.Design(design.rest, ws.Material(thickness=2.0))
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["design", "--cell-radius", "1e-9"], "--cell-radius takes 0.0005..0.5, got 1e-09"),
+    (["design", "--cell-radius", "1e300"], "--cell-radius takes 0.0005..0.5, got 1e+300"),
+    (["design", "--layer-thickness", "1e-12"], "--layer-thickness takes 0.0001..0.5, got 1e-12"),
+    (["export", "cube_fig6", "--marker-height", "1e-9"], "--marker-height takes 0 or 0.0001..0.5, got 1e-09"),
+    (["design", ""], "the scene is an empty name"),
+    (["sweep", "grid", "--param", "actuators=1,2", "--set", "actuators=3"], "actuators is both swept (--param) and fixed"),
+    (["control", "--rerun-every", "0"], "--rerun-every takes 1..1e+09, got 0"),
+])
+def test_lengths_are_bounded_below_and_empty_or_conflicting_requests_refused(tmp_path, capsys, argv, message):
+    """--cell-radius 1e-9 made one-face cells 17 mm across while design.usda recorded 1e-9 (1e300: an
+    OverflowError); --layer-thickness 1e-12 wrote a 1e-9 mm layer; design "" designed the default
+    problem; a --set of a swept name was dropped: each one line, before any work or file."""
+    out = tmp_path / "out"
+    assert message in error_of(capsys, [*argv, "--out", out]) and not out.exists()
+
+
+def test_compare_scan_refuses_a_tolerance_it_can_never_meet():
+    """tolerance=nan never converged (the alignment ran to its limit)."""
+    pts = np.random.default_rng(0).random((50, 3)) * 0.03
+    for kwargs in (dict(tolerance=float("nan")), dict(tolerance=0.0), dict(max_iterations=0),
+                   dict(max_iterations=2.5), dict(inlier_sigmas=float("inf"))):
+        with pytest.raises(ws.ShapeError, match=next(iter(kwargs))):
+            ws.compare_scan(pts, "oval", **kwargs)

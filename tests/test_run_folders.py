@@ -385,21 +385,24 @@ def test_the_staging_folder_and_the_root_are_refused_in_one_line(tmp_path, monke
                                        "folder as a whole: give it a folder of its own, e.g. --out out\n")
 
 
-def test_commands_writing_files_one_by_one_replace_only_their_own(tmp_path, monkeypatch, capsys):
-    """simulate, control and export write into --out file by file: a file under one of their names that
-    no run wrote is refused, a design run's set is never changed, and their own files (listed in the
-    folder's manifest as they write them) are theirs to replace next time."""
+def test_every_command_replaces_only_its_own_set(tmp_path, monkeypatch, capsys):
+    """simulate, control and export stage their set and swap it into --out whole, as design does: a
+    file under one of their names that no run wrote is refused, another command's set is never
+    changed, and their own set (in the folder's manifest, with the command's name) is theirs to replace."""
     sim = ["simulate", "--subdivisions", "1", "--inflate-time", "0.01", "--actuate-time", "0.01"]
     folder = tmp_path / "sim"
     folder.mkdir()
     (folder / "simulate.json").write_text("mine")
+    (folder / "notes.txt").write_text("kept")
     assert main([*sim, "--out", str(folder)]) == 2
-    assert "holds files named as this command's outputs that no run wrote or that changed since (simulate.json)" \
-        in capsys.readouterr().err and (folder / "simulate.json").read_text() == "mine"
+    assert "holds files no run wrote (simulate.json)" in capsys.readouterr().err
+    assert (folder / "simulate.json").read_text() == "mine"
     (folder / "simulate.json").unlink()
-    for _ in range(2):  # the second run replaces the first one's file: listed in the manifest
+    for _ in range(2):  # the second run replaces the first one's set; the other file is kept
         assert main([*sim, "--out", str(folder)]) == 0
-        assert manifest_problems(folder) == [] and set(read_manifest(folder)["files"]) == {"simulate.json"}
+        manifest = read_manifest(folder)
+        assert manifest_problems(folder) == [] and set(manifest["files"]) == {"simulate.json"}
+        assert manifest["command"] == "simulate" and (folder / "notes.txt").read_text() == "kept"
     capsys.readouterr()
     no_control(monkeypatch)
     out = tmp_path / "out"
@@ -407,9 +410,195 @@ def test_commands_writing_files_one_by_one_replace_only_their_own(tmp_path, monk
     assert main(["control", str(ROOT / "scenes" / "cube_fig6.usda"), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert f"--out {out} holds a design run's set" in err and f"--out {out / 'control'}" in err
+    assert main([*sim, "--out", str(out)]) == 2
+    assert f"--out {out} holds a design run's set" in capsys.readouterr().err
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "design.usda").write_text("my scene")
     assert main(["export", str(out / "design.usda"), "--out", str(mine)]) == 2
     assert "(design.usda)" in capsys.readouterr().err and (mine / "design.usda").read_text() == "my scene"
     assert snapshot(out) == before
+
+
+# ------------------------------------------------------------- export, control and calibrate killed mid-write
+#: a calibration's fit (about 20 s here) replaced by the one a first run saved: the killed runs write the same
+#: files as the real one, without fitting again
+FIT_FROM_CACHE = r"""
+import pickle
+import warp_shape.cli.calibrate as cal_cli
+cache = os.environ["FIT_CACHE"]
+real_fit = cal_cli.calibrate
+def cached_fit(*a, **kw):
+    if not os.path.exists(cache):
+        with open(cache, "wb") as f:
+            pickle.dump(real_fit(*a, **kw), f)
+    with open(cache, "rb") as f:
+        result = pickle.load(f)
+    result.values["youngs_modulus"] *= float(os.environ.get("FIT_SCALE", "1"))  # another set, the same files
+    return result
+cal_cli.calibrate = cached_fit
+"""
+
+
+def run_command_killed_at(k: int, log: Path, argv, env=None) -> int:
+    """``warp-shape argv`` in a process SIGKILLed at its k-th file event in ``log``'s folder (0: none)."""
+    log.unlink(missing_ok=True)
+    script = KILLER.replace("from warp_shape.cli import main", FIT_FROM_CACHE + "from warp_shape.cli import main")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), **(env or {}))
+    return subprocess.run([sys.executable, "-c", script, str(k), str(log), str(log.parent), *argv], env=env,
+                          capture_output=True, text=True, timeout=300).returncode
+
+
+@pytest.fixture(scope="module")
+def small_lab(tmp_path_factory):
+    """A 42-vertex Fig. 6 design with the paper's law, its scene, a scan of it inflated and a manifest."""
+    import numpy as np
+    import trimesh
+
+    from warp_shape.model import host_model
+    from warp_shape.scan import surface_samples
+    from warp_shape.scenarios import cube_fig6_design
+
+    root = tmp_path_factory.mktemp("small_lab")
+    design = cube_fig6_design(subdivisions=1)
+    ws.save_scene(ws.Scene(design=design, targets=[ws.target("oval")], target_names=["oval"],
+                           settings={"controller": {"method": "paper", "max_steps": 4}}), root / "design.usda")
+    trimesh.PointCloud(surface_samples(design.rest, 400) * 1.05e3).export(root / "scan.ply")
+    state = {"air_mol": host_model(design).rest_air * 1.3, "ipam_pressures_kpa": [0] * design.n_ipams, "jammed": []}
+    (root / "manifest.json").write_text(json.dumps({"observations": [{"scan": "scan.ply", "state": state}]}))
+    return root
+
+
+def _kill_cases(lab: Path):
+    """(command, first run's flags, the next run's flags): each pair writes two different sets."""
+    scene = str(lab / "design.usda")
+    cal = ["calibrate", str(lab / "manifest.json"), "--design", scene, "--wrt", "youngs_modulus"]
+    return {"export": (["export", scene, "--what", "molds", "usd", "--units", "cm"],
+                       ["export", scene, "--what", "molds", "usd", "--units", "mm"]),
+            "control": (["control", scene, "--max-steps", "3"], ["control", scene, "--max-steps", "4"]),
+            "calibrate": (cal, cal)}
+
+
+@pytest.mark.parametrize("command", ["export", "control", "calibrate"])
+def test_a_command_killed_at_three_points_of_its_writes_keeps_the_previous_set(small_lab, tmp_path, command):
+    """export, control and calibrate SIGKILLed at their first file event, half-way and at the swap:
+    ``--out`` holds the previous set byte for byte (its manifest whole) each time, and the next run
+    into it succeeds with no hand work (today they wrote file by file: a set mixing two runs, then
+    refused as the user's files)."""
+    first, second = _kill_cases(small_lab)[command]
+    out, log, ref = tmp_path / "out", tmp_path / "events.log", tmp_path / "ref"
+    env = {"FIT_CACHE": str(tmp_path / "fit.pickle")}
+    assert run_command_killed_at(0, log, [*first, "--out", str(out)], dict(env, FIT_SCALE="1.01")) == 0
+    old = snapshot(out)
+    assert manifest_problems(out) == [] and read_manifest(out)["command"] == command
+    shutil.copytree(out, ref)
+    assert run_command_killed_at(0, log, [*second, "--out", str(ref)], env) == 0  # the same run, counting its events
+    assert snapshot(ref) != old
+    events = log.read_text().split("\n")[:-1]
+    swap = next(i for i, e in enumerate(events, 1) if e.endswith("exchange"))
+    for k in sorted({1, swap // 2, swap}):
+        rc = run_command_killed_at(k, log, [*second, "--out", str(out)], env)
+        assert rc == -signal.SIGKILL, (k, rc)
+        assert snapshot(out) == old and manifest_problems(out) == [], k
+    assert run_command_killed_at(0, log, [*second, "--out", str(out)], env) == 0  # past the killed runs' leftovers
+    assert manifest_problems(out) == [] and not (tmp_path / "out.partial").exists()
+    assert set(snapshot(out)) == set(snapshot(ref))
+
+
+# --------------------------------------------------------------------- no write through a link, nor over a file
+SIM = ["simulate", "--subdivisions", "1", "--inflate-time", "0.01", "--actuate-time", "0.01"]
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda lock, mine: lock.symlink_to(mine), "is a symbolic link"),
+    (lambda lock, mine: lock.mkdir(), "is a folder"),
+    (lambda lock, mine: lock.write_text("my notes\n"), "holds something else than a run's process id"),
+])
+def test_a_lock_that_is_not_a_runs_is_one_line_and_left_as_it_is(tmp_path, capsys, make, message):
+    """The folder lock is made anew (O_EXCL, O_NOFOLLOW) and never truncates a file it did not make:
+    a link there (today: the linked file's content replaced by a process id), a folder (today:
+    IsADirectoryError) or a file of the user's is one line; the file the link points to is unchanged."""
+    mine, lock = tmp_path / "t.tex", tmp_path / ".out.lock"
+    mine.write_text("work")
+    make(lock, mine)
+    err = one_line_error(capsys, 2, [*SIM, "--out", str(tmp_path / "out")])
+    assert f"the lock file {lock} {message}" in err
+    assert mine.read_text() == "work" and not (tmp_path / "out").exists()
+    assert lock.is_symlink() or lock.is_dir() or lock.read_text() == "my notes\n"
+
+
+def test_a_lock_left_by_a_killed_run_is_taken_and_removed(tmp_path, capsys):
+    """A lock file holding the process id of a run that ended (no one holds it): replaced, then gone."""
+    (tmp_path / ".out.lock").write_text("999999")
+    assert main([*SIM, "--out", str(tmp_path / "out")]) == 0
+    assert not (tmp_path / ".out.lock").exists() and manifest_problems(tmp_path / "out") == []
+
+
+def one_line_error(capsys, rc: int, argv) -> str:
+    assert main(argv) == rc, argv
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and err.count("\n") == 0, err
+    return err
+
+
+def test_export_waits_for_no_run_but_refuses_a_folder_a_run_is_writing(tmp_path, capsys):
+    """export honours the folder's lock (today it wrote its files while a design ran into the folder,
+    whose swap then replaced them)."""
+    import fcntl
+
+    out = tmp_path / "X"
+    with open(tmp_path / ".X.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        held.write("4242")
+        held.flush()
+        err = one_line_error(capsys, 2, ["export", "cube_fig6", "--what", "molds", "--out", str(out)])
+    assert "another run (process 4242) is writing to" in err and not out.exists()
+    assert not (tmp_path / "X.partial").exists()
+
+
+def test_rerun_never_replaces_an_input_a_file_or_an_output(tmp_path, monkeypatch, capsys):
+    """--rerun onto the scene the run reads, onto a file that is no recording, onto the output set's
+    own names: refused before any work, the file unchanged (today each was replaced)."""
+    pytest.importorskip("rerun")
+    no_control(monkeypatch)
+    scene = ws.save_scene(ws.Scene(design=ws.Design(rest=ws.icosphere(1, 0.04)), targets=[ws.target("oval")],
+                                   target_names=["oval"]), tmp_path / "design.usda")
+    before = scene.read_bytes()
+    err = one_line_error(capsys, 2, ["control", str(scene), "--out", str(tmp_path / "c"), "--rerun", str(scene)])
+    assert "is an input of this run" in err and scene.read_bytes() == before
+    thesis = tmp_path / "thesis.tex"
+    thesis.write_text("\\chapter{One}")
+    err = one_line_error(capsys, 2, ["design", *SMALL, "--out", str(tmp_path / "r"), "--rerun", str(thesis)])
+    assert "is not a rerun recording" in err and thesis.read_text() == "\\chapter{One}"
+    out = tmp_path / "out"
+    fake_previous_set(out)
+    kept = snapshot(out)
+    for name in ("manifest.json", "report.json", "control_oval.csv"):
+        err = one_line_error(capsys, 2, ["design", *SMALL, "--out", str(out), "--rerun", str(out / name)])
+        assert "is named as one of this run's outputs" in err, name
+    assert snapshot(out) == kept
+    link = tmp_path / "link.rrd"
+    link.symlink_to(thesis)
+    assert "is a symbolic link" in one_line_error(capsys, 2, [*SIM, "--out", str(tmp_path / "s"), "--rerun", str(link)])
+    assert thesis.read_text() == "\\chapter{One}"
+
+
+def test_calibrate_and_bench_refuse_the_users_files_before_any_work(tmp_path, monkeypatch, capsys):
+    """A calibration.md or calibration.json of the user's in calibrate's --out, a bench_rays.json in
+    bench's (today both replaced): one line, before the fit or the bench."""
+    import warp_shape.cli.calibrate as cal_cli
+
+    monkeypatch.setattr(cal_cli, "calibrate", lambda *a, **k: pytest.fail("the fit started"))
+    manifest = tmp_path / "m.json"
+    manifest.write_text('{"observations": []}')
+    for name in ("calibration.md", "calibration.json"):
+        out = tmp_path / name.replace(".", "_")
+        out.mkdir()
+        (out / name).write_text("my notes")
+        err = one_line_error(capsys, 2, ["calibrate", str(manifest), "--out", str(out)])
+        assert f"holds files no run wrote ({name})" in err and (out / name).read_text() == "my notes"
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    (bench / "bench_rays.json").write_text("{}")
+    err = one_line_error(capsys, 2, ["bench", "rays", "--out", str(bench)])
+    assert "holds files no run wrote (bench_rays.json)" in err and (bench / "bench_rays.json").read_text() == "{}"

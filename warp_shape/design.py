@@ -72,6 +72,11 @@ class Cell:
     faces: np.ndarray  # (n,) int32, sorted
 
 
+def _unit_hint(value: float, scale: float, unit: str) -> str:
+    """"15 mm^2 is 1.5e-05": the value read in ``unit`` (``scale`` SI units each), as it should be given."""
+    return f"if {value:g} {unit} was meant, give {value * scale:g}"
+
+
 class Design:
     """Rest membrane + material + IPAMs + jamming cells (host description, SI units)."""
 
@@ -84,10 +89,31 @@ class Design:
             raise DesignError(f"Design.material must be a ws.Material, got {type(material).__name__}")
         self.rest = rest
         self.material = material
+        self._check_thickness()
         self.actuators: dict[str, list] = {"ipam": []}  # the elements of each actuator family, by family name
         self.cells: list[Cell] = []
         self._face_cell = np.full(rest.n_faces, -1, dtype=np.int64)
         self.stretch_scale: np.ndarray | None = None  # (F,) multiplier of E t per face; None: uniform
+
+    @property
+    def size(self) -> float:
+        """The device's radius (m): half the rest mesh's largest extent."""
+        return 0.5 * float(np.max(np.ptp(self.rest.vertices, axis=0)))
+
+    def _check_thickness(self) -> None:
+        """A membrane thicker than the whole device is a length in another unit: refused, naming it."""
+        t, size = float(self.material.thickness), self.size
+        if size > 0 and t > 2 * size:
+            raise DesignError(f"material thickness {t:g} m is more than the whole device ({2e3 * size:.1f} mm across); "
+                              f"lengths are in metres: {_unit_hint(t, 1e-3, 'mm')}")
+
+    def _check_area(self, area: float) -> None:
+        """An IPAM area above the device's own cross-section is an area in another unit: refused, naming it."""
+        size = self.size
+        if size > 0 and area > np.pi * size ** 2:
+            raise DesignError(f"IPAM area {area:g} m^2 is more than the device's cross-section "
+                              f"({np.pi * size ** 2:.3g} m^2 at {1e3 * size:.1f} mm radius); areas are in m^2: "
+                              f"{_unit_hint(area, 1e-6, 'mm^2')}")
 
     # ------------------------------------------------------------------ material
     def set_stretch_scale(self, scale) -> None:
@@ -191,6 +217,7 @@ class Design:
             free_length = check_number(free_length, "IPAM free_length")
         if stiffness <= 0 or area <= 0:
             raise DesignError(f"IPAM stiffness and area must be > 0 (N/m, m^2), got {stiffness}, {area}")
+        self._check_area(area)
         if damping < 0:
             raise DesignError(f"IPAM damping must be >= 0 N s/m, got {damping}")
         try:

@@ -87,4 +87,8 @@ def load_plugins(value: str | None = None) -> list[str]:
             importlib.import_module(name)
         except ImportError as exc:
             raise DesignError(f"{PLUGINS_VARIABLE} names module {name!r}, which cannot be imported: {exc}") from None
+        except Exception as exc:  # the module itself fails as it runs: a syntax error, any error of its own
+            raise DesignError(f"{PLUGINS_VARIABLE} names module {name!r}, which failed as it was imported "
+                              f"({type(exc).__name__}: {exc}); fix the module, or leave it out of "
+                              f"{PLUGINS_VARIABLE}") from None
     return names

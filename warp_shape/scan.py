@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from .errors import MeshError, ShapeError, check_input_file
+from .errors import MeshError, ShapeError, check_input_file, check_number, check_whole
 from .kernels import raycast
 from .mesh import TriMesh, regular_file_resolver
 from .sampling import RadialSampler, radial_metrics
@@ -492,6 +492,16 @@ def check_scan_spread(pts: np.ndarray) -> None:
                          f"{spread[1]:.3g} m across): a degenerate scan; give the scanned surface's points")
 
 
+def _check_icp_settings(max_iterations, tolerance, inlier_sigmas) -> None:
+    """The alignment's settings: a whole number of iterations >= 1, a finite tolerance and inlier width
+    > 0 (a NaN tolerance is never met: the alignment ran to its limit and said so nowhere)."""
+    if check_whole(max_iterations, "max_iterations", ShapeError) < 1:
+        raise ShapeError(f"max_iterations must be at least 1, got {max_iterations}")
+    for name, value in (("tolerance", tolerance), ("inlier_sigmas", inlier_sigmas)):
+        if not check_number(value, name, ShapeError) > 0:
+            raise ShapeError(f"{name} must be a finite number > 0, got {value!r}")
+
+
 def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tolerance: float = 1e-5,
                  method: str = "point_to_plane",
                  inlier_sigmas: float = INLIER_SIGMAS, icp_points: int = ICP_POINTS,
@@ -503,9 +513,9 @@ def compare_scan(scan, reference, *, device=None, max_iterations: int = 200, tol
     trimesh object or (N, 3) points. ``reference``: closed TriMesh, mesh path or target name.
     ``scan_units`` / ``reference_units``: "m", "mm" or "auto" (``detect_length_unit``), the unit of
     the numbers in each (a shipped target is always in metres); either, read in its unit, must span
-    a plausible display (``PLAUSIBLE_EXTENT_M``), else ``ShapeError`` names the other unit. ``initial_transform`` (4x4, scan -> reference, metres)
-    skips the rough alignment.
-    """
+    a plausible display (``PLAUSIBLE_EXTENT_M``), else ``ShapeError`` names the other unit.
+    ``initial_transform`` (4x4, scan -> reference, metres) skips the rough alignment."""
+    _check_icp_settings(max_iterations, tolerance, inlier_sigmas)
     device = wp.get_device(device)
     pts, faces = load_scan(scan)
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:

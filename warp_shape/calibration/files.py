@@ -11,6 +11,7 @@ every path in it is relative to its folder and must stay inside it.
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import json
 import math
@@ -19,18 +20,18 @@ from pathlib import Path
 import numpy as np
 
 from ..design import Design
-from ..errors import DesignError
+from ..errors import DesignError, read_input_file
 from ..io.atomic import atomic_write, write_json
 from ..material import GAS_CONSTANT
 from ..settings import SimulationSettings
 from .observations import ControlState, ScanObservation, Sequence
-from .parameters import CALIBRATION_PARAMETERS, apply_values, check_wrt
+from .parameters import BOUNDS, CALIBRATION_PARAMETERS, RELATIVE_BOUND, apply_values, check_wrt
 from .regions import region_faces
 from .result import CalibrationResult
 
 __all__ = ["CALIBRATION_FORMAT", "CALIBRATION_VERSION", "UNITS", "calibration_data", "write_calibration",
-           "read_calibration", "apply_calibration", "read_manifest", "calibration_markdown", "write_residual_figures",
-           "valve_sequence", "control_sequence"]
+           "read_calibration", "apply_calibration", "read_manifest", "calibration_markdown", "bounds_reached",
+           "write_residual_figures", "valve_sequence", "control_sequence"]
 
 CALIBRATION_FORMAT = "warp-shape calibration"
 CALIBRATION_VERSION = 1
@@ -58,9 +59,37 @@ def calibration_data(result: CalibrationResult, design: Design) -> dict:
             "start": {k: _plain(v) for k, v in result.start.items()},
             "unidentifiable": list(result.unidentifiable), "notes": list(result.notes),
             "poorly_determined": list(result.poorly_determined), "realigned": list(result.realigned),
+            "at_bounds": bounds_reached(result),
             "residual_mm": [float(x) for x in result.residual_mm],
             "initial_residual_mm": [float(x) for x in result.initial_residual_mm],
             "observations": list(result.observation_names)}
+
+
+def bounds_reached(result: CalibrationResult) -> list[str]:
+    """The fitted values that ended at a bound of the fit (its physical range, or a factor
+    ``RELATIVE_BOUND`` from the start), each as a line naming the bound: the fit wanted to go further,
+    so the value and its standard error say less than they seem to."""
+    lines = []
+    labels = iter(result.labels)
+    for label, start, value, _ in _rows_plain(result, labels):
+        name = label.split("[")[0]
+        lo, hi = BOUNDS.get(name, (0.0, math.inf))
+        lo, hi = max(lo, start / RELATIVE_BOUND), min(hi, start * RELATIVE_BOUND)
+        for bound, side in ((lo, "lower"), (hi, "upper")):
+            if math.isfinite(value) and abs(value - bound) <= 1e-3 * bound:
+                why = (f"{RELATIVE_BOUND:g}x its start {start:.4g}" if bound in (start / RELATIVE_BOUND,
+                                                                                   start * RELATIVE_BOUND)
+                       else "its physical range")
+                lines.append(f"{label} = {value:.4g} is at its {side} bound ({why}): the fit wanted to go further; "
+                             f"check the scans' units and states, or start from a closer design")
+    return lines
+
+
+def _rows_plain(result: CalibrationResult, labels):
+    for name, value in result.values.items():
+        v, s0 = (np.atleast_1d(np.asarray(x, dtype=np.float64)) for x in (value, result.start[name]))
+        for j in range(v.size):
+            yield next(labels, name), float(s0[j]), float(v[j]), None
 
 
 def write_calibration(result: CalibrationResult, design: Design, path) -> Path:
@@ -68,15 +97,50 @@ def write_calibration(result: CalibrationResult, design: Design, path) -> Path:
     return write_json(Path(path), calibration_data(result, design))
 
 
+#: the keys a manifest, one of its observations and a given state may have
+MANIFEST_KEYS = ("observations", "wrt", "regions")
+OBSERVATION_KEYS = ("scan", "units", "name", "chamber_pressure_kpa", "pressure_stderr_kpa", "valve", "control",
+                    "state", "row", "time_s")
+STATE_KEYS = ("air_mol", "ipam_pressures_kpa", "jammed")
+
+
 def _json_file(path: Path, what: str, missing: str = "", bad: str = ""):
-    """The JSON content of ``path``; a missing or unreadable file is a one-line ``DesignError`` naming
-    ``what`` it should be, ``missing`` / ``bad`` appended (what to do instead)."""
-    if not path.is_file():
+    """The JSON content of ``path``; a missing file, one that is no regular file (a folder, a FIFO, a
+    device) or unreadable is a one-line ``DesignError`` naming ``what`` it should be, ``missing`` /
+    ``bad`` appended (what to do instead)."""
+    if not path.exists() and not path.is_symlink():
         raise DesignError(f"{what} {path} does not exist{missing}")
     try:
-        return json.loads(path.read_text())
+        return json.loads(read_input_file(path, what, DesignError))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DesignError(f"{what} {path} is not JSON ({exc}){bad}") from None
+    except RecursionError:
+        raise DesignError(f"{what} {path} is nested too deeply to be one{bad}") from None
+
+
+def _known_keys(data: dict, known, where: str) -> None:
+    """Every key of ``data`` one of ``known``: an unknown one (a misspelt key is otherwise ignored) is a
+    one-line error naming the closest known key."""
+    for key in data:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.5)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise DesignError(f"{where}: unknown key {key!r}; {hint}the keys are {', '.join(known)}")
+
+
+def _finite(value, where: str, positive: bool = False) -> float:
+    """``value`` as a finite float (a JSON number, not a bool or a string); ``positive``: > 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or (positive and not value > 0):
+        raise DesignError(f"{where} must be a finite {'positive ' if positive else ''}number, got {value!r}")
+    return float(value)
+
+
+def _row_index(value, where: str) -> int:
+    """A row number: a whole number >= 0 (2.5 is not read as 2, nor true as 1)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise DesignError(f"{where} must be a whole row number >= 0, got {value!r}")
+    return value
 
 
 def read_calibration(path) -> dict:
@@ -96,11 +160,14 @@ def read_calibration(path) -> dict:
     check_wrt(tuple(values))
     out = {}
     for k, v in values.items():
-        a = np.asarray(v, dtype=object)
-        if any(x is None or isinstance(x, bool) or not isinstance(x, (int, float)) or not x > 0
-               for x in a.reshape(-1)):
-            raise DesignError(f"calibration file {path}: {k} must be positive numbers ({UNITS.get(k)}), got {v!r}")
-        out[k] = float(v) if a.ndim == 0 else np.asarray(v, dtype=np.float64)
+        listed = isinstance(v, list) and k in ("ipam_stiffness", "ipam_area", "region_stretch")  # per IPAM/region
+        items = v if listed else [v]
+        if not items or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not (math.isfinite(x) and x > 0)
+                            for x in items):
+            shape = "a finite positive number" + (" or a list of them (one per IPAM or region)"
+                                                  if k in ("ipam_stiffness", "ipam_area", "region_stretch") else "")
+            raise DesignError(f"calibration file {path}: {k} must be {shape} ({UNITS.get(k)}), got {v!r}")
+        out[k] = np.asarray(items, dtype=np.float64) if listed else float(v)
     out["_design"] = data.get("design", {})
     regions = data.get("regions") or {}
     if ("region_stretch" in out) != bool(regions) or not isinstance(regions, dict) or (
@@ -172,6 +239,21 @@ def _schedule_rows(path: Path, design: Design, need: list, pressure: str, kind: 
     return rows
 
 
+def _column(rows: list, col: str, path: Path, scale: float = 1.0) -> np.ndarray:
+    """Column ``col`` of a schedule's rows as finite floats; a cell that is no finite number is a
+    one-line error naming its row."""
+    out = np.empty(len(rows))
+    for i, r in enumerate(rows):
+        try:
+            out[i] = float(r[col])
+        except (TypeError, ValueError):
+            out[i] = np.nan
+        if not math.isfinite(out[i]):
+            raise DesignError(f"{path.name} row {i}: {col} is {r[col]!r}, not a finite number; give a file "
+                              f"warp-shape wrote (or fix that cell)")
+    return out * scale
+
+
 def _up_to(rows: list, times: np.ndarray, row, time_s, name: str) -> list:
     """``rows`` up to ``row`` (0-based) or the last one at or before ``time_s`` (on the clock ``times``);
     all of them for neither."""
@@ -193,12 +275,12 @@ def valve_sequence(path: Path, design: Design, *, row: int | None = None, time_s
     and None: its end): simulated times, the chamber air (mL at atmospheric pressure -> mol, the
     design's temperature and atmosphere), IPAM pressures (kPa -> Pa) and jam states."""
     rows = _schedule_rows(path, design, ["time_s", "sim_time_s", "chamber_air_ml"], "pressure_kpa", "valve schedule")
-    rows = _up_to(rows, np.array([float(r["time_s"]) for r in rows]), row, time_s, path.name)
+    rows = _up_to(rows, _column(rows, "time_s", path), row, time_s, path.name)
     mat = design.material
-    air = np.array([float(r["chamber_air_ml"]) for r in rows]) * 1e-6 * mat.atmospheric_pressure / (
-        GAS_CONSTANT * mat.temperature)
-    p = np.array([[float(r[f"ipam{i}_pressure_kpa"]) * 1e3 for i in range(design.n_ipams)] for r in rows])
-    times = np.array([float(r["sim_time_s"]) for r in rows])
+    air = _column(rows, "chamber_air_ml", path) * 1e-6 * mat.atmospheric_pressure / (GAS_CONSTANT * mat.temperature)
+    p = np.stack([_column(rows, f"ipam{i}_pressure_kpa", path, 1e3) for i in range(design.n_ipams)], axis=1) \
+        if design.n_ipams else np.zeros((len(rows), 0))
+    times = _column(rows, "sim_time_s", path)
     return Sequence(times - times[0], air, p.reshape(len(rows), design.n_ipams), _jams(rows, design),
                     simulation=SimulationSettings())
 
@@ -208,37 +290,67 @@ def control_sequence(path: Path, design: Design, *, row: int | None = None, time
     ``row`` (0-based) or simulated time ``time_s`` (None and None: its end): times, air (mol), IPAM
     pressures (Pa) and jam states, as ``ScanObservation`` takes them from the result itself."""
     rows = _schedule_rows(path, design, ["time", "air_mol"], "pressure_pa", "control history")
-    rows = _up_to(rows, np.array([float(r["time"]) for r in rows]), row, time_s, path.name)
-    air = np.array([float(r["air_mol"]) for r in rows])
-    p = np.array([[float(r[f"ipam{i}_pressure_pa"]) for i in range(design.n_ipams)] for r in rows])
-    times = np.array([float(r["time"]) for r in rows])
+    rows = _up_to(rows, _column(rows, "time", path), row, time_s, path.name)
+    air = _column(rows, "air_mol", path)
+    p = np.stack([_column(rows, f"ipam{i}_pressure_pa", path) for i in range(design.n_ipams)], axis=1) \
+        if design.n_ipams else np.zeros((len(rows), 0))
+    times = _column(rows, "time", path)
     return Sequence(times - times[0], air, p.reshape(len(rows), design.n_ipams), _jams(rows, design),
                     simulation=SimulationSettings())
 
 
 def _state(entry: dict, what: str) -> ControlState:
     s = entry["state"]
-    if not isinstance(s, dict):
+    if not isinstance(s, dict) or "air_mol" not in s:
         raise DesignError(f"manifest {what}: \"state\" must be an object with air_mol, ipam_pressures_kpa, jammed")
-    try:
-        return ControlState(air_moles=float(s["air_mol"]),
-                            ipam_pressures=tuple(float(p) * 1e3 for p in s.get("ipam_pressures_kpa", [])),
-                            jammed=tuple(int(j) for j in s.get("jammed", [])))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DesignError(f"manifest {what}: bad state ({exc}); give air_mol (mol), ipam_pressures_kpa (one per "
-                          f"IPAM) and jammed (cell indices)") from None
+    _known_keys(s, STATE_KEYS, f"manifest {what} state")
+    pressures, jammed = s.get("ipam_pressures_kpa", []), s.get("jammed", [])
+    if not isinstance(pressures, list) or not isinstance(jammed, list):
+        raise DesignError(f"manifest {what} state: ipam_pressures_kpa (one per IPAM) and jammed (cell indices) "
+                          f"are lists")
+    return ControlState(air_moles=_finite(s["air_mol"], f"manifest {what} state air_mol (mol)", positive=True),
+                        ipam_pressures=tuple(_finite(p, f"manifest {what} state ipam_pressures_kpa") * 1e3
+                                             for p in pressures),
+                        jammed=tuple(_row_index(j, f"manifest {what} state jammed (a cell index)") for j in jammed))
 
 
 def _reading(entry: dict, what: str) -> dict:
     """The chamber pressure reading of a manifest entry (``chamber_pressure_kpa``, ``pressure_stderr_kpa``)."""
     if entry.get("chamber_pressure_kpa") is None:
+        if "pressure_stderr_kpa" in entry:
+            raise DesignError(f"manifest {what}: pressure_stderr_kpa without chamber_pressure_kpa; give the reading too")
         return {}
-    try:
-        return dict(pressure=float(entry["chamber_pressure_kpa"]) * 1e3,
-                    pressure_stderr=float(entry.get("pressure_stderr_kpa", 0.1)) * 1e3)
-    except (TypeError, ValueError):
-        raise DesignError(f"manifest {what}: chamber_pressure_kpa and pressure_stderr_kpa must be numbers (kPa)") \
-            from None
+    return dict(pressure=_finite(entry["chamber_pressure_kpa"], f"manifest {what} chamber_pressure_kpa") * 1e3,
+                pressure_stderr=_finite(entry.get("pressure_stderr_kpa", 0.1), f"manifest {what} pressure_stderr_kpa",
+                                        positive=True) * 1e3)
+
+
+def _text(entry: dict, key: str, what: str, default: str) -> str:
+    value = entry.get(key, default)
+    if not isinstance(value, str):
+        raise DesignError(f"manifest {what}: {key} must be a string, got {value!r}")
+    return value
+
+
+def _observed_state(e: dict, folder: Path, design: Design, what: str):
+    """The state an observation's scan was taken at: a schedule file up to a row or time, or given."""
+    sources = [k for k in ("valve", "control", "state") if k in e]
+    if len(sources) != 1:
+        raise DesignError(f"manifest {what}: give the state the scan was taken at, once: \"valve\" or \"control\" "
+                          f"(with \"row\" or \"time_s\") or \"state\"" + (f"; it gives {' and '.join(sources)}"
+                                                                               if sources else ""))
+    picks = [k for k in ("row", "time_s") if k in e]
+    if sources[0] == "state":
+        if picks:
+            raise DesignError(f"manifest {what}: {' and '.join(picks)} select a point of a \"valve\" or \"control\" "
+                              f"file; leave them out of an observation with a given \"state\"")
+        return _state(e, what)
+    if len(picks) == 2:
+        raise DesignError(f"manifest {what}: give \"row\" or \"time_s\", not both")
+    row = _row_index(e["row"], f"manifest {what} row") if "row" in e else None
+    time_s = _finite(e["time_s"], f"manifest {what} time_s (s)") if "time_s" in e else None
+    read = valve_sequence if sources[0] == "valve" else control_sequence
+    return read(_inside(folder, e[sources[0]], f"{what} {sources[0]}"), design, row=row, time_s=time_s)
 
 
 def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | None, list | None]:
@@ -252,6 +364,8 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
     each observation's state is checked against ``design``. Errors are one line, before any work."""
     path = Path(path)
     data = _json_file(path, "manifest")
+    if isinstance(data, dict):
+        _known_keys(data, MANIFEST_KEYS, f"manifest {path}")
     entries = data.get("observations") if isinstance(data, dict) else None
     if not isinstance(entries, list) or not entries:
         raise DesignError(f"manifest {path} lists no observations (\"observations\": [{{\"scan\": ..., ...}}])")
@@ -260,20 +374,10 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
         what = f"observation {k}"
         if not isinstance(e, dict) or "scan" not in e:
             raise DesignError(f"manifest {what}: an observation is an object with \"scan\" and its state")
+        _known_keys(e, OBSERVATION_KEYS, f"manifest {what}")
         scan = _inside(folder, e["scan"], f"{what} scan")
-        if "valve" in e:
-            state = valve_sequence(_inside(folder, e["valve"], f"{what} valve"), design, row=e.get("row"),
-                                   time_s=e.get("time_s"))
-        elif "control" in e:
-            state = control_sequence(_inside(folder, e["control"], f"{what} control"), design, row=e.get("row"),
-                                     time_s=e.get("time_s"))
-        elif "state" in e:
-            state = _state(e, what)
-        else:
-            raise DesignError(f"manifest {what}: give the state the scan was taken at: \"valve\" or \"control\" "
-                              f"(with \"row\" or \"time_s\") or \"state\"")
-        o = ScanObservation(str(scan), state, units=e.get("units", "auto"), name=e.get("name", Path(scan).name),
-                            **_reading(e, what))
+        o = ScanObservation(str(scan), _observed_state(e, folder, design, what), units=_text(e, "units", what, "auto"),
+                            name=_text(e, "name", what, Path(scan).name), **_reading(e, what))
         o.sequence(design)  # checked against the design here
         obs.append(o)
     wrt = data.get("wrt")
@@ -307,6 +411,8 @@ def calibration_markdown(result: CalibrationResult) -> str:
     if result.regions:
         lines += ["", "Regions of region_stretch (a multiplier of E t on their faces): " + ", ".join(
             f"{k} ({len(v)} faces)" for k, v in result.regions.items())]
+    if bounds_reached(result):
+        lines += ["", "## At a bound", ""] + [f"- {n}" for n in bounds_reached(result)]
     if result.notes:
         lines += ["", "## Not identifiable", ""] + [f"- {n}" for n in result.notes]
     if result.poorly_determined:

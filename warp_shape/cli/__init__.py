@@ -14,7 +14,7 @@ from .. import __version__
 from ..errors import WarpShapeError
 from ..registry import load_plugins
 from . import bench, calibrate, compare, control, design, export, simulate, sweep, view
-from .options import check_bounds, interrupts_noted, quiet_warp, stop_if_interrupted, write_failure
+from .options import check_bounds, check_warp_cache, interrupts_noted, quiet_warp, stop_if_interrupted, write_failure
 
 __all__ = ["main", "build_parser"]
 
@@ -75,6 +75,9 @@ def _run(argv) -> int:
     load_plugins()
     args = build_parser().parse_args(argv)
     check_bounds(args)
+    check_warp_cache()
     if args.command != "view":  # every command's Warp: no banner, no note that this CPU has no CUDA driver
         quiet_warp(getattr(args, "verbose", False))
-    return int(args.func(args) or 0)
+    rc = int(args.func(args) or 0)
+    stop_if_interrupted()  # a Ctrl-C that a library caught on its way (the run ends as interrupted, not as 0)
+    return rc

@@ -13,7 +13,8 @@ import warp as wp
 from ..errors import DesignError
 from ..io.atomic import StagedFolder, write_json
 from ..limits import MAX_CANDIDATES, MAX_WORLDS
-from .options import add_bounded, check_device, check_out, print_outputs
+from ..interrupts import held_interrupts
+from .options import add_bounded, check_device, check_out, print_outputs, stop_if_interrupted
 
 # the benchmarks are imported by the functions that run them: ~20 ms kept out of every command's start-up
 
@@ -193,17 +194,23 @@ def run(args) -> int:
     """Run the chosen benchmarks; print their tables; write ``bench_<name>.json`` for each."""
     from ..benchmarks import sim as sim_bench
 
-    check_out(StagedFolder(args.out), replaced=False, kind="bench")  # files written one by one
+    staged = StagedFolder(args.out, owned=lambda name: name.startswith("bench_"), command="bench")
+    check_out(staged)
     check_device(args.device)
     names = [n for n in ABOUT if n != "codesign"] if args.which == "all" else [args.which]  # codesign: hours
     meta = dict(date=time.strftime("%Y-%m-%d %H:%M:%S"), device=args.device, machine=os.uname().nodename,
                 cpu_count=os.cpu_count(), warp=wp.config.version)
     written = []
-    for name in names:
-        results: dict = {}
-        _announce(name, args)
-        _run_one(name, args, sim_bench, results)
-        if name in results:
-            written.append(write_json(Path(args.out) / f"bench_{name}.json", {name: results[name], "meta": meta}))
+    with staged.writing():  # staged, then swapped in with the earlier runs' other bench files
+        for name in names:
+            results: dict = {}
+            _announce(name, args)
+            _run_one(name, args, sim_bench, results)
+            if name in results:
+                written.append(write_json(staged.path / f"bench_{name}.json", {name: results[name], "meta": meta}))
+        if written:
+            stop_if_interrupted()
+            with held_interrupts():
+                staged.commit(True, keep_previous=True)
     print_outputs(args.out, [p.name for p in written], args)
     return 0

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from ..calibration import CALIBRATION_PARAMETERS, DEFAULT_WRT, calibrate
-from ..calibration.files import (calibration_data, calibration_markdown, read_manifest, write_calibration,
+from ..calibration.files import (bounds_reached, calibration_data, calibration_markdown, read_manifest, write_calibration,
                                  write_residual_figures)
 from ..calibration.parameters import check_wrt
-from ..errors import DesignError
-from ..io.atomic import atomic_write
-from .options import add_common_args, check_device, check_rerun, open_recorder, resolve_design_and_targets
+from ..io.atomic import StagedFolder, atomic_write
+from .options import (add_common_args, check_device, check_out, check_rerun, commit, open_recorder,
+                      resolve_design_and_targets)
 
 __all__ = ["register", "run", "CALIBRATION_OUTPUTS"]
 
@@ -48,29 +48,39 @@ def _print(result, out: Path, written) -> None:
         print(f"warning: not identifiable: {n}")
     for n in result.poorly_determined:
         print(f"warning: poorly determined: {n}")
+    for n in bounds_reached(result):
+        print(f"warning: at a bound: {n}")
     print(f"wrote {', '.join(Path(p).name for p in written)} to {out}/; use it with "
           f"warp-shape control DESIGN --calibration {out / 'calibration.json'}")
 
 
+def calibration_output(name: str) -> bool:
+    """Whether a file name is one a calibration writes (``CALIBRATION_OUTPUTS``, ``residuals_<k>.png|svg``)."""
+    return name in CALIBRATION_OUTPUTS or name.startswith("residuals_")
+
+
 def run(args) -> int:
-    """Read and check every input, fit, then write the calibration file, the report and the figures."""
+    """Read and check every input (``--out`` first), fit, then write the calibration file, the report
+    and the figures, staged and swapped into ``--out`` whole."""
+    staged = StagedFolder(args.out, owned=calibration_output, command="calibrate")
+    check_out(staged)
     check_device(args.device)
-    check_rerun(args)
+    check_rerun(args, staged, inputs=[args.manifest, args.design])
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise DesignError(f"--out {out} is a file; give a folder")
     design, _, _ = resolve_design_and_targets(args.design, None)
     observations, manifest_wrt, manifest_regions = read_manifest(args.manifest, design)
     wrt = check_wrt(args.wrt) if args.wrt else (manifest_wrt or DEFAULT_WRT)
-    result = calibrate(design, observations, wrt=wrt, regions=args.regions or manifest_regions,
-                       device=args.device)  # its regions are checked before any replay
-    out.mkdir(parents=True, exist_ok=True)
-    written = [write_calibration(result, design, out / "calibration.json"),
-               atomic_write(out / "calibration.md", calibration_markdown(result))]
-    written += write_residual_figures(result, design.rest.faces, out)
-    with open_recorder(args) as rec:
-        if rec is not None:
-            rec.log_calibration(result)
+    with staged.writing():
+        result = calibrate(design, observations, wrt=wrt, regions=args.regions or manifest_regions,
+                           device=args.device)  # its regions are checked before any replay
+        written = [write_calibration(result, design, staged.path / "calibration.json"),
+                   atomic_write(staged.path / "calibration.md", calibration_markdown(result))]
+        written += write_residual_figures(result, design.rest.faces, staged.path)
+        with open_recorder(args) as rec:
+            if rec is not None:
+                rec.log_calibration(result)
+        commit(staged, args)
+    written = [out / Path(p).name for p in written]
     if args.json:
         data = calibration_data(result, design)
         data["outputs"] = [str(p) for p in written]

@@ -15,7 +15,7 @@ from ..io.outputs import write_control_outputs, write_figures_or_skip
 from ..limits import MAX_CONTROL_STEPS
 from .calibrate import add_calibration_arg
 from .options import (ControlProgress, actuator_selection, add_bounded, add_common_args, add_units_arg,
-                      add_workers_arg, check_device, check_out, check_rerun, open_recorder, print_outputs,
+                      add_workers_arg, check_device, check_out, check_rerun, commit, open_recorder, print_outputs,
                       resolve_design_and_targets, stop_if_interrupted)
 
 __all__ = ["register", "run"]
@@ -75,11 +75,12 @@ def _print_table(design, settings, names, results, args, out: Path) -> None:
 
 
 def run(args) -> int:
-    """Control the design to every chosen target; write figures and ``control_<target>.csv|json``."""
-    staged = StagedFolder(args.out, owned=lambda name: name.startswith("control_"))
-    check_out(staged, replaced=False, kind="control")  # files written one by one
+    """Control the design to every chosen target; write figures and ``control_<target>.csv|json``
+    (staged and swapped into ``--out`` whole, see ``StagedFolder``)."""
+    staged = StagedFolder(args.out, owned=lambda name: name.startswith("control_"), command="control")
+    check_out(staged)
     check_device(args.device)
-    check_rerun(args)
+    check_rerun(args, staged, inputs=[args.scene, args.calibration, *(args.targets or [])])
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets, args.units)
     if args.calibration:
         design = apply_calibration(design, args.calibration)
@@ -91,16 +92,15 @@ def run(args) -> int:
         scene_settings, simulation=dict(integrator=args.integrator, precision=args.precision),
         controller=dict(max_steps=args.max_steps, method=args.method,
                         jamming=False if args.no_jamming else None, workers=args.workers)).control
-    with open_recorder(args) as rec, ControlProgress(refine=CONTROL_METHODS[settings.method].refines) as bar:
-        results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
-                               progress=bar.update, recorder=rec, target_names=names,
-                               **actuator_selection(args, scene_settings, names))
+    with staged.writing():
+        with open_recorder(args) as rec, ControlProgress(refine=CONTROL_METHODS[settings.method].refines) as bar:
+            results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
+                                   progress=bar.update, recorder=rec, target_names=names,
+                                   **actuator_selection(args, scene_settings, names))
+        written = write_figures_or_skip(results, staged.path, names)
+        written += write_control_outputs(results, names, staged.path)
+        commit(staged, args)
     out = Path(args.out)
-    written = write_figures_or_skip(results, out, names)
-    try:
-        written += write_control_outputs(results, names, out)
-    finally:  # what was written is listed in the folder's manifest, also when a later file failed
-        staged.record(written, "control")
     if args.json:
         print(json.dumps({name: res.summary() for name, res in zip(names, results)}, indent=2))
         return 0

@@ -32,7 +32,7 @@ from ..material import Material
 from ..limits import MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS
 from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
-from .options import (add_bounded, add_common_args, add_units_arg, add_workers_arg, check_device, check_mold_flags,
+from .options import (MAX_LENGTH, MIN_LENGTH, add_bounded, add_common_args, add_units_arg, add_workers_arg, check_device, check_mold_flags,
                       check_out, check_rerun, load_targets, open_recorder, print_outputs, recording_entry, run_progress,
                       stop_if_interrupted)
 
@@ -53,8 +53,8 @@ def register(subparsers) -> None:
     d.add_argument("--subdivisions", type=int, default=None,
                    help="base membrane: an icosphere with N subdivisions (10 * 4**N + 2 vertices; 2: 162, 3: 642, "
                         "4: 2562) instead of the scene's base mesh (default: the scene's, 642 vertices)")
-    d.add_argument("--cell-radius", type=float, default=None, metavar="M", help="jamming-cell radius, m (default: "
-                   "the scene's, else 0.012)")
+    add_bounded(d, "--cell-radius", 5 * MIN_LENGTH, MAX_LENGTH, type=float, default=None, metavar="M",
+                help="jamming-cell radius, m (default: the scene's, else 0.012)")
     d.add_argument("--placement", choices=list(PLACEMENTS), default=None,
                    help=f"actuator placement (default: simulated): {PLACEMENTS.help()}")
     add_bounded(d, "--candidates", 1, MAX_CANDIDATES, type=int, default=None,
@@ -66,9 +66,9 @@ def register(subparsers) -> None:
                         "('rest+ipams'), never worse on any target; 'off' keeps the placed design (default: the scene's, else "
                         "rest+ipams; docs/gradients.md)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
-    d.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
+    add_bounded(d, "--layer-thickness", MIN_LENGTH, MAX_LENGTH, type=float, default=5e-3, metavar="M",
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
-    d.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
+    add_bounded(d, "--marker-height", MIN_LENGTH, MAX_LENGTH, zero=True, type=float, default=2e-3, metavar="M",
                    help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
     add_units_arg(d)
     add_workers_arg(d)
@@ -100,7 +100,10 @@ def run_settings(scene, args) -> RunSettings:
 def _problem(args):
     """(base mesh, [(name, target)], RunSettings) from the scene and the flags; every input is checked
     here, before anything runs or is written."""
-    scene = load_scene(args.scene or "oval_heart")
+    if args.scene is not None and not args.scene.strip():
+        raise DesignError("the scene is an empty name; give a shipped scene name (e.g. oval_heart) or a .usda file, "
+                          "or leave it out for the default problem")
+    scene = load_scene("oval_heart" if args.scene is None else args.scene)
     if args.subdivisions is not None and not 1 <= args.subdivisions <= 6:
         raise DesignError(f"--subdivisions takes 1..6 (42..40962 vertices), got {args.subdivisions}")
     base = scene.base_mesh(args.subdivisions)
@@ -225,7 +228,7 @@ def run(args) -> int:
     staged = StagedFolder(args.out, owned=is_run_output)
     check_out(staged)
     check_device(args.device)
-    check_rerun(args)
+    check_rerun(args, staged, inputs=[args.scene, args.calibration, *(args.targets or [])])
     base, named, run_opts = _problem(args)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     timing = timing_from_args(args)

@@ -17,8 +17,8 @@ from ..io.valve import write_valve_outputs
 from ..molds import equivalent_radius
 from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
-from .options import (actuator_selection, add_common_args, check_device, check_mold_flags, check_out,
-                      check_rerun, control_progress, load_targets, open_recorder, stop_if_interrupted)
+from .options import (MAX_LENGTH, MIN_LENGTH, actuator_selection, add_bounded, add_common_args, check_device, check_mold_flags, check_out,
+                      check_rerun, commit, control_progress, load_targets, open_recorder, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -35,9 +35,9 @@ def register(subparsers) -> None:
     e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
     e.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
-    e.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
+    add_bounded(e, "--layer-thickness", MIN_LENGTH, MAX_LENGTH, type=float, default=5e-3, metavar="M",
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
-    e.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
+    add_bounded(e, "--marker-height", MIN_LENGTH, MAX_LENGTH, zero=True, type=float, default=2e-3, metavar="M",
                    help="IPAM boss height on the mold core, m (0: none; at most a quarter of the device's radius)")
     e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
                    help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")
@@ -56,9 +56,9 @@ def _checked_inputs(args, staged):
     ``--calibration``) once every input is checked, before any work:
     ``--out`` (``staged``), the device, the recording path, the scene (a design, its settings), the
     mold lengths and the targets."""
-    check_out(staged, replaced=False, kind="export")  # files written one by one
+    check_out(staged)
     check_device(args.device)
-    check_rerun(args)
+    check_rerun(args, staged, inputs=[args.scene, args.calibration, *(args.targets or [])])
     scene = load_scene(args.scene)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     if scene.design is None:
@@ -73,16 +73,15 @@ def _checked_inputs(args, staged):
 
 def run(args) -> int:
     """Fabrication and content outputs of an existing design: molds, control sequences, USD."""
-    staged = StagedFolder(args.out, owned=is_run_output)
+    staged = StagedFolder(args.out, owned=is_run_output, command="export")
     scene, named, settings, controlled = _checked_inputs(args, staged)
     timing = timing_from_args(args)
     out = Path(args.out)
     written: list = []
-    try:
-        _write(args, scene, named, settings, timing, out, written, controlled)
-    finally:  # what was written is listed in the folder's manifest, also when a later part failed
-        if written:
-            staged.record(written, "export")
+    with staged.writing():  # staged, then swapped into --out whole
+        _write(args, scene, named, settings, timing, staged.path, written, controlled)
+        commit(staged, args)
+    written = [out / Path(p).name for p in written]
     if args.json:
         print(json.dumps({"outputs": [str(p) for p in written]}, indent=2))
     else:

@@ -19,9 +19,10 @@ import warp as wp
 from ..controller.shard import MAX_WORKERS
 from ..designer import passive_from_settings
 from ..errors import DesignError
-from ..interrupts import release_the_command
-from ..io.atomic import creation_refused
-from ..io.recorder import Recorder
+from ..interrupts import held_interrupts, release_the_command
+from ..io.atomic import MANIFEST, creation_refused, special_kind
+from ..io.recorder import Recorder, viewer_problem
+from ..io.recording_read import RRD_MAGIC
 from ..io.scene_read import load_scene
 from ..model import check_device as check_warp_device
 from ..molds import check_mold_lengths
@@ -31,13 +32,15 @@ from ..scenarios import cube_fig6_design
 from ..targets import TARGET_NAMES, load_target, target
 from .progress import Bar, ControlProgress, DesignProgress
 
-__all__ = ["add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
+__all__ = ["MIN_LENGTH", "MAX_LENGTH", "add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
            "add_workers_arg", "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
-           "check_out", "check_rerun", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
+           "check_out", "check_rerun", "commit", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
            "ControlProgress",
-           "interrupts_noted", "stop_if_interrupted", "write_failure", "add_bounded", "check_bounds"]
+           "interrupts_noted", "stop_if_interrupted", "check_warp_cache", "write_failure", "add_bounded", "check_bounds"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
+#: the range of a length flag (m): 0.1 mm (a printer's resolution) to 0.5 m (a display is a few cm)
+MIN_LENGTH, MAX_LENGTH = 1e-4, 0.5
 
 
 def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:
@@ -86,7 +89,8 @@ def add_rerun_args(sp) -> None:
     sp.add_argument("--rerun", metavar="FILE.rrd", default=None,
                     help="write a rerun recording (open it with: warp-shape view FILE.rrd)")
     sp.add_argument("--rerun-spawn", action="store_true", help="stream to a live rerun viewer (needs a display)")
-    sp.add_argument("--rerun-every", type=int, default=1, help="log every k-th control step (the last is always logged)")
+    add_bounded(sp, "--rerun-every", 1, 10**9, type=int, default=1,
+                help="log every k-th control step (the last is always logged)")
 
 
 def add_units_arg(sp) -> None:
@@ -121,6 +125,22 @@ def _held_stderr(drop):
             if rest:
                 sys.stderr.write(b"".join(rest).decode(errors="replace"))
                 sys.stderr.flush()
+
+
+def check_warp_cache() -> None:
+    """``WARP_CACHE_PATH`` (Warp's kernel cache), where it is set, a folder this process can write to:
+    a one-line error before Warp starts (Warp itself ends in a traceback)."""
+    path = os.environ.get("WARP_CACHE_PATH")
+    if not path:
+        return
+    try:
+        os.makedirs(path, exist_ok=True)
+        reason = creation_refused(path)
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+    if reason is not None:
+        raise DesignError(f"WARP_CACHE_PATH {path} cannot hold Warp's kernel cache ({reason}); give it a folder you "
+                          f"can write to, or unset it")
 
 
 def quiet_warp(verbose: bool = False) -> None:
@@ -197,15 +217,17 @@ def check_device(device: str) -> str:
             raise
 
 
-def check_out(staged, replaced: bool = True, kind: str = "out") -> None:
-    """``--out`` checked before any work (a file in its place, a folder that cannot be written; with
-    ``replaced``, a folder that is not the run's own; without, a run's folder, where the error names
-    ``<out>/<kind>`` as the fix)."""
-    staged.check(replaced, kind)
+def check_out(staged) -> None:
+    """``--out`` checked before any work: a file in its place, a folder that cannot be written, a
+    folder that is not the command's own set to replace (``StagedFolder.check``)."""
+    staged.check()
 
 
-def check_rerun(args) -> None:
-    """``--rerun FILE.rrd`` checked before any work: rerun-sdk installed, the folder writable."""
+def check_rerun(args, staged=None, inputs=()) -> None:
+    """``--rerun FILE.rrd`` and ``--rerun-spawn`` checked before any work: rerun-sdk installed, a viewer
+    that can start, the folder writable, and nothing of the user's replaced by the recording
+    (``_check_rerun_path``: not an input of the run, not a file other than a recording, not one of
+    ``staged``'s output names)."""
     path = getattr(args, "rerun", None)
     if not (path or getattr(args, "rerun_spawn", False)):
         return
@@ -213,17 +235,59 @@ def check_rerun(args) -> None:
         import rerun  # noqa: F401  (optional, ~1 s to import: only when a recording is asked for)
     except ImportError:
         raise DesignError("--rerun needs rerun-sdk: pip install 'warp-shape[rerun]'") from None
+    if getattr(args, "rerun_spawn", False):
+        problem = viewer_problem()
+        if problem is not None:
+            raise DesignError(f"--rerun-spawn cannot open a viewer: {problem}; record to a file instead "
+                              f"(--rerun run.rrd) and open it with warp-shape view run.rrd")
     if path:
-        p = Path(path).expanduser().absolute()
-        if p.is_dir():
-            raise DesignError(f"--rerun {path} is a folder; give a file name such as {p / 'run.rrd'}")
-        folder = p.parent
-        while not folder.exists():
-            folder = folder.parent
-        reason = "not a folder" if not folder.is_dir() else creation_refused(folder)
-        if reason is not None:
-            raise DesignError(f"--rerun {path}: {folder} is not writable ({reason}); give a path in a folder you "
-                              f"can write to, e.g. --rerun out/run.rrd")
+        _check_rerun_path(path, staged, inputs)
+
+
+def _check_rerun_path(path, staged, inputs) -> None:
+    p = Path(path).expanduser().absolute()
+    if len(os.fsencode(p.name)) > 240:
+        raise DesignError(f"--rerun {path[:40]}...: the file name is {len(os.fsencode(p.name))} bytes long, more than a "
+                          f"file system allows with the recording's temporary suffix; give a shorter name")
+    if p.is_dir():
+        raise DesignError(f"--rerun {path} is a folder; give a file name such as {p / 'run.rrd'}")
+    folder = p.parent
+    while not folder.exists():
+        folder = folder.parent
+    reason = "not a folder" if not folder.is_dir() else creation_refused(folder)
+    if reason is not None:
+        raise DesignError(f"--rerun {path}: {folder} is not writable ({reason}); give a path in a folder you "
+                          f"can write to, e.g. --rerun out/run.rrd")
+    real = os.path.realpath(p)
+    for given in inputs:
+        if given and os.path.lexists(os.path.expanduser(str(given))) \
+                and os.path.realpath(os.path.expanduser(str(given))) == real:
+            raise DesignError(f"--rerun {path} is an input of this run ({given}); the recording would replace it: "
+                              f"give the recording a name of its own, e.g. --rerun run.rrd")
+    if staged is not None and (p.parent.resolve() in (staged.out, staged.partial)) \
+            and (p.name == MANIFEST or staged.owned(p.name)):
+        raise DesignError(f"--rerun {path} is named as one of this run's outputs in {staged.out}; the recording "
+                          f"and the output would replace each other: give it another name, e.g. --rerun "
+                          f"{staged.out / 'run.rrd'}")
+    if p.is_symlink():
+        raise DesignError(f"--rerun {path} is a symbolic link; the recording would replace it: give the path "
+                          f"of the recording itself")
+    if p.exists():
+        if not p.is_file():
+            raise DesignError(f"--rerun {path} is a {special_kind(p)}; give a file name such as run.rrd")
+        with open(p, "rb") as f:
+            head = f.read(len(RRD_MAGIC))
+        if head and head != RRD_MAGIC:
+            raise DesignError(f"--rerun {path} exists and is not a rerun recording; the recording would replace "
+                              f"it: give a new file name (or the path of an earlier recording), e.g. --rerun run.rrd")
+
+
+def commit(staged, args, **info):
+    """The staged set swapped into ``<out>`` whole (``StagedFolder.commit``, the run's recording in its
+    manifest); a Ctrl-C now lets the swap finish, then stops. Returns ``<out>``."""
+    stop_if_interrupted()
+    with held_interrupts():
+        return staged.commit(True, **recording_entry(args), **info)
 
 
 def check_mold_flags(args, radius: float) -> None:

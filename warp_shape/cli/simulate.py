@@ -13,7 +13,7 @@ from ..io.atomic import StagedFolder, write_json
 from ..limits import MAX_SIM_STEPS, MAX_SUBDIVISIONS
 from ..scenarios import cube_fig6_design
 from ..simulator import Simulator
-from .options import (Bar, add_bounded, add_common_args, check_device, check_out, check_rerun, open_recorder,
+from .options import (Bar, add_bounded, add_common_args, check_device, check_out, check_rerun, commit, open_recorder,
                       print_outputs)
 
 __all__ = ["register", "run"]
@@ -102,25 +102,26 @@ def _drive(sim, design, args, rec, bar) -> list[dict]:
 
 def run(args) -> int:
     """Run the Fig. 6 sequence; write ``simulate.json``; print a table (or the JSON)."""
-    staged = StagedFolder(args.out, owned=lambda name: name == "simulate.json")
-    check_out(staged, replaced=False, kind="simulate")  # files written one by one
+    staged = StagedFolder(args.out, owned=lambda name: name == "simulate.json", command="simulate")
+    check_out(staged)
     check_device(args.device)
-    check_rerun(args)
+    check_rerun(args, staged)
     steps = sum(_step_counts(args))
     design = cube_fig6_design(subdivisions=args.subdivisions)
     sim = Simulator(design, device=args.device, integrator=args.integrator, dt=args.dt, precision=args.precision)
-    # the recorder is closed (and the recording saved) even when the run fails
-    with open_recorder(args) as rec, Bar(total=steps, desc="simulate", unit="step") as bar:
-        if rec is not None:
-            rec.begin_simulation(design)
-        t0 = time.perf_counter()
-        rows = _drive(sim, design, args, rec, bar)
-    wall = time.perf_counter() - t0
-    result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
-                  device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
-                  substeps=sim.substeps, stable_dt=sim.stable_dt(), wall_seconds=wall, frames=rows)
-    out = write_json(Path(args.out) / "simulate.json", result)
-    staged.record([out], "simulate")
+    with staged.writing():  # the run's lock; simulate.json staged, then swapped into --out whole
+        # the recorder is closed (and the recording saved) even when the run fails
+        with open_recorder(args) as rec, Bar(total=steps, desc="simulate", unit="step") as bar:
+            if rec is not None:
+                rec.begin_simulation(design)
+            t0 = time.perf_counter()
+            rows = _drive(sim, design, args, rec, bar)
+        wall = time.perf_counter() - t0
+        result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
+                      device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
+                      substeps=sim.substeps, stable_dt=sim.stable_dt(), wall_seconds=wall, frames=rows)
+        write_json(staged.path / "simulate.json", result)
+        out = commit(staged, args) / "simulate.json"
     if args.json:
         print(json.dumps(result, indent=2))
     else:

@@ -70,8 +70,14 @@ def run(args) -> int:
     """Run the sweep; print the summary table (or the rows as JSON) and where the results are."""
     if args.address is None:  # runs on this machine: its device must be here (a cluster's workers have their own)
         check_device(args.device)
+    fixed = _fixed(args.fixed)
+    swept = {spec.partition("=")[0].strip() for spec in args.param}
+    both = sorted(swept & set(fixed))
+    if both:
+        raise SweepError(f"{both[0]} is both swept (--param) and fixed (--set); the --set would be dropped: give "
+                         f"it with one of them")
     res = sweep(args.kind, args.scene, targets=args.targets, actuators=args.actuators, params=args.param,
-                fixed=_fixed(args.fixed), out=args.out, backend=args.backend, workers=args.workers,
+                fixed=fixed, out=args.out, backend=args.backend, workers=args.workers,
                 address=args.address, device=args.device, retries=args.retries, restart=args.restart)
     if args.json:
         print(json.dumps(res.rows, indent=1))

@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import shutil
+import stat
 import tempfile
 import time
 from contextlib import contextmanager
@@ -21,7 +22,7 @@ from pathlib import Path
 from ..errors import WarpShapeError, read_input_file
 
 __all__ = ["atomic_write", "write_json", "atomic_target", "hold_lock", "release_lock", "finalize_permissions", "MANIFEST", "file_digest",
-           "read_manifest", "manifest_problems", "creation_refused", "StagedFolder", "OutputError"]
+           "read_manifest", "manifest_problems", "creation_refused", "special_kind", "StagedFolder", "OutputError"]
 
 
 class OutputError(WarpShapeError, OSError):
@@ -69,35 +70,90 @@ def write_json(path, data) -> Path:
 MANIFEST = "manifest.json"
 #: the largest manifest read (one a run writes is a few kB)
 MAX_MANIFEST_BYTES = 16 * 2**20
-ONE_BY_ONE = ("control", "export", "simulate")  # commands writing files one by one (``StagedFolder.record``)
+ONE_BY_ONE = ("control", "export", "simulate")  # commands that wrote files one by one before they staged their sets
+#: the manifest format of a set staged and swapped in whole (format 1: also the file-by-file lists of earlier versions)
+STAGED_FORMAT = 2
 MAX_FOREIGN_ENTRIES = 2000  # other files an output folder may hold (carried into each new set as hard links)
 RENAME_EXCHANGE = 2  # linux/fs.h
 AT_FDCWD = -100
 
 
-def hold_lock(path, busy) -> int:
-    """Take the exclusive lock file ``path`` for this process and write its pid there; the lock goes with
-    the process, even when it is killed. Held by another process: raises ``busy(holder pid)``. Returns the
-    descriptor to give ``release_lock`` when done."""
+def _lock_problem(path, what: str) -> str:
+    return (f"the lock file {path} {what}; a run writes only a lock of its own there: move it away (or give "
+            f"another --out)")
+
+
+def _open_existing_lock(path, busy):
+    """The descriptor of an existing lock file at ``path``, opened without following a link and checked
+    to be a lock of a run (a regular file holding a process id, or nothing); None where it went away.
+    Held by another process: raises ``busy(holder pid)``; a link, a folder or another file: ``OutputError``."""
     import fcntl
 
-    while True:
-        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OutputError(_lock_problem(path, "is a symbolic link")) from None
+        if exc.errno == errno.EISDIR:
+            raise OutputError(_lock_problem(path, "is a folder")) from None
+        raise OutputError(_lock_problem(path, f"cannot be opened ({exc.strerror})")) from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise OutputError(_lock_problem(path, "is a folder"))
+        if not stat.S_ISREG(st.st_mode):
+            raise OutputError(_lock_problem(path, "is not a regular file (a FIFO, a device or a socket)"))
+        text = os.read(fd, 64).decode(errors="replace").strip() if st.st_size <= 64 else "?"
+        if st.st_size > 64 or not (text == "" or text.isdigit()):
+            raise OutputError(_lock_problem(path, "holds something else than a run's process id"))
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
-            os.close(fd)
-            raise busy(holder) from None
+            raise busy(text or "?") from None
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def hold_lock(path, busy) -> int:
+    """Take the exclusive lock file ``path`` for this process and write its pid there; the lock goes with
+    the process, even when it is killed. The file is created anew (``O_EXCL``, never through a link);
+    a lock left by a run that ended (a process id, no holder) is removed first, and anything else at
+    ``path`` (a link, a folder, a file of other content) is an ``OutputError``, left as it is. Held by
+    another process: raises ``busy(holder pid)``. Returns the descriptor to give ``release_lock``."""
+    import fcntl
+
+    path = os.fspath(path)
+    for _ in range(100):
         try:
-            if os.stat(path).st_ino == os.fstat(fd).st_ino:
-                break
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY | os.O_NOFOLLOW, 0o644)
+        except FileExistsError:
+            stale = _open_existing_lock(path, busy)
+            if stale is not None:  # a finished (or killed) run's lock, held by nobody: ours to remove
+                try:
+                    if os.stat(path, follow_symlinks=False).st_ino == os.fstat(stale).st_ino:
+                        os.unlink(path)
+                except FileNotFoundError:
+                    pass
+                finally:
+                    os.close(stale)
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:  # another run took the file we made before we locked it
+            os.close(fd)
+            raise busy("?") from None
+        try:
+            if os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino:
+                os.write(fd, str(os.getpid()).encode())
+                return fd
         except FileNotFoundError:
             pass
-        os.close(fd)  # the file was released (removed) by its holder after we opened it: take the new one
-    os.ftruncate(fd, 0)
-    os.write(fd, str(os.getpid()).encode())
-    return fd
+        os.close(fd)  # removed by a run that found it stale before we locked it: make a new one
+    raise OutputError(_lock_problem(path, "keeps changing"))
 
 
 def release_lock(path, fd: int) -> None:
@@ -206,6 +262,17 @@ def creation_refused(folder) -> str | None:
     return None
 
 
+def special_kind(path) -> str:
+    """What ``path`` is, in words, for a message: "file", "folder", "FIFO (named pipe)", "device", "socket"."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return "file"
+    return ("folder" if stat.S_ISDIR(mode) else "FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "socket" if stat.S_ISSOCK(mode)
+            else "file")
+
+
 def _probe_writable(folder: Path, what: str) -> None:
     reason = creation_refused(folder)
     if reason is not None:
@@ -227,8 +294,17 @@ class StagedFolder:
     A run that is killed leaves ``<out>`` as it was and its finished part in ``<out>.partial``.
     """
 
-    def __init__(self, out, owned=lambda name: False):
-        self.out = Path(os.path.abspath(os.path.expanduser(str(out))))
+    def __init__(self, out, owned=lambda name: False, command: str = "design"):
+        self.command = command
+        try:
+            self.out = Path(os.path.abspath(os.path.expanduser(str(out))))
+        except FileNotFoundError:  # the working folder was deleted under the command
+            raise OutputError(f"--out {out}: the current folder no longer exists; cd into an existing folder or "
+                              f"give --out as an absolute path") from None
+        long = max(((len(os.fsencode(part)), part) for part in self.out.parts), default=(0, ""))
+        if long[0] > 250:
+            raise OutputError(f"--out {out}: the name {long[1][:40]}... is {long[0]} bytes long, more than a "
+                              f"file system allows (255) with the run's staging suffix; give a shorter name")
         if not self.out.name:
             raise OutputError(f"--out {out} is the root folder; a run replaces its output folder as a whole: give "
                               f"it a folder of its own, e.g. --out out")
@@ -245,32 +321,27 @@ class StagedFolder:
         """``<out>`` as messages name it: the link given and the folder it points to, where it is a link."""
         return f"{self.link} (a link to {self.out})" if self.link is not None else str(self.out)
 
-    def check(self, replaced: bool = True, kind: str = "out") -> None:
-        """A clear ``OutputError`` now, before any work, where the outputs could not be written (and,
-        with ``replaced``, where ``<out>`` is no folder of its own to be replaced as a whole; without,
-        where ``<out>`` holds a run's set, which files written one by one would change: the error names
-        ``<out>/<kind>`` instead)."""
+    def check(self) -> None:
+        """A clear ``OutputError`` now, before any work, where the outputs could not be written or
+        ``<out>`` is no folder of this command's to replace as a whole (``_check_own_folder``)."""
         if self.link is not None and not self.out.exists():
             raise OutputError(f"--out {self.link} is a symbolic link to {self.out}, which does not exist; give --out "
                               f"a folder (new or holding earlier outputs)")
         for p, what in ((self.out, "--out"), (self.partial, "the staging folder")):
             if p.exists() and not p.is_dir():
-                raise OutputError(f"{what} {p} is a file, not a folder; give --out a folder (new or holding "
-                                  f"earlier outputs)")
+                raise OutputError(f"{what} {p} is a {special_kind(p)}, not a folder; give --out a folder (new or "
+                                  f"holding earlier outputs)")
         parent = self.out.parent
         while not parent.exists():
             parent = parent.parent
         if not parent.is_dir():
-            raise OutputError(f"--out {self.out}: {parent} is a file, not a folder")
+            raise OutputError(f"--out {self.out}: {parent} is a {special_kind(parent)}, not a folder; give --out a "
+                              f"path under a folder")
         _probe_writable(parent, "the folder holding --out")
         if self.out.is_dir():
             _probe_writable(self.out, "--out")
-            if replaced:
-                self._check_own_folder()
-            else:
-                self._check_files_folder(kind)
-        if replaced:
-            self._check_partial()
+            self._check_own_folder()
+        self._check_partial()
 
     def _check_own_folder(self) -> None:
         """``<out>`` is replaced as a whole: refuse the current folder (or one holding it), a folder
@@ -283,13 +354,14 @@ class StagedFolder:
                               f"whole: give it a folder of its own, e.g. --out out")
         manifest = read_manifest(self.out)
         if manifest is None:
-            foreign = [e.name for e in os.scandir(self.out)
-                       if not e.is_dir(follow_symlinks=False) or self.owned(e.name)]
+            foreign = [e.name for e in os.scandir(self.out) if self.owned(e.name) or e.name == MANIFEST
+                       or self.command == "design" and not e.is_dir(follow_symlinks=False)]
             if foreign:
                 raise OutputError(f"--out {self.shown} holds files no run wrote ({_listed(foreign)}) and no "
-                                  f"{MANIFEST}; a run replaces its output folder as a whole: give --out an empty or "
-                                  f"new folder")
+                                  f"{MANIFEST}; a run replaces its output set as a whole: move them out of --out, "
+                                  f"or give --out an empty or new folder")
         else:
+            self._check_command(manifest)
             self._check_listed(manifest)
         previous = set((manifest or {}).get("files", {}))
         count = 0
@@ -303,48 +375,30 @@ class StagedFolder:
                                   f"outputs of a run; a run replaces its output folder as a whole (keeping such "
                                   f"files): give it a folder of its own, e.g. --out out")
 
-    def _check_files_folder(self, kind: str) -> None:
-        """For a command writing its files into ``<out>`` one by one: no run's whole set there (it would
-        change it), and no file under a name ``owned`` says it writes that no run wrote (it would
-        replace it). ``record`` lists what such a run wrote."""
-        manifest = read_manifest(self.out)
-        if manifest is not None and manifest.get("command") not in ONE_BY_ONE:
-            raise OutputError(f"--out {self.shown} holds a design run's set (its {MANIFEST} lists the files); "
-                              f"this command writes files into --out one by one and would change that set: "
-                              f"give it a folder of its own, e.g. --out {self.out / kind}")
-        listed = (manifest or {}).get("files", {})
-        foreign = [e.name for e in os.scandir(self.out) if manifest is None and e.name == MANIFEST
-                   or e.name != MANIFEST and self.owned(e.name)
-                   and (e.name not in listed or _differs(self.out / e.name, listed[e.name]))]
-        if foreign:
-            raise OutputError(f"--out {self.shown} holds files named as this command's outputs that no run wrote "
-                              f"or that changed since ({_listed(foreign)}); it would replace them: move them out of --out (or delete "
-                              f"them where an earlier version of warp-shape wrote them), or give --out an empty "
-                              f"or new folder")
-
-    def record(self, paths, command: str) -> Path:
-        """List the files a command wrote into ``<out>`` one by one (``paths``) in its ``manifest.json``
-        with sizes and SHA-256, beside those of earlier runs still as written: the next run's to replace."""
-        manifest = read_manifest(self.out) or {}
-        files = {name: info for name, info in manifest.get("files", {}).items()
-                 if (self.out / name).is_file() and not _differs(self.out / name, info)}
-        for name in sorted({Path(p).name for p in paths}):
-            if (self.out / name).is_file() and name != MANIFEST:
-                files[name] = dict(bytes=(self.out / name).stat().st_size, sha256=file_digest(self.out / name))
-        data = dict(format=1, command=command, written=time.strftime("%Y-%m-%dT%H:%M:%S%z"), files=files)
-        return atomic_write(self.out / MANIFEST, json.dumps(data, indent=1) + "\n")
+    def _check_command(self, manifest: dict) -> None:
+        """A set of another command (a design's, where this is an export) is never replaced by this one's."""
+        theirs = manifest.get("command", "design")
+        if theirs != self.command:
+            sub = self.out / (self.command if self.command != "design" else "design")
+            raise OutputError(f"--out {self.shown} holds a {theirs} run's set (its {MANIFEST} lists the files); "
+                              f"a {self.command} run replaces its own set as a whole and would drop that one: give "
+                              f"it a folder of its own, e.g. --out {sub}")
 
     def _check_listed(self, manifest: dict) -> None:
         """In a folder of a run: no file the run did not write under a name a run writes (the new set
-        would replace it), no listed file changed since (the new set would drop the change)."""
+        would replace it), no listed file changed since (the new set would drop the change). A list an
+        earlier version wrote file by file (``ONE_BY_ONE``, format 1) may lag its files where that run
+        was stopped between two: its own files then differ from the list, and are replaced."""
         listed = manifest["files"]
+        legacy = manifest.get("command") in ONE_BY_ONE and manifest.get("format", 1) < STAGED_FORMAT
         named = [e.name for e in os.scandir(self.out) if e.name not in listed and e.name != MANIFEST
                  and self.owned(e.name)]
         if named:
             raise OutputError(f"--out {self.shown} holds files named as a run's outputs that no run wrote "
                               f"({_listed(named)}); the next run would replace them: move them out of --out, or "
                               f"give --out an empty or new folder")
-        changed = [name for name, info in listed.items() if _differs(self.out / name, info)]
+        changed = [name for name, info in listed.items() if _differs(self.out / name, info)
+                   and not (legacy and (self.out / name).is_file() and not (self.out / name).is_symlink())]
         if changed:
             raise OutputError(f"--out {self.shown}: {_listed(changed)} not as the run wrote (size or SHA-256 differs "
                               f"from {MANIFEST}); the next run would replace them: move them out of --out, or give "
@@ -363,6 +417,20 @@ class StagedFolder:
         if foreign:
             raise OutputError(f"the staging folder {self.partial} holds files no run wrote ({_listed(foreign)}); "
                               f"a run removes that folder when it starts: move them away, or give another --out")
+
+    @contextmanager
+    def writing(self):
+        """Hold ``<out>``'s lock while the block runs (``lock``); where the block fails or is
+        interrupted, the staging folder goes (``discard``) and ``<out>`` keeps its previous set; the
+        lock is given up at the end in every case."""
+        self.lock()
+        try:
+            yield self
+        except BaseException:
+            self.discard()
+            raise
+        finally:
+            self.unlock()
 
     def lock(self) -> None:
         """Hold ``<parent>/.<out>.lock`` for the rest of the run: a second run into the same ``<out>``
@@ -401,7 +469,8 @@ class StagedFolder:
         files = {p.name: dict(bytes=p.stat().st_size, sha256=file_digest(p))
                  for p in sorted(folder.iterdir()) if p.is_file() and p.name != MANIFEST
                  and not p.name.startswith(".")}
-        data = dict(format=1, complete=bool(complete), written=time.strftime("%Y-%m-%dT%H:%M:%S%z"), files=files)
+        data = dict(format=STAGED_FORMAT, command=self.command, complete=bool(complete),
+                    written=time.strftime("%Y-%m-%dT%H:%M:%S%z"), files=files)
         data.update(info)
         return atomic_write(folder / MANIFEST, json.dumps(data, indent=1) + "\n")
 
@@ -409,6 +478,16 @@ class StagedFolder:
         """Whether ``<out>`` holds a finished run's outputs (its manifest says complete)."""
         m = read_manifest(self.out)
         return bool(m and m.get("complete"))
+
+    def _carry_previous(self) -> None:
+        """The previous set's files (listed in ``<out>``'s manifest, unchanged) that the staging folder
+        does not hold, into it as hard links: they become part of the new set."""
+        listed = (read_manifest(self.out) or {}).get("files", {}) if self.out.is_dir() else {}
+        for name, info in listed.items():
+            src = self.out / name
+            if src.is_file() and not src.is_symlink() and not _differs(src, info) \
+                    and not os.path.lexists(self.path / name):
+                _link_tree(src, self.path / name)
 
     def _carry_foreign(self) -> None:
         """Every entry of ``<out>`` that its manifest does not list (checked by ``check``: none named
@@ -422,8 +501,11 @@ class StagedFolder:
                 continue
             _link_tree(entry, self.partial / name)
 
-    def commit(self, complete: bool = True, **info) -> Path:
-        """Seal the staging folder and make it ``<out>`` in one step; the previous set is removed."""
+    def commit(self, complete: bool = True, keep_previous: bool = False, **info) -> Path:
+        """Seal the staging folder and make it ``<out>`` in one step; the previous set is removed (with
+        ``keep_previous``, its files the new run did not write again are carried into the new set)."""
+        if keep_previous:
+            self._carry_previous()
         self.seal(complete, **info)
         self._carry_foreign()
         if not self.out.exists():

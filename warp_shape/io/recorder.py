@@ -40,6 +40,10 @@ design round. The series styling (names, colours) is static per entity.
 from __future__ import annotations
 
 import os
+import shutil
+import socket
+import subprocess
+import sys
 import tempfile
 import uuid
 from pathlib import Path
@@ -49,7 +53,10 @@ import numpy as np
 from ..errors import DesignError
 from .atomic import finalize_permissions
 
-__all__ = ["Recorder", "diverging_colors", "ERROR_RANGE_M", "FORCE_RANGE_N"]
+__all__ = ["Recorder", "diverging_colors", "viewer_problem", "spawn_viewer", "ERROR_RANGE_M", "FORCE_RANGE_N",
+           "VIEWER_PORT"]
+
+VIEWER_PORT = 9876  # the rerun viewer's usual port, on the loopback interface only
 
 ERROR_RANGE_M = 5e-3  # radial error (m) at which the membrane colour saturates
 FORCE_RANGE_N = 2.0  # IPAM axial force (N) at which the segment colour saturates
@@ -62,6 +69,34 @@ _JAMMED = np.array([30, 170, 80, 230], dtype=np.uint8)  # cell, jammed
 _GHOST = (200, 200, 200, 50)  # target ghost albedo (RGBA)
 _PALETTE = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
                      [140, 86, 75], [227, 119, 194], [127, 127, 127], [188, 189, 34], [23, 190, 207]], dtype=np.uint8)
+
+
+def _viewer_executable() -> str | None:
+    """The ``rerun`` program of the installed rerun-sdk (beside this Python first, else on PATH)."""
+    near = Path(sys.executable).parent / "rerun"
+    return str(near) if near.is_file() and os.access(near, os.X_OK) else shutil.which("rerun")
+
+
+def viewer_problem() -> str | None:
+    """Why no live rerun viewer can be started here (no ``rerun`` program, no display), or None."""
+    if _viewer_executable() is None:
+        return "the rerun viewer program (rerun, installed with rerun-sdk) is not found"
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "there is no display here (DISPLAY and WAYLAND_DISPLAY are unset)"
+    return None
+
+
+def spawn_viewer(port: int = VIEWER_PORT) -> str:
+    """Start a rerun viewer listening on 127.0.0.1 only (rerun's own default is every interface),
+    unless something listens on ``port`` there already (a viewer started before); returns its URL."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.settimeout(0.2)
+        listening = s.connect_ex(("127.0.0.1", port)) == 0
+    if not listening:
+        subprocess.Popen([_viewer_executable(), "--port", str(port), "--bind", "127.0.0.1", "--memory-limit", "75%"],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+    return f"rerun+http://127.0.0.1:{port}/proxy"
 
 
 def diverging_colors(values, value_range: float) -> np.ndarray:
@@ -140,6 +175,10 @@ class Recorder:
                  recording_id: str | None = None):
         if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
             raise DesignError(f"every must be an integer >= 1 (log every k-th control step), got {every!r}")
+        problem = viewer_problem() if spawn else None
+        if problem is not None:
+            raise DesignError(f"--rerun-spawn cannot open a viewer: {problem}; record to a file instead "
+                              f"(--rerun run.rrd) and open it with warp-shape view run.rrd")
         try:
             import rerun as rr
         except ImportError as exc:
@@ -165,8 +204,7 @@ class Recorder:
             self._tmp = tmp
             sinks.append(rr.FileSink(tmp))
         if spawn:
-            rr.spawn(connect=False)
-            sinks.append(rr.GrpcSink())
+            sinks.append(rr.GrpcSink(spawn_viewer()))
         self.spawn = bool(spawn)
         if sinks:
             self.stream.set_sinks(*sinks)
@@ -187,11 +225,18 @@ class Recorder:
         if self._closed:
             return self.path
         self._closed = True
-        self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
-        self.stream.flush()
-        if self._memory is not None:
-            return None  # in-memory recording: keep it readable through ``memory_bytes()``
-        self.stream.disconnect()
+        try:
+            self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+            self.stream.flush()
+            if self._memory is not None:
+                return None  # in-memory recording: keep it readable through ``memory_bytes()``
+            self.stream.disconnect()
+        except RuntimeError as exc:  # rerun's file writer stopped (a full or failing disk) or the viewer went
+            self._drop_tmp()
+            where = f"the recording {self.path}" if self.path is not None else "the live recording"
+            raise DesignError(f"{where} could not be written ({exc}); nothing was left half-written: free some "
+                              f"space (or check the disk) and run again, or give --rerun a path on another "
+                              f"disk") from None
         if self._tmp is not None:
             finalize_permissions(self._tmp)
             os.replace(self._tmp, self.path)
@@ -205,13 +250,17 @@ class Recorder:
         self.stream.flush()
         return self._memory.drain_as_bytes()
 
-    def __del__(self):
-        tmp = getattr(self, "_tmp", None)
-        if tmp is not None and not getattr(self, "_closed", True):
+    def _drop_tmp(self) -> None:
+        tmp, self._tmp = getattr(self, "_tmp", None), None
+        if tmp is not None:
             try:
                 os.unlink(tmp)
             except OSError:
                 pass
+
+    def __del__(self):
+        if not getattr(self, "_closed", True):
+            self._drop_tmp()
 
     # ------------------------------------------------------------------ blueprint
     def blueprint(self):
