@@ -115,7 +115,8 @@ def _design_phases(args, format_rows) -> dict:
     print(format_rows(out["rows"], PHASE_COLUMNS))
     for r in out["runs"]:
         print(f"  {r['side']} run {r['repeat'] + 1}: load {r['load']}, final objectives "
-              + ", ".join(f"{k} {v:.7f}" for k, v in r["objectives"].items()))
+              + ", ".join(f"{k} {v:.7f}" for k, v in r["objectives"].items()) + "; calls "
+              + ", ".join(f"{k} {v}" for k, v in r["calls"].items() if k in ("gradients", "batches", "recontrol")))
     return out
 
 
