@@ -103,16 +103,15 @@ def _codesign(args, format_rows) -> list:
     return rows
 
 
-def _design_phases(args, format_rows) -> dict:
-    from ..benchmarks.design import PHASE_COLUMNS, bench_design_phases
-
+def _design_phases(args, format_rows, design_bench) -> dict:
+    """``bench design --baseline``: the phase table (``design_bench``: ``warp_shape.benchmarks.design``)."""
     if args.device != "cpu":
         raise DesignError("bench design --baseline times the CPU job; leave --device out")
-    out = bench_design_phases(args.baseline, scene=args.scene, repeats=args.repeats,
-                              progress=lambda text: print(text, file=sys.stderr, flush=True))
+    out = design_bench.bench_design_phases(args.baseline, scene=args.scene, repeats=args.repeats,
+                                           progress=lambda text: print(text, file=sys.stderr, flush=True))
     print(f"design phases: `warp-shape design` ({out['scene']}), this checkout against {out['baseline'][:10]}, "
           f"alternating whole processes, best of {out['repeats']} each (s); runs: baseline / this / ... in order")
-    print(format_rows(out["rows"], PHASE_COLUMNS))
+    print(format_rows(out["rows"], design_bench.PHASE_COLUMNS))
     for r in out["runs"]:
         print(f"  {r['side']} run {r['repeat'] + 1}: load {r['load']}, final objectives "
               + ", ".join(f"{k} {v:.7f}" for k, v in r["objectives"].items()) + "; calls "
@@ -178,14 +177,15 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
         print(format_rows(rows, columns))
     elif name == "tradeoff":
         results["tradeoff"] = _tradeoff(args, format_rows)
-    elif name == "design" and args.baseline:
-        results["design"] = _design_phases(args, format_rows)
     elif name == "design":
-        from ..benchmarks.design import DESIGN_COLUMNS, bench_design
+        from ..benchmarks import design as design_bench
 
-        rows = bench_design(device=args.device, candidates=args.candidates)
+        if args.baseline:
+            results["design"] = _design_phases(args, format_rows, design_bench)
+            return
+        rows = design_bench.bench_design(device=args.device, candidates=args.candidates)
         results["design"] = rows
-        print(format_rows(rows, DESIGN_COLUMNS))
+        print(format_rows(rows, design_bench.DESIGN_COLUMNS))
     elif name == "control":
         results["control"] = _control(args, format_rows)
     elif name == "peer":
