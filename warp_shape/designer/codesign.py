@@ -7,9 +7,11 @@ orthonormal over the vertices), so it stays closed, star-shaped and smooth; the 
 within the initialisation's bound. IPAM areas and stiffnesses move in log scale within
 ``size_bounds`` x their placed values. A step follows the common descent direction of the targets
 (the min-norm point of their gradients' convex hull), is shortened until no target's replayed
-objective rises, and the design is re-controlled with the design's controller at the end of each
-round; a target whose re-control ends above its held sequence replayed keeps that sequence. A round
-is kept only if no target's final objective is worse than before it. docs/gradients.md.
+objective rises (tried first shorter after a step that realised little of its predicted decrease),
+and the design is re-controlled with the design's controller at the end of each round; a target
+whose re-control ends above its held sequence replayed keeps that sequence, and a round whose steps
+stopped gaining is the last. A round is kept only if no target's final objective is worse than
+before it. docs/gradients.md.
 """
 
 from __future__ import annotations
@@ -369,7 +371,8 @@ def codesign(design: Design, targets, results, *, mode: str = "rest+ipams", volu
     ``mode`` (see ``CODESIGN_MODES``): rounds of descent steps with every target's sequence held, each
     round ended by re-controlling every target with ``control_settings`` on the design reached (a
     target whose re-control ends above its held sequence replayed keeps that sequence,
-    ``replay_result``); a round is kept only if no target's objective is higher than before it. Returns (design, results,
+    ``replay_result``); a round whose last step gained less than ``settings.min_gain`` is the last; a round
+    is kept only if no target's objective is higher than before it. Returns (design, results,
     CodesignRecord): the last kept round's design and results, else the input ones."""
     settings = settings or CodesignSettings()
     record = CodesignRecord(mode=mode, before=[float(r.objective) for r in results])
