@@ -141,6 +141,19 @@ def test_first_length_halves_the_step_to_the_linear_models_zero():
     assert first_length(np.array([0.02, 0.01]), np.array([-0.01, -0.1]), 0.25) == pytest.approx(0.05)
 
 
+def test_a_step_that_met_the_curvature_halves_the_next_steps_first_trial():
+    """The next step's longest first trial: the accepted length, halved where a target realised less than
+    ``SHRINK_BELOW`` of its first-order predicted decrease (a target predicted not to fall is not judged)."""
+    from warp_shape.designer.codesign import SHRINK_BELOW, next_longest
+
+    predicted = np.array([0.001, 0.002])
+    assert next_longest(0.5, predicted, np.array([0.0006, 0.0009])) == 0.5  # 60 % and 45 % realised
+    assert next_longest(0.5, predicted, np.array([0.0006, 0.0007])) == 0.25  # 35 % realised on one
+    assert next_longest(1.0, predicted, predicted * (SHRINK_BELOW - 1e-9)) == 0.5
+    assert next_longest(1.0, predicted, predicted * SHRINK_BELOW) == 1.0
+    assert next_longest(1.0, np.array([0.001, -0.001]), np.array([0.0005, -0.01])) == 1.0  # the rise not judged
+
+
 def _kw(off, targets):
     return dict(mode="rest", volume_bound=off.settings.volume_scale * min(t.volume() for t in targets),
                 control_settings=KW["control_settings"], passive_ipams=off.passive_ipams,
@@ -149,12 +162,13 @@ def _kw(off, targets):
 
 def test_a_round_ends_after_a_step_that_lowered_no_objective_by_more_than_min_gain(designs, targets):
     """``min_gain``: a step's replayed gain (at most the fraction asked, here 90 %) ends its round, so
-    of 3 steps allowed one is taken, and the record says why; the re-control still follows it."""
+    of 3 steps allowed one is taken, and the record says why; the re-control still follows it, and no
+    round follows (the objectives stopped falling: of 2 rounds allowed one runs, one re-control)."""
     import warp_shape.designer.codesign as cd
 
     off, _ = designs
     _, _, rec = cd.codesign(off.design, off.targets, off.results,
-                            settings=CodesignSettings(steps=3, rounds=1, min_gain=0.9), **_kw(off, targets))
+                            settings=CodesignSettings(steps=3, rounds=2, min_gain=0.9), **_kw(off, targets))
     assert len(rec.steps) == 1 and len(rec.recontrols) == 1
     assert "step 1: no target's objective fell by more than 90.0%" in rec.reason
 

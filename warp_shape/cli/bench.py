@@ -44,6 +44,11 @@ def register(subparsers) -> None:
     b.add_argument("--cases", nargs="+", default=None, metavar="CASE",
                    help="codesign bench: the cases (default: all; shipped problems, targets, generated shapes, "
                         "pairs as a+b, e.g. oval_heart egg puck+peanut)")
+    b.add_argument("--baseline", default=None, metavar="COMMIT",
+                   help="design bench: the default `warp-shape design` phase by phase (placement, refinement, "
+                        "co-design, outputs, compile), this checkout against COMMIT (a temporary git worktree) in "
+                        "alternating whole processes, --repeats each")
+    b.add_argument("--scene", default="", help="design bench with --baseline: the shipped problem (default oval_heart)")
     b.add_argument("--out", default="out/bench", help="folder of the bench_<name>.json files")
     b.set_defaults(func=run)
 
@@ -97,6 +102,22 @@ def _codesign(args, format_rows) -> list:
           "Algorithm 1's (placement paper); ways: paper, default (co-design off), codesign (rest+ipams)")
     print(format_rows(rows, CODESIGN_COLUMNS))
     return rows
+
+
+def _design_phases(args, format_rows, design_bench) -> dict:
+    """``bench design --baseline``: the phase table (``design_bench``: ``warp_shape.benchmarks.design``)."""
+    if args.device != "cpu":
+        raise DesignError("bench design --baseline times the CPU job; leave --device out")
+    out = design_bench.bench_design_phases(args.baseline, scene=args.scene, repeats=args.repeats,
+                                           progress=lambda text: print(text, file=sys.stderr, flush=True))
+    print(f"design phases: `warp-shape design` ({out['scene']}), this checkout against {out['baseline'][:10]}, "
+          f"alternating whole processes, best of {out['repeats']} each (s); runs: baseline / this / ... in order")
+    print(format_rows(out["rows"], design_bench.PHASE_COLUMNS))
+    for r in out["runs"]:
+        print(f"  {r['side']} run {r['repeat'] + 1}: load {r['load']}, final objectives "
+              + ", ".join(f"{k} {v:.7f}" for k, v in r["objectives"].items()) + "; calls "
+              + ", ".join(f"{k} {v}" for k, v in r["calls"].items() if k in ("gradients", "batches", "recontrol")))
+    return out
 
 
 def _peer(args, format_rows) -> list:
@@ -158,11 +179,14 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
     elif name == "tradeoff":
         results["tradeoff"] = _tradeoff(args, format_rows)
     elif name == "design":
-        from ..benchmarks.design import DESIGN_COLUMNS, bench_design
+        from ..benchmarks import design as design_bench
 
-        rows = bench_design(device=args.device, candidates=args.candidates)
+        if args.baseline:
+            results["design"] = _design_phases(args, format_rows, design_bench)
+            return
+        rows = design_bench.bench_design(device=args.device, candidates=args.candidates)
         results["design"] = rows
-        print(format_rows(rows, DESIGN_COLUMNS))
+        print(format_rows(rows, design_bench.DESIGN_COLUMNS))
     elif name == "control":
         results["control"] = _control(args, format_rows)
     elif name == "peer":

@@ -62,8 +62,9 @@ class DesignSettings:
     ipam_pressure_limits: tuple = DEFAULT_IPAM_PRESSURE_LIMITS  # Pa gauge
     round_control: str = "law"  # control of the rounds before the last: "law", "quick" or "full" (ROUND_CONTROLS)
     codesign: str = "rest+ipams"  # after placement: "off", "rest" or "rest+ipams" (CODESIGN_MODES, docs/gradients.md)
-    codesign_steps: int = 4  # co-design's descent steps at most per round
-    codesign_rounds: int = 2  # co-design's rounds at most (descent steps, then a re-control of every target)
+    codesign_steps: int = 8  # co-design's descent steps at most per round
+    codesign_rounds: int = 2  # co-design's rounds at most (descent steps, then a re-control of every target; a
+    # round whose steps stopped gaining (CodesignSettings.min_gain) is the last)
     workers: int = 0  # processes the run's control jobs are sharded over (0: every core, 1: one; controller.shard)
 
     def __post_init__(self):
