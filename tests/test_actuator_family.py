@@ -8,7 +8,7 @@ import pytest
 
 import warp_shape as ws
 from toy_family import TENDON, add_tendon
-from warp_shape.actuators import ACTUATOR_FAMILIES
+from warp_shape.force_family import ACTUATOR_FAMILIES
 from warp_shape.errors import DesignError
 from warp_shape.io.outputs import write_control_outputs
 

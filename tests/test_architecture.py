@@ -23,7 +23,7 @@ LAYERS = [
     ("warp_shape.kernels", 0),
     ("warp_shape.errors", 1), ("warp_shape.interrupts", 1), ("warp_shape.registry", 1), ("warp_shape.settings", 1),
     ("warp_shape.material", 1), ("warp_shape.mesh", 1), ("warp_shape.limits", 1),
-    ("warp_shape.actuators", 2), ("warp_shape.force_family", 2), ("warp_shape.design", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
+    ("warp_shape.force_family", 2), ("warp_shape.design", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
     ("warp_shape.integrators", 2), ("warp_shape.crossing", 2), ("warp_shape.stability", 2), ("warp_shape.step_plan", 2),
     ("warp_shape.equilibrium", 2),
     ("warp_shape.simulator", 2),

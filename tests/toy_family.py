@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from warp_shape.actuators import SCENE_NAMESPACE as NS
-from warp_shape.actuators import ActuatorFamily, SceneAttribute
+from warp_shape.force_family import SCENE_NAMESPACE as NS
+from warp_shape.force_family import ActuatorFamily, SceneAttribute
 from warp_shape.errors import DesignError
 from warp_shape.physics.springs import spring_rows_np
 

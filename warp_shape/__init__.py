@@ -16,8 +16,7 @@ from .interrupts import hold_for_the_command
 
 hold_for_the_command()  # the warp-shape command only: Ctrl-C while it starts is answered by its main()
 
-from .actuators import ACTUATOR_FAMILIES, ActuatorFamily
-from .force_family import FORCE_FAMILIES, ForceFamily
+from .force_family import ACTUATOR_FAMILIES, FORCE_FAMILIES, ActuatorFamily, ForceFamily
 from .calibration import CalibrationResult, ControlState, ScanObservation, calibrate
 from .calibration.files import apply_calibration, read_calibration, write_calibration
 from .controller import (CONTROL_METHODS, LAWS, ControlResult, ControlSettings, control, control_many,

@@ -16,9 +16,8 @@ from warp_shape.kernels import common as kc
 from .design import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
+from .force_family import families, force_families
 from .step_plan import create_overloads
-from .actuators import families
-from .force_family import force_families
 from .physics import ipam as ipam_family  # noqa: F401  (registers the IPAM family, the first)
 from .physics.bending_law import dihedral_angles_np
 

@@ -36,8 +36,7 @@ from multiprocessing.connection import wait
 import numpy as np
 import warp as wp
 
-from ..actuators import ACTUATOR_FAMILIES
-from ..force_family import FORCE_FAMILIES
+from ..force_family import ACTUATOR_FAMILIES, FORCE_FAMILIES
 from ..errors import DesignError, WarpShapeError
 from ..registry import load_plugins
 from .result import screened

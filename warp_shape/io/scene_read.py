@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..actuators import families
+from ..force_family import families
 from ..designer import DesignSettings
 from ..designer.run_settings import designer_fields
 from ..design import Design

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from ..actuators import SCENE_NAMESPACE, SceneAttribute
+from ..force_family import SCENE_NAMESPACE, SceneAttribute
 from ..design import Design
 from ..errors import SceneError
 from ..material import Material

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..actuators import families
+from ..force_family import families
 from ..design import Design
 from ..errors import SceneError
 from .atomic import atomic_target

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..actuators import families
+from ..force_family import families
 from ..design import Design
 from ..errors import SceneError
 from .scene_schema import IPAMS, MEMBRANE, NS, ROOT_NAME, Scene
