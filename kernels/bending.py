@@ -109,13 +109,11 @@ def bending_forces_at(theta: Any, edge: Any, wing_a: Any, wing_b: Any, n_a: Any,
 def eval_bending_kernel(
     # Model:
     hinges: wp.array(dtype=wp.vec4i),  # (E,) v0, v1 (edge), v2, v3 (wings)
-    bending_stiffness: Any,  # k_t, N m/rad
-    jam_factor: Any,  # bending multiplier of jammed edges
     paper_variant: int,  # 0: exact gradient; 1: paper eq. (9) edge forces
     # State in:
     x_in: wp.array2d(dtype=Any),  # (W, V) m
     rest_angle_in: wp.array2d(dtype=Any),  # (W, E) rad
-    jammed_in: wp.array2d(dtype=wp.int32),  # (W, E) 1 where jammed
+    bend_in: wp.array2d(dtype=Any),  # (W, E) k_t, N m/rad, jam factor applied
     # Out:
     f_out: wp.array2d(dtype=Any),  # (W, V) N, accumulated
 ):
@@ -131,9 +129,7 @@ def eval_bending_kernel(
     zero = type(len_e)(0.0)
     if len_e <= zero:
         return
-    kt = bending_stiffness
-    if jammed_in[w, e] != 0:
-        kt = kt * jam_factor
+    kt = bend_in[w, e]
     torque = -kt * (dihedral_angle(x0, x1, x2, x3) - rest_angle_in[w, e])
     # wing forces: torque * d(theta)/d(wing)
     f2 = wing_gradient(wp.cross(edge, x2 - x0), len_e) * torque

@@ -6,11 +6,18 @@ from dataclasses import asdict, dataclass, fields
 
 from .errors import DesignError, check_number
 
-__all__ = ["Material", "GAS_CONSTANT"]
+__all__ = ["Material", "GAS_CONSTANT", "MEMBRANE_LAWS", "PLATE_POISSON"]
 
 GAS_CONSTANT = 8.314462618  # J / (mol K)
 #: the highest ``atmospheric_pressure`` accepted, Pa (100 atm; sea level is 101325 Pa)
 MAX_ATMOSPHERIC_PRESSURE = 1.0e7
+#: the membrane laws: the paper's edge-spring lattice, and two thin incompressible hyperelastic sheets
+MEMBRANE_LAWS = ("springs", "neo_hookean", "yeoh")
+#: Poisson's ratio of the plate bending stiffness E t^3 / 12 (1 - nu^2) of the hyperelastic laws
+#: (incompressible rubber)
+PLATE_POISSON = 0.5
+#: fields that are not plain numbers (checked on their own)
+_SPECIAL = ("membrane", "shear_modulus")
 
 
 @dataclass(frozen=True)
@@ -33,6 +40,16 @@ class Material:
     jam_stretch_factor / jam_bend_factor: stiffness multipliers of the edge and hinge springs of a
         jammed cell (paper: 10 and 30).
     temperature: T in K of the chamber air (isothermal). atmospheric_pressure: p_atm in Pa (absolute).
+    membrane: the membrane law (SPEC section 15; docs/membrane.md). "springs": the paper's edge-spring
+        lattice (k_e above, bending_stiffness on every hinge). "neo_hookean" / "yeoh": a thin
+        incompressible hyperelastic sheet on the triangles (plane stress, the thickness following the
+        stretch), strain energy per unit rest area t W(I1), W = C1 (I1 - 3) + C2 (I1 - 3)^2
+        + C3 (I1 - 3)^3, C1 = mu / 2; the edge springs then carry no elastic force (their dampers
+        stay) and the hinges take the plate stiffness E t^3 / 12 (1 - nu^2), nu = 0.5, through the
+        discrete-shell weighting 3 |e|^2 / A_e (bending_stiffness is then unused).
+    shear_modulus: mu in Pa of the hyperelastic laws; None: E / 3 (the small-strain shear modulus of
+        an incompressible solid of Young's modulus E).
+    yeoh_c2 / yeoh_c3: C2 and C3 in Pa of the Yeoh law (must be 0 for "neo_hookean" and "springs").
     """
 
     youngs_modulus: float = 69.0e3
@@ -45,12 +62,19 @@ class Material:
     jam_bend_factor: float = 30.0
     temperature: float = 293.15
     atmospheric_pressure: float = 101325.0
+    membrane: str = "springs"
+    shear_modulus: float | None = None
+    yeoh_c2: float = 0.0
+    yeoh_c3: float = 0.0
 
     def __post_init__(self):
         positive = ("youngs_modulus", "thickness", "areal_density", "temperature")
         non_negative = ("bending_stiffness", "spring_damping", "viscous_damping", "atmospheric_pressure")
         at_least_one = ("jam_stretch_factor", "jam_bend_factor")
+        self._check_membrane()
         for f in fields(self):
+            if f.name in _SPECIAL:
+                continue
             object.__setattr__(self, f.name, check_number(getattr(self, f.name), f"Material.{f.name}"))
         for name in positive:
             if getattr(self, name) <= 0:
@@ -65,6 +89,45 @@ class Material:
         for name in at_least_one:
             if getattr(self, name) < 1:
                 raise DesignError(f"Material.{name} must be >= 1 (jamming stiffens), got {getattr(self, name)!r}")
+
+    def _check_membrane(self) -> None:
+        """The membrane law's fields: a known law, mu > 0 or None, and Yeoh terms only for "yeoh"."""
+        if self.membrane not in MEMBRANE_LAWS:
+            raise DesignError(f"Material.membrane must be one of {list(MEMBRANE_LAWS)}, got {self.membrane!r}")
+        if self.shear_modulus is not None:
+            mu = check_number(self.shear_modulus, "Material.shear_modulus")
+            if mu <= 0:
+                raise DesignError(f"Material.shear_modulus must be > 0 Pa (or None for E / 3), got {mu!r}")
+            object.__setattr__(self, "shear_modulus", mu)
+        for name in ("yeoh_c2", "yeoh_c3"):
+            value = check_number(getattr(self, name), f"Material.{name}")
+            if value != 0.0 and self.membrane != "yeoh":
+                raise DesignError(f"Material.{name} = {value:g} Pa is a Yeoh term; set membrane='yeoh' to use it "
+                                  f"(membrane is {self.membrane!r})")
+            if value < 0:
+                raise DesignError(f"Material.{name} must be >= 0 Pa (a stiffening Yeoh term), got {value!r}")
+            object.__setattr__(self, name, value)
+
+    @property
+    def hyperelastic(self) -> bool:
+        """True for the hyperelastic membrane laws (not the paper's springs)."""
+        return self.membrane != "springs"
+
+    @property
+    def mu(self) -> float:
+        """The shear modulus mu in Pa in effect: ``shear_modulus``, or E / 3 when None."""
+        return self.youngs_modulus / 3.0 if self.shear_modulus is None else self.shear_modulus
+
+    @property
+    def yeoh_constants(self) -> tuple:
+        """(C1, C2, C3) in Pa of the hyperelastic law (C1 = mu / 2)."""
+        return 0.5 * self.mu, self.yeoh_c2, self.yeoh_c3
+
+    @property
+    def plate_stiffness(self) -> float:
+        """D = E t^3 / 12 (1 - nu^2) in N m with nu = ``PLATE_POISSON`` and E = 3 mu (the hyperelastic
+        laws' bending)."""
+        return 3.0 * self.mu * self.thickness ** 3 / (12.0 * (1.0 - PLATE_POISSON ** 2))
 
     @property
     def stretch_modulus(self) -> float:

@@ -19,10 +19,11 @@ from .material import GAS_CONSTANT
 from .force_family import families, force_families
 from .step_plan import create_overloads
 from .physics import ipam as ipam_family  # noqa: F401  (registers the IPAM family, the first)
+from .physics import membrane as membrane_family  # noqa: F401  (registers the hyperelastic membrane family)
 from .physics.bending_law import dihedral_angles_np
 
 __all__ = ["Model", "State", "Control", "WorldRef", "copy_worlds", "check_layout", "build_model", "check_device",
-           "HostModel", "host_model", "PRECISIONS", "cell_anchor_faces", "model_families"]
+           "HostModel", "host_model", "hinge_bend_stiffness", "PRECISIONS", "cell_anchor_faces", "model_families"]
 
 PRECISIONS = {
     "float32": (wp.float32, wp.vec3f, np.float32),
@@ -42,7 +43,7 @@ class Model:
     n_cells: int
     # material scalars (SI)
     spring_damping: float
-    bending_stiffness: float
+    bending_stiffness: float  # the largest hinge k_t, N m/rad (HostModel.bend_stiffness holds each)
     viscous_damping: float
     jam_stretch_factor: float
     jam_bend_factor: float
@@ -155,7 +156,8 @@ class HostModel:
     hinge_owns: np.ndarray  # (E,) int32 bit mask (see face_owners)
     rest_length: np.ndarray  # (E,) m
     rest_angle: np.ndarray  # (E,) rad
-    edge_stiffness: np.ndarray  # (E,) k_e, N/m
+    edge_stiffness: np.ndarray  # (E,) k_e, N/m (0 with a hyperelastic membrane: the triangles carry it)
+    bend_stiffness: np.ndarray  # (E,) k_t, N m/rad (Material.bending_stiffness, or the plate's hinge weighting)
     mass: np.ndarray  # (V,) kg
     cell_edges: list  # n_cell x (n_c,) int32 edge indices
     cell_faces: list  # n_cell x (n_c,) int64 face indices
@@ -213,7 +215,8 @@ def host_model(design: Design) -> HostModel:
         rest_vertices=x, faces=mesh.faces.astype(np.int64), hinges=hinges.astype(np.int64),
         hinge_faces=topo.faces.astype(np.int64), hinge_owns=face_owners(topo),
         rest_length=rest_length, rest_angle=dihedral_angles_np(x, hinges),
-        edge_stiffness=mat.stretch_modulus * hinge_area / rest_length**2,
+        edge_stiffness=(0.0 if mat.hyperelastic else mat.stretch_modulus) * hinge_area / rest_length**2,
+        bend_stiffness=hinge_bend_stiffness(mat, rest_length, mesh.face_areas(), topo.faces),
         mass=mat.areal_density * mesh.vertex_areas(),
         cell_edges=[design.cell_edges(c) for c in range(design.n_cells)],
         cell_faces=[c.faces.astype(np.int64) for c in design.cells], cell_anchors=cell_anchor_faces(design),
@@ -221,6 +224,17 @@ def host_model(design: Design) -> HostModel:
         rest_air=mat.atmospheric_pressure * mesh.volume() / (GAS_CONSTANT * mat.temperature),
         families=fams, actuators={f.name: f.host_arrays(design) for f in fams},
     )
+
+
+def hinge_bend_stiffness(mat, rest_length: np.ndarray, face_areas: np.ndarray, hinge_faces: np.ndarray) -> np.ndarray:
+    """(E,) k_t in N m/rad of every hinge: the paper's ``bending_stiffness`` on all hinges with
+    ``membrane="springs"``; else the plate stiffness D = E t^3 / 12 (1 - nu^2) (``Material.plate_stiffness``)
+    through the discrete-shell weighting k_t = 3 D |e|^2 / A_e (A_e the rest area of the hinge's two faces),
+    whose energy 0.5 k_t theta^2 summed over a fine mesh bent to a sphere of radius R is D/2 (2/R)^2 per area."""
+    if not mat.hyperelastic:
+        return np.full(rest_length.shape, mat.bending_stiffness)
+    hinge_area = face_areas[hinge_faces[:, 0]] + face_areas[hinge_faces[:, 1]]
+    return 3.0 * mat.plate_stiffness * rest_length ** 2 / hinge_area
 
 
 def model_families(design: Design) -> tuple:
@@ -265,7 +279,7 @@ def build_model(design: Design, device: str = "cpu", precision: str = "float32",
         device=str(device), precision=precision,
         n_vertices=mesh.n_vertices, n_faces=mesh.n_faces, n_edges=topo.count,
         n_cells=design.n_cells,
-        spring_damping=mat.spring_damping, bending_stiffness=mat.bending_stiffness,
+        spring_damping=mat.spring_damping, bending_stiffness=float(host.bend_stiffness.max(initial=0.0)),
         viscous_damping=mat.viscous_damping, jam_stretch_factor=mat.jam_stretch_factor,
         jam_bend_factor=mat.jam_bend_factor, temperature=mat.temperature,
         atmospheric_pressure=mat.atmospheric_pressure,
@@ -307,7 +321,7 @@ class State:
         h = model.host
         edge = np.empty((4, W, E), dtype=np_dtype)
         edge[0], edge[1] = h.rest_length, h.rest_angle
-        edge[2], edge[3] = h.edge_stiffness, model.bending_stiffness
+        edge[2], edge[3] = h.edge_stiffness, h.bend_stiffness
         self._set_jam(wp.array(edge, dtype=model.scalar, device=dev), wp.zeros((W, E), dtype=wp.int32, device=dev),
                       np.zeros((W, model.n_cells), dtype=bool), np.full((W, model.n_cells), np.nan),
                       np.ones((W, model.n_cells), dtype=bool))

@@ -477,7 +477,7 @@ class Simulator:
             out[fam.name] = fam.energy(h.actuators[fam.name], x, self.control.values[fam.name].numpy()[:, :n],
                                        self.control.enabled[fam.name].numpy()[:, :n].astype(bool))
         if m.has_bending:
-            kt = m.bending_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
+            kt = h.bend_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
             out["bending"] = bending_energy_np(x, h.hinges, st.rest_angle.numpy(), kt)
         out["total"] = sum(out.values())
         return {key: (float(val[0]) if self.worlds == 1 else val) for key, val in out.items()}

@@ -116,7 +116,7 @@ def jammed_stiffness(model: Model, edge_jammed: np.ndarray):
     """(k_e (W, E), k_t (W, E) or None without bending) with the jam factors applied."""
     h = model.host
     k_edge = h.edge_stiffness[None, :] * jammed_factor_np(edge_jammed, model.jam_stretch_factor)
-    kt = model.bending_stiffness * jammed_factor_np(edge_jammed, model.jam_bend_factor) if model.has_bending else None
+    kt = h.bend_stiffness * jammed_factor_np(edge_jammed, model.jam_bend_factor) if model.has_bending else None
     return k_edge, kt
 
 
@@ -363,7 +363,7 @@ def check_storable(h: HostModel, mat, precision: str) -> None:
     dtype = np.float32 if precision == "float32" else np.float64
     values = {"youngs_modulus x thickness (edge stiffness)": h.edge_stiffness, "areal_density (1 / vertex mass)":
               1.0 / h.mass, "areal_density (vertex mass)": h.mass,
-              "bending_stiffness x jam_bend_factor": mat.bending_stiffness * mat.jam_bend_factor,
+              "bending_stiffness x jam_bend_factor": h.bend_stiffness * mat.jam_bend_factor,
               "spring_damping": mat.spring_damping, "viscous_damping": mat.viscous_damping,
               "youngs_modulus x thickness x jam_stretch_factor": h.edge_stiffness * mat.jam_stretch_factor}
     values = {("Material", what): v for what, v in values.items()}

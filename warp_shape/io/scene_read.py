@@ -395,7 +395,9 @@ def _read_rest(r: _Reader, membrane) -> TriMesh:
 
 def _read_material(r: _Reader, membrane) -> Material:
     """Every Material field from its attribute; ``Material``'s own checks name the attribute."""
-    values = {attr.field: r.table_value(membrane, attr) for attr in MATERIAL_ATTRIBUTES}
+    values = {attr.field: (r.token(membrane, attr.name, attr.required) if attr.usd_type == "token"
+                           else r.table_value(membrane, attr)) for attr in MATERIAL_ATTRIBUTES}
+    values = {k: v for k, v in values.items() if v is not None}  # an optional field left out: its default
     try:
         return Material.from_dict(values)
     except DesignError as exc:

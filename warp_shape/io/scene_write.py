@@ -80,7 +80,9 @@ def _author_membrane(stage, d: Design) -> None:
     prim = mesh.GetPrim()
     author_attribute(prim, REST_POINTS, "point3d[]", d.rest.vertices)
     for attr in MATERIAL_ATTRIBUTES:
-        author_attribute(prim, attr.name, attr.usd_type, float(getattr(d.material, attr.field)))
+        value = getattr(d.material, attr.field)
+        if value is not None:  # shear_modulus None (E / 3) is written as no attribute
+            author_attribute(prim, attr.name, attr.usd_type, value if attr.usd_type == "token" else float(value))
     pv = UsdGeom.PrimvarsAPI(prim)
     pv.CreatePrimvar(f"{NS}:cellId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform).Set(
         Vt.IntArray.FromNumpy(d.face_cell().astype(np.int32)))

@@ -19,13 +19,12 @@ __all__ = ["eval_bending", "bending_energy_np", "hinge_gradient_norms", "bending
 
 
 def eval_bending(model: Model, state: State, x, f, launch: Launch, paper: bool = False):
-    """Add hinge bending forces at x (W, V) into f; launches nothing when k_t = 0."""
+    """Add hinge bending forces at x (W, V) into f (each hinge's k_t from the state: jam factor
+    applied); launches nothing when k_t = 0."""
     if not model.has_bending:
         return
-    s = model.scalar
     launch(kb.eval_bending_kernel, (x.shape[0], model.n_edges),
-           [model.hinges, s(model.bending_stiffness), s(model.jam_bend_factor), int(paper), x,
-            state.rest_angle, state.jammed, f])
+           [model.hinges, int(paper), x, state.rest_angle, state.bend_stiffness, f])
 
 
 def bending_energy_np(x: np.ndarray, hinges: np.ndarray, rest_angle: np.ndarray, kt: np.ndarray) -> np.ndarray:

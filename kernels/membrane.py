@@ -1,0 +1,140 @@
+"""Hyperelastic triangle membrane (SPEC section 15): a thin incompressible sheet in plane stress.
+
+Each triangle holds its rest frame: ``rest`` (F, 5) = the inverse Dm^-1 (d00, d01, d10, d11) of the
+2x2 matrix of its rest edge vectors x1 - x0, x2 - x0 in an orthonormal frame of its plane, and its
+rest area A0. Its deformation gradient F = [x1 - x0, x2 - x0] Dm^-1 (3x2) gives the right
+Cauchy-Green tensor C = F^T F (2x2); incompressibility sets the stretch through the thickness to
+1 / sqrt(det C), so I1 = tr C + 1 / det C. The energy of a triangle is
+A0 (c1 (I1 - 3) + c2 (I1 - 3)^2 + c3 (I1 - 3)^3) with ``moduli`` (F, 3) = t (C1, C2, C3) in N/m
+(the Yeoh law; neo-Hookean: c2 = c3 = 0), and its forces are that energy's negative gradient.
+"""
+
+from typing import Any
+
+import warp as wp
+
+
+@wp.func
+def yeoh_slope(i1m3: Any, c1: Any, c2: Any, c3: Any):
+    """dW/dI1 of W = c1 i + c2 i^2 + c3 i^3 at i = I1 - 3."""
+    two = type(i1m3)(2.0)
+    three = type(i1m3)(3.0)
+    return c1 + two * c2 * i1m3 + three * c3 * i1m3 * i1m3
+
+
+@wp.func
+def yeoh_energy(i1m3: Any, c1: Any, c2: Any, c3: Any):
+    """W = c1 i + c2 i^2 + c3 i^3 at i = I1 - 3."""
+    return i1m3 * (c1 + i1m3 * (c2 + i1m3 * c3))
+
+
+@wp.func
+def deformation_columns(x0: Any, x1: Any, x2: Any, d00: Any, d01: Any, d10: Any, d11: Any):
+    """The two columns (fa, fb) of F = [x1 - x0, x2 - x0] Dm^-1."""
+    e1 = x1 - x0
+    e2 = x2 - x0
+    return e1 * d00 + e2 * d10, e1 * d01 + e2 * d11
+
+
+@wp.func
+def first_invariant(fa: Any, fb: Any):
+    """(I1 = tr C + 1 / det C, det C) of C = F^T F with F's columns fa, fb."""
+    c00 = wp.dot(fa, fa)
+    c01 = wp.dot(fa, fb)
+    c11 = wp.dot(fb, fb)
+    det = c00 * c11 - c01 * c01
+    return c00 + c11 + type(det)(1.0) / det, det
+
+
+@wp.func
+def membrane_gradients(x0: Any, x1: Any, x2: Any, d00: Any, d01: Any, d10: Any, d11: Any, area: Any, c1: Any,
+                       c2: Any, c3: Any):
+    """(g1, g2): the triangle energy's gradient with respect to x1 and x2 (x0's is -(g1 + g2))."""
+    fa, fb = deformation_columns(x0, x1, x2, d00, d01, d10, d11)
+    c00 = wp.dot(fa, fa)
+    c01 = wp.dot(fa, fb)
+    c11 = wp.dot(fb, fb)
+    det = c00 * c11 - c01 * c01
+    one = type(det)(1.0)
+    two = type(det)(2.0)
+    three = type(det)(3.0)
+    inv = one / det
+    i1 = c00 + c11 + inv
+    s = area * yeoh_slope(i1 - three, c1, c2, c3)
+    # dI1/dF = 2 F - (2 / det C) F C^-1, F C^-1 = [fa c11 - fb c01, fb c00 - fa c01] / det C
+    k = two * inv * inv
+    pa = fa * two - (fa * c11 - fb * c01) * k
+    pb = fb * two - (fb * c00 - fa * c01) * k
+    # dW/d[x1 - x0, x2 - x0] = dW/dF Dm^-T
+    return (pa * d00 + pb * d01) * s, (pa * d10 + pb * d11) * s
+
+
+@wp.kernel
+def eval_membrane_kernel(
+    # Model:
+    faces: wp.array(dtype=wp.vec3i),  # (F,) vertex indices
+    rest: wp.array2d(dtype=Any),  # (F, 5) Dm^-1 (d00, d01, d10, d11) in 1/m, rest area A0 in m^2
+    moduli: wp.array2d(dtype=Any),  # (F, 3) t C1, t C2, t C3 in N/m
+    # State in:
+    x_in: wp.array2d(dtype=Any),  # (W, V) m
+    # Out:
+    f_out: wp.array2d(dtype=Any),  # (W, V) N, accumulated
+):
+    """The membrane forces of every triangle in every world."""
+    w, i = wp.tid()
+    face = faces[i]
+    g1, g2 = membrane_gradients(x_in[w, face[0]], x_in[w, face[1]], x_in[w, face[2]], rest[i, 0], rest[i, 1],
+                                rest[i, 2], rest[i, 3], rest[i, 4], moduli[i, 0], moduli[i, 1], moduli[i, 2])
+    wp.atomic_add(f_out, w, face[0], g1 + g2)
+    wp.atomic_sub(f_out, w, face[1], g1)
+    wp.atomic_sub(f_out, w, face[2], g2)
+
+
+@wp.func
+def rest_frame(x0: Any, x1: Any, x2: Any):
+    """(d00, d01, d10, d11, A0): Dm^-1 of a triangle in an orthonormal frame of its plane (u along
+    x1 - x0) and its area."""
+    e1 = x1 - x0
+    e2 = x2 - x0
+    l1 = wp.length(e1)
+    n = wp.cross(e1, e2)
+    a2 = wp.length(n)  # twice the area
+    u = e1 / l1
+    v = wp.cross(n / a2, u)
+    # Dm = [[l1, e2.u], [0, e2.v]]
+    b = wp.dot(e2, u)
+    c = wp.dot(e2, v)
+    one = type(l1)(1.0)
+    half = type(l1)(0.5)
+    return one / l1, -b / (l1 * c), type(l1)(0.0), one / c, half * a2
+
+
+@wp.kernel
+def membrane_rest_kernel(
+    # Model:
+    faces: wp.array(dtype=wp.vec3i),  # (F,) vertex indices
+    x_rest: wp.array(dtype=Any),  # (V,) rest positions, m
+    # Out:
+    rest_out: wp.array2d(dtype=Any),  # (F, 5) Dm^-1 and rest area
+):
+    """Each triangle's rest frame from the rest positions (see ``rest_frame``)."""
+    i = wp.tid()
+    face = faces[i]
+    d00, d01, d10, d11, area = rest_frame(x_rest[face[0]], x_rest[face[1]], x_rest[face[2]])
+    rest_out[i, 0] = d00
+    rest_out[i, 1] = d01
+    rest_out[i, 2] = d10
+    rest_out[i, 3] = d11
+    rest_out[i, 4] = area
+
+
+@wp.kernel(enable_backward=False)
+def add_vertex_diagonal_kernel(
+    # Model:
+    vertex_in: wp.array(dtype=Any),  # (V,) N/m: the triangles' stiffness estimate per vertex
+    # Out:
+    diag_out: wp.array2d(dtype=Any),  # (W, V) N/m, accumulated
+):
+    """The static settle's preconditioner part of the membrane: diag += its stiffness per vertex."""
+    w, i = wp.tid()
+    diag_out[w, i] = diag_out[w, i] + vertex_in[i]

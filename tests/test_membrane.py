@@ -1,0 +1,131 @@
+"""The hyperelastic membrane (SPEC section 15, docs/membrane.md): the law, its force family, the thin
+sphere and the meshes."""
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from warp_shape.errors import DesignError
+from warp_shape.material import GAS_CONSTANT
+from warp_shape.model import host_model
+from warp_shape.physics.membrane import (membrane_energy_np, membrane_forces_np, rest_frames_np,
+                                         thin_sphere_pressure)
+
+YEOH = dict(membrane="yeoh", yeoh_c2=2.0e3, yeoh_c3=300.0)
+
+
+def _law(**kw):
+    d = ws.Design(ws.icosphere(1, 0.02), ws.Material(**kw))
+    return d, host_model(d).actuators["membrane"]
+
+
+def _deformed(d, seed=0, scale=1.3, noise=2e-3):
+    rng = np.random.default_rng(seed)
+    return d.rest.vertices * scale + rng.normal(0.0, noise, d.rest.vertices.shape)
+
+
+def test_material_checks_the_membrane_fields_by_name():
+    for bad, words in [(dict(membrane="rubber"), "Material.membrane must be one of"),
+                       (dict(yeoh_c2=10.0), "set membrane='yeoh'"),
+                       (dict(membrane="yeoh", yeoh_c3=-1.0), "Material.yeoh_c3 must be >= 0"),
+                       (dict(shear_modulus=0.0), "Material.shear_modulus must be > 0"),
+                       (dict(shear_modulus="soft"), "Material.shear_modulus must be a finite number")]:
+        with pytest.raises(DesignError, match=words):
+            ws.Material(**bad)
+    m = ws.Material(membrane="neo_hookean")
+    assert m.mu == pytest.approx(69e3 / 3) and m.yeoh_constants == (pytest.approx(11.5e3), 0.0, 0.0)
+    assert ws.Material(membrane="neo_hookean", shear_modulus=15e3).mu == 15e3
+    assert ws.Material.from_dict(ws.Material(**YEOH).to_dict()) == ws.Material(**YEOH)
+    assert ws.Material().membrane == "springs"
+
+
+def test_forces_are_the_negative_gradient_of_the_energy_by_central_differences():
+    d, h = _law(**YEOH)
+    x = _deformed(d)[None]
+    f = membrane_forces_np(x, h["faces"], h["rest"], h["moduli"])[0]
+    eps = 1e-7
+    rng = np.random.default_rng(1)
+    for v in rng.choice(d.rest.n_vertices, 6, replace=False):
+        for c in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[0, v, c] += eps
+            xm[0, v, c] -= eps
+            g = (membrane_energy_np(xp, h["faces"], h["rest"], h["moduli"])
+                 - membrane_energy_np(xm, h["faces"], h["rest"], h["moduli"]))[0] / (2 * eps)
+            assert -g == pytest.approx(f[v, c], rel=1e-6, abs=1e-9 * np.abs(f).max())
+    # the device kernel (float64) computes the same forces and the simulator reports the host energy
+    sim = ws.Simulator(d, precision="float64")
+    sim.positions = x[0]
+    np.testing.assert_allclose(sim.forces("membrane"), f, rtol=1e-10, atol=1e-12 * np.abs(f).max())
+    assert sim.energy()["membrane"] == pytest.approx(membrane_energy_np(x, h["faces"], h["rest"], h["moduli"])[0])
+    assert sim.energy()["spring"] == 0.0 and np.abs(sim.forces("spring")).max() == 0.0
+
+
+def test_zero_force_and_energy_at_rest_and_positive_energy_elsewhere():
+    d, h = _law(**YEOH)
+    sim = ws.Simulator(d, precision="float64")
+    assert np.abs(sim.forces("membrane")).max() < 1e-12
+    assert sim.energy()["membrane"] == pytest.approx(0.0, abs=1e-15)
+    for scale in (0.8, 1.0, 1.2):  # compressed, sheared (noise only), stretched: the sheet stores energy
+        x = _deformed(d, scale=scale)[None]
+        assert membrane_energy_np(x, h["faces"], h["rest"], h["moduli"])[0] > 0
+
+
+def test_rigid_motion_leaves_energy_and_rotates_forces():
+    d, h = _law(**YEOH)
+    x = _deformed(d)
+    q, _ = np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))
+    q *= np.sign(np.linalg.det(q))  # a rotation
+    y = x @ q.T + np.array([0.3, -0.1, 0.05])
+    args = (h["faces"], h["rest"], h["moduli"])
+    assert membrane_energy_np(y[None], *args)[0] == pytest.approx(membrane_energy_np(x[None], *args)[0], rel=1e-12)
+    np.testing.assert_allclose(membrane_forces_np(y[None], *args)[0], membrane_forces_np(x[None], *args)[0] @ q.T,
+                               atol=1e-10 * np.abs(membrane_forces_np(x[None], *args)).max())
+    # the rest frames do not depend on where the rest shape lies either
+    np.testing.assert_allclose(np.abs(rest_frames_np(y, h["faces"])), np.abs(rest_frames_np(x, h["faces"])),
+                               rtol=1e-9, atol=1e-9)
+
+
+def test_the_hyperelastic_laws_move_stretching_and_bending_off_the_springs():
+    rest = ws.icosphere(2, 0.02)
+    springs = host_model(ws.Design(rest, ws.Material()))
+    hyper = host_model(ws.Design(rest, ws.Material(membrane="neo_hookean", thickness=1.5e-3)))
+    assert "membrane" not in springs.actuators and "membrane" in hyper.actuators
+    assert np.all(springs.edge_stiffness > 0) and np.all(hyper.edge_stiffness == 0)
+    assert np.all(springs.bend_stiffness == ws.Material().bending_stiffness)
+    # plate stiffness E t^3 / 12 (1 - nu^2), nu = 0.5, through 3 |e|^2 / A_e
+    D = 69e3 * 1.5e-3 ** 3 / (12 * 0.75)
+    areas = rest.face_areas()
+    e = 5
+    a_e = areas[rest.topology.faces[e]].sum()
+    assert hyper.bend_stiffness[e] == pytest.approx(3 * D * hyper.rest_length[e] ** 2 / a_e, rel=1e-12)
+    thicker = host_model(ws.Design(rest, ws.Material(membrane="neo_hookean", thickness=3e-3)))
+    np.testing.assert_allclose(thicker.bend_stiffness, 8 * hyper.bend_stiffness, rtol=1e-12)
+
+
+def _sphere_settle(material, stretches, level=3, radius=0.02):
+    """(stretch, gauge pressure) of a sphere settled statically at the air of each target stretch."""
+    d = ws.Design(ws.icosphere(level, radius), material)
+    sim = ws.Simulator(d, precision="float64")
+    v0 = d.rest.volume()
+    rt = GAS_CONSTANT * material.temperature
+    out = []
+    for lam in stretches:
+        p = thin_sphere_pressure(lam, material.mu, material.thickness, radius, material.yeoh_c2, material.yeoh_c3)
+        sim.positions = d.rest.vertices  # each from rest: air is an amount, so even the limit point is stable
+        sim.air_moles = (p + material.atmospheric_pressure) * v0 * lam ** 3 / rt
+        assert sim.settle_static().converged.all()
+        out.append(((float(sim.volume()) / v0) ** (1 / 3), float(sim.pressure())))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("kw", [dict(membrane="neo_hookean"), YEOH], ids=["neo_hookean", "yeoh"])
+def test_thin_sphere_follows_its_law_through_the_limit_point(kw):
+    mat = ws.Material(**kw)
+    limit = 7 ** (1 / 6)
+    got = _sphere_settle(mat, [1.05, 1.2, limit, 1.6, 2.0, 2.5])
+    law = thin_sphere_pressure(got[:, 0], mat.mu, mat.thickness, 0.02, mat.yeoh_c2, mat.yeoh_c3)
+    assert got[0, 0] == pytest.approx(1.05, rel=2e-2) and got[-1, 0] == pytest.approx(2.5, rel=2e-2)
+    np.testing.assert_allclose(got[:, 1], law, rtol=1e-2)
+    if kw["membrane"] == "neo_hookean":  # past the limit point the pressure falls while the sphere grows
+        assert got[2, 1] > got[3, 1] > got[4, 1] > got[5, 1] and got[2, 1] > got[1, 1]
