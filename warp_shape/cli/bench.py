@@ -30,7 +30,7 @@ def register(subparsers) -> None:
                               description="Speed benchmarks: a table on stdout and bench_<name>.json in --out per bench.")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
                                                                     "rays", "gradient", "control_gradient", "codesign",
-                                                                    "all"],
+                                                                    "membrane", "all"],
                    help="; ".join(f"{k}: {v}" for k, v in ABOUT.items()) + "; all: every one but codesign")
     b.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
     add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
@@ -130,6 +130,30 @@ def _peer(args, format_rows) -> list:
     return rows
 
 
+def _membrane(args, format_rows) -> dict:
+    from ..benchmarks import membrane
+
+    out = dict(mesh_independence=membrane.mesh_independence(laws=tuple(membrane.LAW_MATERIALS)),
+               thin_sphere=membrane.thin_sphere_table(),
+               step_cost=[r for integ in ("rk4", "semi_implicit") for level in args.subdivisions[:2]
+                          for r in membrane.step_cost(level=level, integrator=integ, device=args.device,
+                                                      repeats=args.repeats)])
+    print("mesh independence: a 40/32/32 mm ellipsoid at 1.6 x its rest air on five meshings (float64 static settle); "
+          "distance (mm) of each settled shape from the meshings' mean shape, pressure against their mean")
+    print(format_rows([{k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in r.items()}
+                       for r in out["mesh_independence"]],
+                      ["law", "meshing", "vertices", "rms_mm", "max_mm", "pressure_Pa", "pressure_pct", "evaluations"]))
+    print("\nthin sphere (R 20 mm, icosphere 3, float64 static settle) against 2 mu (t/R)(1/l - 1/l^7) (Yeoh: its own law)")
+    print(format_rows([{k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in r.items()}
+                       for r in out["thin_sphere"]], ["law", "stretch", "pressure_Pa", "law_Pa", "error_pct",
+                                                      "evaluations"]))
+    print("\na step's cost (sphere R 40 mm, 2 % more air), measured side by side; *_vs_springs = law / springs")
+    print(format_rows([{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in r.items()} for r in out["step_cost"]],
+                      ["law", "integrator", "precision", "vertices", "internal_dt", "step_us", "step_vs_springs",
+                       "seconds_per_simulated_second", "time_vs_springs"]))
+    return out
+
+
 def _rays(args, results: dict) -> None:
     try:
         from ..benchmarks.rays import bench_rays, format_table
@@ -153,6 +177,8 @@ ABOUT = {
     "control_gradient": "the model-based refinement by finite differences beside the equilibrium's adjoint, per "
                         "number of controls on the four_targets_20 design: wall time and objective",
     "codesign": "per target fit after co-design beside Algorithm 1 and the default placement (minutes per case)",
+    "membrane": "the membrane laws: one ellipsoid on five meshings, the thin sphere against its law, a step's cost "
+                "with each law side by side",
 }
 
 
@@ -195,6 +221,8 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
         _rays(args, results)
     elif name == "codesign":
         results["codesign"] = _codesign(args, format_rows)
+    elif name == "membrane":
+        results["membrane"] = _membrane(args, format_rows)
     elif name in ("gradient", "control_gradient"):
         from ..benchmarks import control_gradient, gradient
 
