@@ -130,9 +130,7 @@ def _peer(args, format_rows) -> list:
     return rows
 
 
-def _membrane(args, format_rows) -> dict:
-    from ..benchmarks import membrane
-
+def _membrane(args, format_rows, membrane) -> dict:
     out = dict(mesh_independence=membrane.mesh_independence(laws=tuple(membrane.LAW_MATERIALS)),
                thin_sphere=membrane.thin_sphere_table(),
                step_cost=[r for integ in ("rk4", "semi_implicit") for level in args.subdivisions[:2]
@@ -190,7 +188,7 @@ def _announce(name: str, args) -> None:
     print(f"bench {name}: {ABOUT[name]}{extra} ...", file=sys.stderr, flush=True)
 
 
-def _run_one(name: str, args, sim_bench, results: dict) -> None:
+def _run_one(name: str, args, sim_bench, results: dict, membrane_bench=None) -> None:
     format_rows = sim_bench.format_rows
     if name == "sim":
         if min(args.worlds) < 1:
@@ -222,7 +220,7 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
     elif name == "codesign":
         results["codesign"] = _codesign(args, format_rows)
     elif name == "membrane":
-        results["membrane"] = _membrane(args, format_rows)
+        results["membrane"] = _membrane(args, format_rows, membrane_bench)
     elif name in ("gradient", "control_gradient"):
         from ..benchmarks import control_gradient, gradient
 
@@ -244,7 +242,7 @@ def _run_one(name: str, args, sim_bench, results: dict) -> None:
 
 def run(args) -> int:
     """Run the chosen benchmarks; print their tables; write ``bench_<name>.json`` for each."""
-    from ..benchmarks import sim as sim_bench
+    from ..benchmarks import membrane as membrane_bench, sim as sim_bench
 
     staged = StagedFolder(args.out, owned=lambda name: name.startswith("bench_"), command="bench")
     check_out(staged)
@@ -257,7 +255,7 @@ def run(args) -> int:
         for name in names:
             results: dict = {}
             _announce(name, args)
-            _run_one(name, args, sim_bench, results)
+            _run_one(name, args, sim_bench, results, membrane_bench)
             if name in results:
                 written.append(write_json(staged.path / f"bench_{name}.json", {name: results[name], "meta": meta}))
         if written:
