@@ -75,16 +75,32 @@ def eval_membrane_kernel(
     faces: wp.array(dtype=wp.vec3i),  # (F,) vertex indices
     rest: wp.array2d(dtype=Any),  # (F, 5) Dm^-1 (d00, d01, d10, d11) in 1/m, rest area A0 in m^2
     moduli: wp.array2d(dtype=Any),  # (F, 3) t C1, t C2, t C3 in N/m
+    use_jam: int,  # 1: read the jam fields below; 0: nothing jammed (they are placeholders)
     # State in:
+    jam_in: wp.array3d(dtype=Any),  # (6, W, F) a jammed triangle's Dm^-1, rest area, moduli multiplier
+    jammed_in: wp.array2d(dtype=wp.int32),  # (W, F) 1 where jammed
     x_in: wp.array2d(dtype=Any),  # (W, V) m
     # Out:
     f_out: wp.array2d(dtype=Any),  # (W, V) N, accumulated
 ):
-    """The membrane forces of every triangle in every world."""
+    """The membrane forces of every triangle in every world; a jammed triangle's rest frame and moduli
+    multiplier are its world's jam fields."""
     w, i = wp.tid()
     face = faces[i]
-    g1, g2 = membrane_gradients(x_in[w, face[0]], x_in[w, face[1]], x_in[w, face[2]], rest[i, 0], rest[i, 1],
-                                rest[i, 2], rest[i, 3], rest[i, 4], moduli[i, 0], moduli[i, 1], moduli[i, 2])
+    d00 = rest[i, 0]
+    d01 = rest[i, 1]
+    d10 = rest[i, 2]
+    d11 = rest[i, 3]
+    area = rest[i, 4]
+    if use_jam != 0:
+        if jammed_in[w, i] != 0:
+            d00 = jam_in[0, w, i]
+            d01 = jam_in[1, w, i]
+            d10 = jam_in[2, w, i]
+            d11 = jam_in[3, w, i]
+            area = jam_in[4, w, i] * jam_in[5, w, i]  # the multiplier scales the energy as the area does
+    g1, g2 = membrane_gradients(x_in[w, face[0]], x_in[w, face[1]], x_in[w, face[2]], d00, d01, d10, d11, area,
+                                moduli[i, 0], moduli[i, 1], moduli[i, 2])
     wp.atomic_add(f_out, w, face[0], g1 + g2)
     wp.atomic_sub(f_out, w, face[1], g1)
     wp.atomic_sub(f_out, w, face[2], g2)
@@ -138,3 +154,37 @@ def add_vertex_diagonal_kernel(
     """The static settle's preconditioner part of the membrane: diag += its stiffness per vertex."""
     w, i = wp.tid()
     diag_out[w, i] = diag_out[w, i] + vertex_in[i]
+
+
+@wp.kernel(enable_backward=False)
+def jam_membrane_kernel(
+    # Model:
+    faces: wp.array(dtype=wp.vec3i),  # (F,) vertex indices
+    cell_faces: wp.array(dtype=wp.int32),  # (n,) faces of the cell being jammed
+    world_mask: wp.array(dtype=wp.int32),  # (W,) 1 for worlds that jam now
+    jam_factor: Any,  # moduli multiplier of a jammed triangle
+    rest: wp.array2d(dtype=Any),  # (F, 5) rest frames and areas
+    # State in:
+    x_in: wp.array2d(dtype=Any),  # (W, V) m
+    # Out (read and updated):
+    jam_out: wp.array3d(dtype=Any),  # (6, W, F) Dm^-1, rest area, moduli multiplier
+    jammed_out: wp.array2d(dtype=wp.int32),  # (W, F) 1 where jammed
+):
+    """A jammed triangle takes its current shape as its rest shape and its moduli times the jam factor;
+    its material keeps its volume, so the thickness is the current one (the multiplier
+    jam_factor A0 / A makes A t' C = jam_factor A0 t C). A triangle already jammed keeps its values."""
+    w, j = wp.tid()
+    if world_mask[w] == 0:
+        return
+    i = cell_faces[j]
+    if jammed_out[w, i] != 0:
+        return
+    face = faces[i]
+    d00, d01, d10, d11, area = rest_frame(x_in[w, face[0]], x_in[w, face[1]], x_in[w, face[2]])
+    jam_out[0, w, i] = d00
+    jam_out[1, w, i] = d01
+    jam_out[2, w, i] = d10
+    jam_out[3, w, i] = d11
+    jam_out[4, w, i] = area
+    jam_out[5, w, i] = jam_factor * rest[i, 4] / area
+    jammed_out[w, i] = 1

@@ -153,3 +153,66 @@ def test_one_ellipsoid_on_five_meshings_lands_on_one_shape_and_pressure():
         assert np.mean(got["icosphere 3"][0]) > 1.2 * 0.016  # inflated well past the rest shape
     assert spread["neo_hookean"][0] < 0.05e-3 and spread["neo_hookean"][1] < 0.005
     assert spread["springs"][0] > 0.2e-3 and spread["springs"][1] > 0.03
+
+
+def _jam_sim(worlds=2):
+    rest = ws.icosphere(2, 0.02)
+    d = ws.Design(rest, ws.Material(membrane="neo_hookean"))
+    cell = np.flatnonzero(rest.face_centroids()[:, 2] > 0.012)
+    d.add_cell(cell)
+    sim = ws.Simulator(d, precision="float64", worlds=worlds)
+    sim.air_moles = 1.5 * sim.air_moles
+    sim.settle_static()
+    return d, cell, sim
+
+
+def _jam_host(sim):
+    from warp_shape.physics.membrane import jammed_rest_np
+
+    h = sim.model.host.actuators["membrane"]
+    fields = sim.state.family_jam["membrane"]
+    return h, jammed_rest_np(h["rest"], {k: a.numpy() for k, a in fields.items()})
+
+
+def test_a_jammed_cells_triangles_take_their_shape_as_rest_and_the_stiffened_moduli():
+    d, cell, sim = _jam_sim()
+    x = sim.positions.copy()
+    h = sim.model.host.actuators["membrane"]
+    free = np.setdiff1d(np.arange(d.rest.n_faces), cell)
+    before = sim.energy()["membrane"]
+    sim.jam(0, world=0)
+    sim.jam(0, world=0)  # once: a second jam changes nothing
+    after = sim.energy()["membrane"]
+    # world 0: the cell's triangles are at rest in their jammed shape; world 1 is untouched
+    assert after[0] == pytest.approx(membrane_energy_np(x[:1], h["faces"][free], h["rest"][free], h["moduli"][free])[0])
+    assert after[1] == pytest.approx(before[1]) and after[0] < 0.9 * before[0]
+    # stretched equibiaxially by lam from the jammed shape: jam factor x the rest area x t W(lam)
+    lam = 1.1
+    centre = x[0].mean(axis=0)
+    sim.positions = centre + lam * (x - centre)
+    _, rest = _jam_host(sim)
+    jammed_part = membrane_energy_np(sim.positions[:1], h["faces"][cell], rest[:1, cell], h["moduli"][cell])[0]
+    expected = 10.0 * h["rest"][cell, 4].sum() * h["moduli"][0, 0] * (2 * lam ** 2 + lam ** -4 - 3)
+    assert jammed_part == pytest.approx(expected, rel=1e-9)
+    # the device forces of the jammed world are the host law's
+    np.testing.assert_allclose(sim.forces("membrane"), membrane_forces_np(sim.positions, h["faces"], rest, h["moduli"]),
+                               atol=1e-12)
+    # the jammed patch holds its shape when the air is let out; the free one does not
+    sim.positions = x
+    sim.air_moles = sim.air_moles / 1.3
+    sim.settle_static()
+    ce = d.cell_edges(0)
+    length = np.linalg.norm(sim.positions[:, d.rest.edges[ce, 1]] - sim.positions[:, d.rest.edges[ce, 0]], axis=-1)
+    change = np.abs(length / np.linalg.norm(x[:, d.rest.edges[ce, 1]] - x[:, d.rest.edges[ce, 0]], axis=-1) - 1)
+    assert change[0].mean() < 0.15 * change[1].mean()
+
+
+def test_membrane_jam_fields_travel_with_world_copies_and_tighten_the_stable_step():
+    d, cell, sim = _jam_sim(worlds=1)
+    dt_free = sim.stable_dt()
+    sim.jam(0)
+    assert sim.stable_dt() < 0.47 * dt_free  # jam_stretch_factor 10 on the triangles (0.53 from the hinges alone)
+    other = ws.Simulator(d, precision="float64")
+    other.load_worlds(sim.snapshot())
+    assert other.state.family_jam["membrane"]["jammed"].numpy().sum() == len(cell)
+    np.testing.assert_allclose(other.forces("membrane"), sim.forces("membrane"), atol=1e-13)

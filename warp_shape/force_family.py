@@ -59,6 +59,10 @@ class ForceFamily:
     owner = "the family's constructor"
     controlled = False
     always = False  # True: its arrays exist in every model, even with no elements (the IPAM's)
+    # True: its elements hold per-world jam fields (``jam_fields``) that a jam changes (``jam``); its
+    # ``energy`` then takes them as ``jam=`` and its ``stiffness_rows`` / ``operator_terms`` the edges' jam
+    # flags as ``jammed=``
+    jams = False
     differentiable = False
     parameters: dict = {}
     rigid_invariant = True  # False: its forces hold the membrane in space (an anchor, an indenter, a held plug)
@@ -111,6 +115,15 @@ class ForceFamily:
         """(a, b, axial k, transverse k, directions (3, n)) of the elements' springs for the elastic
         operator at positions xT (3, V), or None (no spring terms)."""
         return None
+
+    def jam_fields(self, model, worlds: int) -> dict:
+        """{name: device array} of the per-world jam fields of a new State of ``worlds`` worlds (nothing
+        jammed), for a family with ``jams``; each array's second axis is the world (``copy_worlds``)."""
+        return {}
+
+    def jam(self, model, state, cell: int, world_mask, launch) -> None:
+        """Jam the family's elements in cell ``cell`` in the worlds where world_mask (W,) int32 is 1 (an
+        element already jammed is left as it is); only for a family with ``jams``."""
 
     def diagonal_stiffness(self, model, state, diag, launch) -> None:
         """The static settle's preconditioner part: add each vertex's share of the elements' stiffness

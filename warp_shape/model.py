@@ -302,7 +302,8 @@ class State:
     ``xv`` (2, W, V) holds positions ``x`` and velocities ``v``; ``edge`` (4, W, E) holds each edge's
     ``rest_length`` (m), ``rest_angle`` (rad), ``stretch_stiffness`` (N/m) and ``bend_stiffness``
     (N m/rad), the last two already multiplied by the jam factors where the edge is jammed.
-    The jam fields are ``edge``, ``jammed`` and the host arrays ``cell_jammed``, ``cell_jam_time`` and
+    The jam fields are ``edge``, ``jammed``, the families' ``family_jam`` (``ForceFamily.jam_fields``: the
+    hyperelastic membrane's triangles) and the host arrays ``cell_jammed``, ``cell_jam_time`` and
     ``cell_enabled``; ``jam_from`` (a state of the same model and worlds) makes them that state's.
     """
 
@@ -322,16 +323,17 @@ class State:
         edge = np.empty((4, W, E), dtype=np_dtype)
         edge[0], edge[1] = h.rest_length, h.rest_angle
         edge[2], edge[3] = h.edge_stiffness, h.bend_stiffness
+        families = {f.name: f.jam_fields(model, W) for f in model.families if f.jams and model.host.count(f.name)}
         self._set_jam(wp.array(edge, dtype=model.scalar, device=dev), wp.zeros((W, E), dtype=wp.int32, device=dev),
                       np.zeros((W, model.n_cells), dtype=bool), np.full((W, model.n_cells), np.nan),
-                      np.ones((W, model.n_cells), dtype=bool))
+                      np.ones((W, model.n_cells), dtype=bool), families)
 
     def _set_xv(self, xv: wp.array) -> None:
         self.xv = xv  # (2, W, V): x (m), v (m/s)
         self.x = self.xv[0]  # (W, V) m
         self.v = self.xv[1]  # (W, V) m/s
 
-    def _set_jam(self, edge, jammed, cell_jammed, cell_jam_time, cell_enabled) -> None:
+    def _set_jam(self, edge, jammed, cell_jammed, cell_jam_time, cell_enabled, families) -> None:
         self.edge = edge  # (4, W, E)
         self.rest_length = self.edge[0]  # (W, E) m
         self.rest_angle = self.edge[1]  # (W, E) rad
@@ -341,6 +343,7 @@ class State:
         self.cell_jammed = cell_jammed  # host mirror, (W, n_cell) bool
         self.cell_jam_time = cell_jam_time  # (W, n_cell) s, NaN where not jammed
         self.cell_enabled = cell_enabled  # (W, n_cell) bool, False: the cell never jams there
+        self.family_jam = families  # family name -> {field: device array}: ForceFamily.jam_fields of a family that jams
 
     def clone(self) -> State:
         """A copy of this state with jam fields of its own (device arrays copied on the device)."""
@@ -348,12 +351,14 @@ class State:
         out.worlds = self.worlds
         out._set_xv(wp.clone(self.xv))
         out._set_jam(wp.clone(self.edge), wp.clone(self.jammed), self.cell_jammed.copy(), self.cell_jam_time.copy(),
-                     self.cell_enabled.copy())
+                     self.cell_enabled.copy(),
+                     {k: {n: wp.clone(a) for n, a in f.items()} for k, f in self.family_jam.items()})
         return out
 
     def share_jam(self, other: State) -> None:
         """Make the jam fields ``other``'s (the same arrays: a jam of either is seen by both)."""
-        self._set_jam(other.edge, other.jammed, other.cell_jammed, other.cell_jam_time, other.cell_enabled)
+        self._set_jam(other.edge, other.jammed, other.cell_jammed, other.cell_jam_time, other.cell_enabled,
+                      other.family_jam)
 
     def shares_jam(self, other: State) -> bool:
         """Whether this state's jam fields are ``other``'s."""
@@ -439,6 +444,7 @@ def copy_worlds(src: State, src_control: Control, src_worlds, dst: State, dst_co
     d_idx = wp.array(di.astype(np.int32), dtype=wp.int32, device=device)
     pairs = [(src.xv, dst.xv), (src.edge, dst.edge), (src.jammed, dst.jammed), (src_control.air, dst_control.air)]
     pairs += [(a, dst_control.values[k]) for k, a in src_control.values.items()]
+    pairs += [(a, dst.family_jam[k][n]) for k, f in src.family_jam.items() for n, a in f.items()]
     launches = []
     for a, b in pairs:
         a3 = a if a.ndim == 3 else a.reshape((1, a.shape[0], -1))

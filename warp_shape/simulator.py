@@ -330,6 +330,7 @@ class Simulator:
         if not mask.any():
             return
         edge, jammed = wp.clone(self.state.edge), wp.clone(self.state.jammed)  # undone whole if interrupted
+        family_jam = {k: {n: wp.clone(a) for n, a in f.items()} for k, f in self.state.family_jam.items()}
         try:
             eval_jam(m, self.state, cell, wp.array(mask, dtype=wp.int32, device=self.device), self._direct)
             self.state.cell_jammed[mask.astype(bool), cell] = True
@@ -337,6 +338,9 @@ class Simulator:
         except BaseException:
             wp.copy(self.state.edge, edge)
             wp.copy(self.state.jammed, jammed)
+            for k, f in family_jam.items():
+                for n, a in f.items():
+                    wp.copy(self.state.family_jam[k][n], a)
             self.state.cell_jammed[mask.astype(bool), cell] = False
             self.state.cell_jam_time[mask.astype(bool), cell] = np.nan
             raise
@@ -474,8 +478,10 @@ class Simulator:
                                      m.atmospheric_pressure))
         for fam in m.families:
             n = m.host.count(fam.name)
+            fields = {"jam": {name: a.numpy() for name, a in st.family_jam[fam.name].items()}} \
+                if fam.name in st.family_jam else {}
             out[fam.name] = fam.energy(h.actuators[fam.name], x, self.control.values[fam.name].numpy()[:, :n],
-                                       self.control.enabled[fam.name].numpy()[:, :n].astype(bool))
+                                       self.control.enabled[fam.name].numpy()[:, :n].astype(bool), **fields)
         if m.has_bending:
             kt = h.bend_stiffness * jammed_factor_np(jam, m.jam_bend_factor)
             out["bending"] = bending_energy_np(x, h.hinges, st.rest_angle.numpy(), kt)

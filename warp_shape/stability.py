@@ -38,9 +38,11 @@ class ElasticOperator:
     (axial k d d^T plus the tension's transverse |k (1 - L_0/L)| (I - d d^T)), hinges (Gauss-Newton
     k_t g g^T with g = d(theta)/dx) and IPAM sub-springs (axial plus transverse). K is symmetric
     positive semi-definite, so Lanczos on it bounds its largest eigenvalue. Vectors are (3, V)
-    structure-of-arrays, flattened. k_edge and rest_len are (E,), kt (E,) or None without bending."""
+    structure-of-arrays, flattened. k_edge and rest_len are (E,), kt (E,) or None without bending;
+    jammed (E,) bool the edges' jam flags (for the families that jam)."""
 
-    def __init__(self, model: Model, x: np.ndarray, k_edge: np.ndarray, rest_len: np.ndarray, kt: np.ndarray | None):
+    def __init__(self, model: Model, x: np.ndarray, k_edge: np.ndarray, rest_len: np.ndarray, kt: np.ndarray | None,
+                 jammed: np.ndarray | None = None):
         h = model.host
         self.V = model.n_vertices
         self.inv_sqrt = 1.0 / np.sqrt(h.mass)
@@ -50,7 +52,8 @@ class ElasticOperator:
         k_ax, k_tr, d = spring_operator_terms(xT, hinges[:, 0], hinges[:, 1], k_edge, rest_len)
         k_ax, k_tr, dirs = [k_ax], [k_tr], [d]
         for fam in model.families:
-            terms = fam.operator_terms(xT, h.actuators[fam.name])
+            jam = {"jammed": jammed} if fam.jams and jammed is not None else {}
+            terms = fam.operator_terms(xT, h.actuators[fam.name], **jam)
             for part, term in zip((a, b, k_ax, k_tr, dirs), terms or ()):
                 part.append(term)
         self.a, self.b = np.concatenate(a), np.concatenate(b)
@@ -225,7 +228,8 @@ def elastic_omega2_bound(model: Model, edge_jammed: np.ndarray, x: np.ndarray,
     out = np.zeros(W)
     for start in range(0, W, LANCZOS_BATCH):
         ws = range(start, min(W, start + LANCZOS_BATCH))
-        ops = [ElasticOperator(model, x[w], k_edge[w], rest[w], None if kt is None else kt[w]) for w in ws]
+        ops = [ElasticOperator(model, x[w], k_edge[w], rest[w], None if kt is None else kt[w], edge_jammed[w])
+               for w in ws]
         out[start:start + len(ops)] = LANCZOS_SAFETY * lanczos_upper_bounds(
             BatchedElasticOperator(ops), len(ops), 3 * model.n_vertices, steps)
     return out
@@ -249,7 +253,8 @@ def jam_rows(model: Model, edge_jammed: np.ndarray):
     if kt is not None:
         bending_rows_np(stiff, h.hinges, kt, h.rest_vertices, inv_sqrt)
     for fam in model.families:
-        fam.stiffness_rows(stiff, damp, h.actuators[fam.name], inv_m, inv_sqrt)
+        jam = {"jammed": np.asarray(edge_jammed, dtype=bool)} if fam.jams else {}
+        fam.stiffness_rows(stiff, damp, h.actuators[fam.name], inv_m, inv_sqrt, **jam)
     return stiff, damp
 
 

@@ -18,11 +18,15 @@ __all__ = ["eval_jam", "jammed_factor_np"]
 
 def eval_jam(model: Model, state: State, cell: int, world_mask, launch: Launch):
     """Jam cell ``cell`` in the worlds where world_mask (W,) int32 is 1: its edges keep their current
-    length and angle as rest values and are stiffened (an edge already jammed is left as it is)."""
+    length and angle as rest values and are stiffened (an edge already jammed is left as it is), and so
+    do the elements of every family that jams (the hyperelastic membrane's triangles)."""
     edges = model.cell_edges[cell]
     launch(kj.jam_edges_kernel, (state.worlds, edges.shape[0]),
            [model.hinges, edges, world_mask, model.scalar(model.jam_stretch_factor),
             model.scalar(model.jam_bend_factor), state.x, state.edge, state.jammed])
+    for fam in model.families:
+        if fam.jams and fam.name in state.family_jam:
+            fam.jam(model, state, cell, world_mask, launch)
 
 
 def jammed_factor_np(jammed: np.ndarray, factor: float) -> np.ndarray:

@@ -19,7 +19,7 @@ from ..force_family import FORCE_FAMILIES, ForceFamily
 from .springs import spring_operator_terms, spring_rows_np
 
 __all__ = ["MembraneFamily", "MEMBRANE", "rest_frames_np", "membrane_invariants_np", "membrane_energy_np",
-           "membrane_forces_np", "thin_sphere_pressure", "EQUIVALENT_SPRING"]
+           "membrane_forces_np", "thin_sphere_pressure", "EQUIVALENT_SPRING", "jammed_rest_np"]
 
 #: the edge-spring stiffness that stands for a triangle in the stable-step estimate, in units of
 #: 2 t dW/dI1 A0 / c^2 on each of its edges (c the rest edge length): 4 gives the incompressible
@@ -46,12 +46,13 @@ def _columns(x: np.ndarray, faces: np.ndarray, rest: np.ndarray):
     """F's columns (fa, fb), each (W, F, 3), at positions x (W, V, 3)."""
     x0 = x[:, faces[:, 0]]
     e1, e2 = x[:, faces[:, 1]] - x0, x[:, faces[:, 2]] - x0
-    d00, d01, d10, d11 = (rest[:, k, None] for k in range(4))
+    d00, d01, d10, d11 = (rest[..., k, None] for k in range(4))
     return e1 * d00 + e2 * d10, e1 * d01 + e2 * d11
 
 
 def membrane_invariants_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray):
-    """(I1, det C), each (W, F), of every triangle at positions x (W, V, 3)."""
+    """(I1, det C), each (W, F), of every triangle at positions x (W, V, 3); rest (F, 5) or per world
+    (W, F, 5)."""
     fa, fb = _columns(x, faces, rest)
     c00, c01, c11 = (fa * fa).sum(-1), (fa * fb).sum(-1), (fb * fb).sum(-1)
     det = c00 * c11 - c01 * c01
@@ -60,10 +61,21 @@ def membrane_invariants_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray):
 
 def membrane_energy_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray, moduli: np.ndarray) -> np.ndarray:
     """(W,) membrane energy in J: sum A0 (c1 i + c2 i^2 + c3 i^3), i = I1 - 3, moduli (F, 3) = t (C1, C2, C3)
-    in N/m."""
+    in N/m; rest (F, 5) or per world (W, F, 5) (``jammed_rest_np``)."""
     i = membrane_invariants_np(x, faces, rest)[0] - 3.0
     c1, c2, c3 = moduli.T
-    return np.sum(rest[:, 4] * i * (c1 + i * (c2 + i * c3)), axis=1)
+    return np.sum(rest[..., 4] * i * (c1 + i * (c2 + i * c3)), axis=1)
+
+
+def jammed_rest_np(rest: np.ndarray, jam: dict) -> np.ndarray:
+    """(W, F, 5) rest frames per world: a jammed triangle's from its jam fields (``jam``: host copies of
+    ``MembraneFamily.jam_fields``), its area times its moduli multiplier; the others' ``rest`` (F, 5)."""
+    fields, jammed = jam["jam"], jam["jammed"].astype(bool)  # (6, W, F), (W, F)
+    out = np.broadcast_to(rest, jammed.shape + (5,)).copy()
+    frozen = np.moveaxis(fields[:5], 0, -1).astype(np.float64)
+    frozen[..., 4] *= fields[5]
+    out[jammed] = frozen[jammed]
+    return out
 
 
 def membrane_forces_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray, moduli: np.ndarray) -> np.ndarray:
@@ -73,11 +85,11 @@ def membrane_forces_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray, modul
     det = c00 * c11 - c01 * c01
     i = c00 + c11 + 1.0 / det - 3.0
     c1, c2, c3 = moduli.T
-    s = rest[:, 4, None] * (c1[:, None] + 2.0 * c2[:, None] * i + 3.0 * c3[:, None] * i * i)
+    s = rest[..., 4, None] * (c1[:, None] + 2.0 * c2[:, None] * i + 3.0 * c3[:, None] * i * i)
     k = 2.0 / det ** 2
     pa = 2.0 * fa - (fa * c11 - fb * c01) * k
     pb = 2.0 * fb - (fb * c00 - fa * c01) * k
-    d00, d01, d10, d11 = (rest[:, j, None] for j in range(4))
+    d00, d01, d10, d11 = (rest[..., j, None] for j in range(4))
     g1, g2 = (pa * d00 + pb * d01) * s, (pa * d10 + pb * d11) * s
     f = np.zeros(x.shape)
     for w in range(x.shape[0]):
@@ -116,6 +128,7 @@ class MembraneFamily(ForceFamily):
     summary = "a thin incompressible hyperelastic sheet (neo-Hookean / Yeoh) on the triangles"
     label, plural = "membrane triangle", "membrane triangles"
     owner = "Material (membrane, shear_modulus, yeoh_c2, yeoh_c3, thickness)"
+    jams = True
 
     def count(self, design) -> int:
         return design.rest.n_faces if design.material.hyperelastic else 0
@@ -126,14 +139,34 @@ class MembraneFamily(ForceFamily):
         scale = np.ones(len(faces)) if design.stretch_scale is None else np.asarray(design.stretch_scale, float)
         moduli = mat.thickness * np.asarray(mat.yeoh_constants)[None, :] * scale[:, None]
         a, b, face = _edge_pairs(faces)
+        cells = [c.faces.astype(np.int64) for c in design.cells]
         host = dict(faces=faces, rest=rest_frames_np(mesh.vertices, faces), moduli=moduli, pair_a=a, pair_b=b,
-                    pair_face=face, pair_rest=np.linalg.norm(mesh.vertices[b] - mesh.vertices[a], axis=1))
+                    pair_face=face, pair_rest=np.linalg.norm(mesh.vertices[b] - mesh.vertices[a], axis=1),
+                    face_edges=mesh.topology.face_edges.astype(np.int64),
+                    cell_faces=np.concatenate(cells) if cells else np.zeros(0, dtype=np.int64),
+                    cell_offsets=np.cumsum([0] + [len(c) for c in cells]).astype(np.int64),
+                    jam_factor=np.array([mat.jam_stretch_factor]))
         k, V = self._equivalent(host), mesh.n_vertices
         host["vertex_stiffness"] = np.bincount(a, k, V) + np.bincount(b, k, V)  # the settle's preconditioner part
         return host
 
     def device_arrays(self, host, arr) -> dict:
-        return dict(rest=arr(host["rest"]), moduli=arr(host["moduli"]), vertex_stiffness=arr(host["vertex_stiffness"]))
+        return dict(rest=arr(host["rest"]), moduli=arr(host["moduli"]), vertex_stiffness=arr(host["vertex_stiffness"]),
+                    cell_faces=arr(host["cell_faces"].astype(np.int32), wp.int32),
+                    no_jam=arr(np.zeros((6, 1, 1))), no_jammed=arr(np.zeros((1, 1), dtype=np.int32), wp.int32))
+
+    def jam_fields(self, model, worlds):
+        F, dev = model.n_faces, model.device
+        return dict(jam=wp.zeros((6, worlds, F), dtype=model.scalar, device=dev),
+                    jammed=wp.zeros((worlds, F), dtype=wp.int32, device=dev))
+
+    def jam(self, model, state, cell, world_mask, launch):
+        host, dev, fields = model.host.actuators[self.name], model.actuators[self.name], state.family_jam[self.name]
+        a, b = (int(v) for v in host["cell_offsets"][cell:cell + 2])
+        if b > a:
+            launch(km.jam_membrane_kernel, (state.worlds, b - a),
+                   [model.faces, dev["cell_faces"][a:b], world_mask, model.scalar(model.jam_stretch_factor), dev["rest"],
+                    state.x, fields["jam"], fields["jammed"]])
 
     def build(self, model, rest, launch):
         dev = model.actuators[self.name]
@@ -143,13 +176,16 @@ class MembraneFamily(ForceFamily):
         if not model.host.count(self.name):
             return
         dev = model.actuators[self.name]
-        launch(km.eval_membrane_kernel, (x.shape[0], model.n_faces), [model.faces, dev["rest"], dev["moduli"], x, f])
+        fields = None if state is None else getattr(state, "family_jam", {}).get(self.name)
+        jam = [1, fields["jam"], fields["jammed"]] if fields else [0, dev["no_jam"], dev["no_jammed"]]
+        launch(km.eval_membrane_kernel, (x.shape[0], model.n_faces), [model.faces, dev["rest"], dev["moduli"], *jam, x, f])
 
     def rest_controls(self, host):
         return np.zeros(len(host["faces"]))
 
-    def energy(self, host, x, controls, enabled):
-        return membrane_energy_np(x, host["faces"], host["rest"], host["moduli"])
+    def energy(self, host, x, controls, enabled, jam=None):
+        rest = host["rest"] if jam is None else jammed_rest_np(host["rest"], jam)
+        return membrane_energy_np(x, host["faces"], rest, host["moduli"])
 
     def _equivalent(self, host, slope_scale=None) -> np.ndarray:
         """(3F,) stiffness (N/m) of the springs standing for the triangles' edges."""
@@ -157,17 +193,27 @@ class MembraneFamily(ForceFamily):
         mu_t = 2.0 * host["moduli"][face, 0] if slope_scale is None else 2.0 * slope_scale[face]
         return EQUIVALENT_SPRING * mu_t * host["rest"][face, 4] / host["pair_rest"] ** 2
 
-    def stiffness_rows(self, stiff, damp, host, inv_m, inv_sqrt):
-        k = self._equivalent(host)
-        spring_rows_np(stiff, host["pair_a"], host["pair_b"], np.broadcast_to(k, (stiff.shape[0], k.size)), inv_m,
-                       inv_sqrt)
+    @staticmethod
+    def _jam_multiplier(host, jammed) -> np.ndarray:
+        """(..., 3F) the jam factor on the springs of the triangles whose three edges are jammed (a jammed
+        cell's), 1 elsewhere; jammed (..., E) bool edge flags."""
+        face_jammed = np.asarray(jammed, dtype=bool)[..., host["face_edges"]].all(axis=-1)
+        return np.where(face_jammed[..., host["pair_face"]], host["jam_factor"][0], 1.0)
 
-    def operator_terms(self, xT, host):
+    def stiffness_rows(self, stiff, damp, host, inv_m, inv_sqrt, jammed=None):
+        k = np.broadcast_to(self._equivalent(host), (stiff.shape[0], len(host["pair_face"])))
+        if jammed is not None:
+            k = k * self._jam_multiplier(host, jammed)
+        spring_rows_np(stiff, host["pair_a"], host["pair_b"], k, inv_m, inv_sqrt)
+
+    def operator_terms(self, xT, host, jammed=None):
         # the tangent t dW/dI1 at the current invariant (it grows with a Yeoh law's C2, C3)
         i = membrane_invariants_np(xT.T[None], host["faces"], host["rest"])[0][0] - 3.0
         c1, c2, c3 = host["moduli"].T
         slope = np.maximum(c1 + 2.0 * c2 * i + 3.0 * c3 * i * i, c1)
         k = self._equivalent(host, slope)
+        if jammed is not None:
+            k = k * self._jam_multiplier(host, jammed)
         k_ax, k_tr, d = spring_operator_terms(xT, host["pair_a"], host["pair_b"], k, host["pair_rest"])
         return host["pair_a"], host["pair_b"], k_ax, k_tr, d
 
