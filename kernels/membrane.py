@@ -87,23 +87,22 @@ def eval_membrane_kernel(
     multiplier are its world's jam fields."""
     w, i = wp.tid()
     face = faces[i]
-    d00 = rest[i, 0]
-    d01 = rest[i, 1]
-    d10 = rest[i, 2]
-    d11 = rest[i, 3]
-    area = rest[i, 4]
-    if use_jam != 0:
-        if jammed_in[w, i] != 0:
-            d00 = jam_in[0, w, i]
-            d01 = jam_in[1, w, i]
-            d10 = jam_in[2, w, i]
-            d11 = jam_in[3, w, i]
-            area = jam_in[4, w, i] * jam_in[5, w, i]  # the multiplier scales the energy as the area does
+    # a jammed triangle reads its world's jam fields (selected without a branch; the indices are kept
+    # inside the (1, 1) placeholders where nothing is jammed)
+    wj = wp.min(w, jammed_in.shape[0] - 1)
+    ij = wp.min(i, jammed_in.shape[1] - 1)
+    frozen = use_jam != 0 and jammed_in[wj, ij] != 0
+    d00 = wp.where(frozen, jam_in[0, wj, ij], rest[i, 0])
+    d01 = wp.where(frozen, jam_in[1, wj, ij], rest[i, 1])
+    d10 = wp.where(frozen, jam_in[2, wj, ij], rest[i, 2])
+    d11 = wp.where(frozen, jam_in[3, wj, ij], rest[i, 3])
+    # the multiplier scales the energy as the area does
+    area = wp.where(frozen, jam_in[4, wj, ij] * jam_in[5, wj, ij], rest[i, 4])
     g1, g2 = membrane_gradients(x_in[w, face[0]], x_in[w, face[1]], x_in[w, face[2]], d00, d01, d10, d11, area,
                                 moduli[i, 0], moduli[i, 1], moduli[i, 2])
     wp.atomic_add(f_out, w, face[0], g1 + g2)
-    wp.atomic_sub(f_out, w, face[1], g1)
-    wp.atomic_sub(f_out, w, face[2], g2)
+    wp.atomic_add(f_out, w, face[1], -g1)
+    wp.atomic_add(f_out, w, face[2], -g2)
 
 
 @wp.func

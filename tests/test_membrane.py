@@ -3,6 +3,7 @@ sphere and the meshes."""
 
 import numpy as np
 import pytest
+import warp as wp
 
 import warp_shape as ws
 from warp_shape.errors import DesignError
@@ -216,3 +217,70 @@ def test_membrane_jam_fields_travel_with_world_copies_and_tighten_the_stable_ste
     other.load_worlds(sim.snapshot())
     assert other.state.family_jam["membrane"]["jammed"].numpy().sum() == len(cell)
     np.testing.assert_allclose(other.forces("membrane"), sim.forces("membrane"), atol=1e-13)
+
+
+@wp.kernel
+def _project_kernel(f: wp.array2d(dtype=wp.vec3d), r: wp.array2d(dtype=wp.vec3d), out: wp.array(dtype=wp.float64)):
+    w, i = wp.tid()
+    wp.atomic_add(out, 0, wp.dot(f[w, i], r[w, i]))
+
+
+def test_the_force_kernels_adjoint_matches_central_differences_of_the_float64_force():
+    """The family is marked differentiable: Warp's adjoint of its build (rest frames from the rest
+    positions) and force kernels, on a tape, gives d(f . r)/d(positions, moduli, rest positions) equal to
+    central differences of the host law's force (float64)."""
+    from warp_shape.kernels import membrane as km
+    from warp_shape.physics.membrane import MEMBRANE
+
+    assert MEMBRANE.differentiable and set(MEMBRANE.parameters) == {"moduli"}
+    d, h = _law(**YEOH)
+    rest0, x0 = d.rest.vertices, _deformed(d)
+    r = np.random.default_rng(5).normal(size=x0.shape)
+    faces = wp.array(h["faces"].astype(np.int32), dtype=wp.vec3i)
+    no_jam, no_jammed = wp.zeros((6, 1, 1), dtype=wp.float64), wp.zeros((1, 1), dtype=wp.int32)
+
+    def tape_gradients():
+        x = wp.array(x0[None], dtype=wp.vec3d, requires_grad=True)
+        rest_pos = wp.array(rest0, dtype=wp.vec3d, requires_grad=True)
+        moduli = wp.array(h["moduli"], dtype=wp.float64, requires_grad=True)
+        rest = wp.zeros((len(h["faces"]), 5), dtype=wp.float64, requires_grad=True)
+        f = wp.zeros(x.shape, dtype=wp.vec3d, requires_grad=True)
+        out = wp.zeros(1, dtype=wp.float64, requires_grad=True)
+        tape = wp.Tape()
+        with tape:
+            wp.launch(km.membrane_rest_kernel, len(h["faces"]), [faces, rest_pos, rest])
+            wp.launch(km.eval_membrane_kernel, (1, len(h["faces"])), [faces, rest, moduli, 0, no_jam, no_jammed, x, f])
+            wp.launch(_project_kernel, x.shape, [f, wp.array(r[None], dtype=wp.vec3d), out])
+        tape.backward(out)
+        return x.grad.numpy()[0], rest_pos.grad.numpy(), moduli.grad.numpy()
+
+    def value(x=x0, rest_pos=rest0, moduli=h["moduli"]):
+        f = membrane_forces_np(x[None], h["faces"], rest_frames_np(rest_pos, h["faces"]), moduli)[0]
+        return float(np.sum(f * r))
+
+    gx, grest, gmod = tape_gradients()
+    rng = np.random.default_rng(6)
+    for v, c in zip(rng.choice(len(x0), 4, replace=False), range(3)):
+        for arr, grad in ((x0, gx), (rest0, grest)):
+            eps = 1e-7
+            plus, minus = arr.copy(), arr.copy()
+            plus[v, c] += eps
+            minus[v, c] -= eps
+            kw = "x" if arr is x0 else "rest_pos"
+            fd = (value(**{kw: plus}) - value(**{kw: minus})) / (2 * eps)
+            assert grad[v, c] == pytest.approx(fd, rel=1e-4, abs=1e-6 * np.abs(grad).max())
+    for i, k in ((3, 0), (10, 1), (17, 2)):
+        eps = 1e-3 * h["moduli"][i, k] + 1e-6
+        plus, minus = h["moduli"].copy(), h["moduli"].copy()
+        plus[i, k] += eps
+        minus[i, k] -= eps
+        fd = (value(moduli=plus) - value(moduli=minus)) / (2 * eps)
+        assert gmod[i, k] == pytest.approx(fd, rel=1e-6, abs=1e-12)
+
+
+def test_gradients_refuse_a_hyperelastic_design_before_any_work():
+    from warp_shape.gradients.api import gradient_parameters
+
+    with pytest.raises(DesignError, match="does not follow Material.membrane = 'neo_hookean'"):
+        gradient_parameters(ws.Design(ws.icosphere(1, 0.02), ws.Material(membrane="neo_hookean")))
+    assert "youngs_modulus" in gradient_parameters(ws.Design(ws.icosphere(1, 0.02), ws.Material()))

@@ -129,6 +129,10 @@ class MembraneFamily(ForceFamily):
     label, plural = "membrane triangle", "membrane triangles"
     owner = "Material (membrane, shear_modulus, yeoh_c2, yeoh_c3, thickness)"
     jams = True
+    # the force kernel's adjoint is Warp's, checked against central differences of the float64 law
+    # (tests/test_membrane.py); the rest frames are derived from the rest positions on the tape (build)
+    differentiable = True
+    parameters = {"moduli": "N/m (t C1, t C2, t C3 per triangle)"}
 
     def count(self, design) -> int:
         return design.rest.n_faces if design.material.hyperelastic else 0
@@ -151,7 +155,8 @@ class MembraneFamily(ForceFamily):
         return host
 
     def device_arrays(self, host, arr) -> dict:
-        return dict(rest=arr(host["rest"]), moduli=arr(host["moduli"]), vertex_stiffness=arr(host["vertex_stiffness"]),
+        return dict(faces=arr(host["faces"].astype(np.int32), wp.vec3i), rest=arr(host["rest"]), moduli=arr(host["moduli"]),
+                    vertex_stiffness=arr(host["vertex_stiffness"]),
                     cell_faces=arr(host["cell_faces"].astype(np.int32), wp.int32),
                     no_jam=arr(np.zeros((6, 1, 1))), no_jammed=arr(np.zeros((1, 1), dtype=np.int32), wp.int32))
 
@@ -165,12 +170,12 @@ class MembraneFamily(ForceFamily):
         a, b = (int(v) for v in host["cell_offsets"][cell:cell + 2])
         if b > a:
             launch(km.jam_membrane_kernel, (state.worlds, b - a),
-                   [model.faces, dev["cell_faces"][a:b], world_mask, model.scalar(model.jam_stretch_factor), dev["rest"],
+                   [dev["faces"], dev["cell_faces"][a:b], world_mask, model.scalar(model.jam_stretch_factor), dev["rest"],
                     state.x, fields["jam"], fields["jammed"]])
 
     def build(self, model, rest, launch):
         dev = model.actuators[self.name]
-        launch(km.membrane_rest_kernel, model.n_faces, [model.faces, rest, dev["rest"]])
+        launch(km.membrane_rest_kernel, dev["faces"].shape[0], [dev["faces"], rest, dev["rest"]])
 
     def eval_forces(self, model, state, control, x, v, f, launch):
         if not model.host.count(self.name):
@@ -178,7 +183,8 @@ class MembraneFamily(ForceFamily):
         dev = model.actuators[self.name]
         fields = None if state is None else getattr(state, "family_jam", {}).get(self.name)
         jam = [1, fields["jam"], fields["jammed"]] if fields else [0, dev["no_jam"], dev["no_jammed"]]
-        launch(km.eval_membrane_kernel, (x.shape[0], model.n_faces), [model.faces, dev["rest"], dev["moduli"], *jam, x, f])
+        launch(km.eval_membrane_kernel, (x.shape[0], dev["faces"].shape[0]), [dev["faces"], dev["rest"], dev["moduli"], *jam,
+                                                                             x, f])
 
     def rest_controls(self, host):
         return np.zeros(len(host["faces"]))
