@@ -284,3 +284,22 @@ def test_gradients_refuse_a_hyperelastic_design_before_any_work():
     with pytest.raises(DesignError, match="does not follow Material.membrane = 'neo_hookean'"):
         gradient_parameters(ws.Design(ws.icosphere(1, 0.02), ws.Material(membrane="neo_hookean")))
     assert "youngs_modulus" in gradient_parameters(ws.Design(ws.icosphere(1, 0.02), ws.Material()))
+
+
+def test_the_commands_take_the_membrane_law(tmp_path):
+    import json
+
+    from warp_shape.cli import main
+
+    got = {}
+    for law in ("springs", "neo_hookean"):
+        out = tmp_path / law
+        assert main(["simulate", "--membrane", law, "--subdivisions", "1", "--inflate-time", "0.03", "--actuate-time",
+                     "0.01", "--out", str(out)]) == 0
+        got[law] = json.loads((out / "simulate.json").read_text())
+    assert [got[k]["design"]["membrane"] for k in got] == ["springs", "neo_hookean"]
+    # the same air in another law: another pressure
+    p = {k: got[k]["frames"][1]["pressure"] for k in got}
+    assert abs(p["neo_hookean"] / p["springs"] - 1) > 0.02
+    with pytest.raises(SystemExit):
+        main(["simulate", "--membrane", "rubber"])

@@ -14,8 +14,9 @@ from ..io.atomic import StagedFolder
 from ..io.outputs import write_control_outputs, write_figures_or_skip
 from ..limits import MAX_CONTROL_STEPS
 from .calibrate import add_calibration_arg
-from .options import (ControlProgress, actuator_selection, add_bounded, add_common_args, add_units_arg,
-                      add_workers_arg, check_device, check_out, check_rerun, commit, open_recorder, print_outputs,
+from .options import (ControlProgress, actuator_selection, add_bounded, add_common_args, add_membrane_arg,
+                      add_units_arg,
+                      add_workers_arg, check_device, check_out, check_rerun, commit, open_recorder, print_outputs, with_membrane,
                       resolve_design_and_targets, stop_if_interrupted)
 
 __all__ = ["register", "run"]
@@ -47,6 +48,7 @@ def register(subparsers) -> None:
     add_calibration_arg(c, "each target's sequence is controlled on the calibrated model (its fitted "
                            "material, IPAMs and rest scale)")
     add_workers_arg(c)
+    add_membrane_arg(c, "the scene's design")
     add_common_args(c, out="out/control")
     c.set_defaults(func=run)
 
@@ -84,6 +86,7 @@ def run(args) -> int:
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets, args.units)
     if args.calibration:
         design = apply_calibration(design, args.calibration)
+    design = with_membrane(design, args.membrane)
     stop_if_interrupted()  # a Ctrl-C that USD's start-up swallowed
     names = [n for n, _ in targets]
     # the scene's simulation and controller settings (checked: unknown keys and bad values are errors),

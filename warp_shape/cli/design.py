@@ -32,7 +32,8 @@ from ..material import Material
 from ..limits import MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS
 from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
-from .options import (MAX_LENGTH, MIN_LENGTH, add_bounded, add_common_args, add_units_arg, add_workers_arg, check_device, check_mold_flags,
+from .options import (MAX_LENGTH, MIN_LENGTH, add_bounded, add_common_args, add_membrane_arg, add_units_arg, add_workers_arg, check_device, check_mold_flags,
+                      material_with_membrane,
                       check_out, check_rerun, load_targets, open_recorder, print_outputs, recording_entry, run_progress,
                       stop_if_interrupted)
 
@@ -75,6 +76,7 @@ def register(subparsers) -> None:
     add_timing_args(d)
     add_calibration_arg(d, "the new design's material (E, t, bending) and its IPAMs' stiffness and area (the "
                            "fitted mean) are the calibrated ones")
+    add_membrane_arg(d, "the new design")
     add_common_args(d)
     d.set_defaults(func=run)
 
@@ -94,6 +96,8 @@ def run_settings(scene, args) -> RunSettings:
             print(f"note: the calibration's E t per region ({', '.join(calibration['_regions'])}) describes the "
                   f"membrane it was fitted on; a new design takes only its material and mean IPAM size",
                   file=sys.stderr)
+    if args.membrane is not None:
+        material = material_with_membrane(material or Material(), args.membrane)
     return RunSettings.from_groups(scene.settings, designer=designer, material=material)
 
 

@@ -4,6 +4,7 @@ quieting, progress, targets and scenes by name, the closing list of outputs."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import math
 import os
@@ -23,6 +24,7 @@ from ..interrupts import held_interrupts, release_the_command
 from ..io.atomic import MANIFEST, creation_refused, special_kind
 from ..io.recorder import Recorder, viewer_problem
 from ..io.recording_read import RRD_MAGIC
+from ..material import MEMBRANE_LAWS
 from ..io.scene_read import load_scene
 from ..model import check_device as check_warp_device
 from ..molds import check_mold_lengths
@@ -41,6 +43,29 @@ __all__ = ["MIN_LENGTH", "MAX_LENGTH", "add_common_args", "add_rerun_args", "add
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
 #: the range of a length flag (m): 0.1 mm (a printer's resolution) to 0.5 m (a display is a few cm)
 MIN_LENGTH, MAX_LENGTH = 1e-4, 0.5
+
+
+def add_membrane_arg(sp, what: str) -> None:
+    """``--membrane LAW``: the membrane law (``Material.membrane``) of ``what``."""
+    sp.add_argument("--membrane", choices=list(MEMBRANE_LAWS), default=None,
+                    help=f"membrane law of {what}: 'springs' (the paper's edge-spring lattice), 'neo_hookean' or "
+                         f"'yeoh' (a thin incompressible hyperelastic sheet; docs/membrane.md) (default: the scene's)")
+
+
+def material_with_membrane(material, law: str | None):
+    """``material`` with its membrane law set to ``law`` (None: as it is); a Yeoh law keeps the
+    material's C2, C3 and a law that is not Yeoh drops them."""
+    if law is None or material.membrane == law:
+        return material
+    keep = law == "yeoh"
+    return dataclasses.replace(material, membrane=law, yeoh_c2=material.yeoh_c2 if keep else 0.0,
+                               yeoh_c3=material.yeoh_c3 if keep else 0.0)
+
+
+def with_membrane(design, law: str | None):
+    """``design`` with its material's membrane law set to ``law`` (None: as it is; ``material_with_membrane``)."""
+    material = material_with_membrane(design.material, law)
+    return design if material is design.material else design.replace(material=material)
 
 
 def add_common_args(sp, rerun: bool = True, out: str = "out") -> None:

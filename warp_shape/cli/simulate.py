@@ -13,7 +13,7 @@ from ..io.atomic import StagedFolder, write_json
 from ..limits import MAX_SIM_STEPS, MAX_SUBDIVISIONS
 from ..scenarios import cube_fig6_design
 from ..simulator import Simulator
-from .options import (Bar, add_bounded, add_common_args, check_device, check_out, check_rerun, commit, open_recorder,
+from .options import (Bar, add_bounded, add_common_args, add_membrane_arg, check_device, check_out, check_rerun, commit, open_recorder, with_membrane,
                       print_outputs)
 
 __all__ = ["register", "run"]
@@ -35,6 +35,7 @@ def register(subparsers) -> None:
                 help="final air amount relative to the rest amount")
     s.add_argument("--inflate-time", type=float, default=0.4, help="s")
     s.add_argument("--actuate-time", type=float, default=0.4, help="s")
+    add_membrane_arg(s, "the Fig. 6 device")
     add_common_args(s, out="out/simulate")
     s.set_defaults(func=run)
 
@@ -107,7 +108,7 @@ def run(args) -> int:
     check_device(args.device)
     check_rerun(args, staged)
     steps = sum(_step_counts(args))
-    design = cube_fig6_design(subdivisions=args.subdivisions)
+    design = with_membrane(cube_fig6_design(subdivisions=args.subdivisions), args.membrane)
     sim = Simulator(design, device=args.device, integrator=args.integrator, dt=args.dt, precision=args.precision)
     with staged.writing():  # the run's lock; simulate.json staged, then swapped into --out whole
         # the recorder is closed (and the recording saved) even when the run fails
@@ -117,7 +118,8 @@ def run(args) -> int:
             t0 = time.perf_counter()
             rows = _drive(sim, design, args, rec, bar)
         wall = time.perf_counter() - t0
-        result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells),
+        result = dict(design=dict(vertices=design.rest.n_vertices, ipams=design.n_ipams, cells=design.n_cells,
+                                    membrane=design.material.membrane),
                       device=sim.device, integrator=sim.integrator, precision=sim.precision, dt=sim.dt,
                       substeps=sim.substeps, stable_dt=sim.stable_dt(), wall_seconds=wall, frames=rows)
         write_json(staged.path / "simulate.json", result)
