@@ -303,3 +303,28 @@ def test_the_commands_take_the_membrane_law(tmp_path):
     assert abs(p["neo_hookean"] / p["springs"] - 1) > 0.02
     with pytest.raises(SystemExit):
         main(["simulate", "--membrane", "rubber"])
+
+
+def test_in_compression_the_sheet_pushes_back_as_a_solid_and_does_not_wrinkle():
+    """The law has no tension-field relaxation: compressed (a sphere with less air than at rest), the
+    sheet holds a uniform compressive state that follows the same thin-sphere law (negative pressure),
+    where a real membrane would wrinkle; ``principal_stretches_np`` finds such triangles."""
+    from warp_shape.physics.membrane import principal_stretches_np
+
+    mat = ws.Material(membrane="neo_hookean")
+    got = _sphere_settle(mat, [0.97, 0.94], level=2)
+    law = thin_sphere_pressure(got[:, 0], mat.mu, mat.thickness, 0.02)
+    assert np.all(got[:, 1] < 0) and got[1, 0] < 0.95
+    np.testing.assert_allclose(got[:, 1], law, rtol=2e-2)
+    # principal stretches of a known deformation: 0.9 along one in-plane axis, 1.2 along the other
+    d = ws.Design(ws.icosphere(3, 0.02), mat)
+    h = host_model(d).actuators["membrane"]
+    x = d.rest.vertices * np.array([0.9, 1.2, 1.0])
+    s = principal_stretches_np(x[None], h["faces"], h["rest"])[0]
+    v, f = d.rest.vertices, d.rest.faces
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    flat = np.abs(n[:, 2]) / np.linalg.norm(n, axis=1) > 0.95  # faces nearly in the x-y plane
+    assert flat.sum() >= 4
+    np.testing.assert_allclose(s[flat].min(axis=0)[0], 0.9, atol=0.02)
+    np.testing.assert_allclose(s[flat].max(axis=0)[1], 1.2, atol=0.02)
+    assert np.all(s[:, 0] > 0.89) and np.all(s[:, 1] < 1.21)  # within the stretches applied

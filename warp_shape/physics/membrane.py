@@ -19,7 +19,7 @@ from ..force_family import FORCE_FAMILIES, ForceFamily
 from .springs import spring_operator_terms, spring_rows_np
 
 __all__ = ["MembraneFamily", "MEMBRANE", "rest_frames_np", "membrane_invariants_np", "membrane_energy_np",
-           "membrane_forces_np", "thin_sphere_pressure", "EQUIVALENT_SPRING", "jammed_rest_np"]
+           "membrane_forces_np", "thin_sphere_pressure", "principal_stretches_np", "EQUIVALENT_SPRING", "jammed_rest_np"]
 
 #: the edge-spring stiffness that stands for a triangle in the stable-step estimate, in units of
 #: 2 t dW/dI1 A0 / c^2 on each of its edges (c the rest edge length): 4 gives the incompressible
@@ -57,6 +57,16 @@ def membrane_invariants_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray):
     c00, c01, c11 = (fa * fa).sum(-1), (fa * fb).sum(-1), (fb * fb).sum(-1)
     det = c00 * c11 - c01 * c01
     return c00 + c11 + 1.0 / det, det
+
+
+def principal_stretches_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """(W, F, 2) the in-plane principal stretches (smaller first) of every triangle at positions x
+    (W, V, 3): the square roots of the eigenvalues of C. A stretch below 1 is compression, which the
+    sheet resists as a solid (no wrinkling; docs/membrane.md)."""
+    fa, fb = _columns(x, faces, rest)
+    c00, c01, c11 = (fa * fa).sum(-1), (fa * fb).sum(-1), (fb * fb).sum(-1)
+    mean, half = 0.5 * (c00 + c11), np.sqrt(0.25 * (c00 - c11) ** 2 + c01 ** 2)
+    return np.sqrt(np.stack([mean - half, mean + half], axis=-1))
 
 
 def membrane_energy_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray, moduli: np.ndarray) -> np.ndarray:
