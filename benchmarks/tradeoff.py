@@ -16,6 +16,7 @@ to a float64 static settle at a tight tolerance (rigid motion taken out; raw bes
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -29,9 +30,12 @@ from warp_shape.simulator import Simulator
 from warp_shape.targets import target
 
 from .common import jammed_fig6
+from .membrane import LAW_MATERIALS
 
 __all__ = ["ControlSequence", "record_sequence", "replay", "bench_tradeoff", "bench_settle", "pareto_front",
-           "SETTLE_COLUMNS"]
+           "SETTLE_COLUMNS", "MEMBRANE_COLUMNS", "bench_membrane_axis"]
+
+MEMBRANE_COLUMNS = ["vertices", "law", "integrator", "precision", "substeps", "wall_s", "error_mm"]
 
 SETTLE_COLUMNS = ["vertices", "settle", "precision", "criterion", "evaluations", "wall_s", "residual_n", "error_um",
                   "error_raw_um"]
@@ -161,8 +165,40 @@ def pareto_front(rows: list[dict], x: str = "wall_s", y: str = "error_mm") -> li
     return front
 
 
+def _law_design(design, law: str):
+    """``design`` with the membrane law ``law`` (``membrane.LAW_MATERIALS``), its other material values kept."""
+    return design.replace(material=dataclasses.replace(design.material, **LAW_MATERIALS[law]))
+
+
+def bench_membrane_axis(seq: ControlSequence, device: str = "cpu", subdivisions=(2, 3), reference_subdivisions: int = 4,
+                        laws=tuple(LAW_MATERIALS), integrators=("rk4", "semi_implicit"),
+                        precisions=("float32", "float64")) -> list[dict]:
+    """The membrane axis: the Fig. 6 sequence ``seq`` replayed open loop with each law x mesh x
+    integrator (automatic step) x precision; error = mean radial distance (mm) of the achieved shape
+    from the finest float64 hyperelastic run (neo-Hookean, RK4 at a quarter of its automatic step, on
+    ``reference_subdivisions``), sampled along each vertex's ray; wall time beside it."""
+    ref_design = _law_design(cube_fig6_design(subdivisions=reference_subdivisions), "neo_hookean")
+    probe = jammed_fig6(ref_design, device, "rk4", "float64", dt=seq.dt, air_scale=seq.air_relative.max())
+    x_ref, _, _ = replay(ref_design, seq, integrator="rk4", precision="float64", device=device,
+                         internal_dt=seq.dt / probe.substeps / 4)
+    fine = ref_design.rest.copy_with(x_ref)
+    rows = []
+    for s in subdivisions:
+        for law in laws:
+            d = _law_design(cube_fig6_design(subdivisions=s), law)
+            for integrator in integrators:
+                for precision in precisions:
+                    x, wall, sub = replay(d, seq, integrator=integrator, precision=precision, device=device)
+                    x = np.asarray(x, dtype=np.float64)
+                    err = float(np.mean(np.abs(np.linalg.norm(x, axis=1)
+                                               - np.linalg.norm(radial_sample(fine, x), axis=1))))
+                    rows.append(dict(vertices=d.rest.n_vertices, law=law, integrator=integrator, precision=precision,
+                                     substeps=sub, wall_s=round(wall, 3), error_mm=err * 1e3))
+    return rows
+
+
 def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdivisions: int = 4,
-                   step_fractions=(1.0, 0.5, 0.25), settle: bool = True) -> dict:
+                   step_fractions=(1.0, 0.5, 0.25), settle: bool = True, membrane: bool = True) -> dict:
     """Error of the achieved Fig. 6 shape versus wall time over the numerical settings; with ``settle``
     also ``bench_settle``'s rows (``settle``) and their front (``settle_pareto``)."""
     cube = target("cube")
@@ -218,6 +254,9 @@ def bench_tradeoff(device: str = "cpu", subdivisions=(2, 3, 4), reference_subdiv
     for v in sorted({r["vertices"] for r in finite}):
         pareto += pareto_front([r for r in finite if r["vertices"] == v])
     out = dict(rows=rows, pareto=pareto, resolution=resolution, control_steps=seq.steps)
+    if membrane:
+        out["membrane"] = bench_membrane_axis(seq, device=device, subdivisions=tuple(s for s in subdivisions if s < 4),
+                                              reference_subdivisions=reference_subdivisions)
     if settle:
         out["settle"] = bench_settle(device=device)
         out["settle_pareto"] = pareto_front(out["settle"], y="error_um")

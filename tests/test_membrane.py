@@ -328,3 +328,8 @@ def test_in_compression_the_sheet_pushes_back_as_a_solid_and_does_not_wrinkle():
     np.testing.assert_allclose(s[flat].min(axis=0)[0], 0.9, atol=0.02)
     np.testing.assert_allclose(s[flat].max(axis=0)[1], 1.2, atol=0.02)
     assert np.all(s[:, 0] > 0.89) and np.all(s[:, 1] < 1.21)  # within the stretches applied
+
+
+def test_design_refuses_codesign_with_a_hyperelastic_membrane_before_any_work():
+    with pytest.raises(DesignError, match="codesign='off'"):
+        ws.design(ws.icosphere(2, 0.04), [ws.target("oval")], 2, material=ws.Material(membrane="neo_hookean"))

@@ -118,7 +118,8 @@ class ForceFamily:
 
     def jam_fields(self, model, worlds: int) -> dict:
         """{name: device array} of the per-world jam fields of a new State of ``worlds`` worlds (nothing
-        jammed), for a family with ``jams``; each array's second axis is the world (``copy_worlds``)."""
+        jammed), for a family with ``jams``; each array (W, n) or (k, W, n), its world axis where
+        ``copy_worlds`` looks for it."""
         return {}
 
     def jam(self, model, state, cell: int, world_mask, launch) -> None:

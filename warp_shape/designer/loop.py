@@ -9,6 +9,7 @@ from ..controller import ControlSettings, control_many
 from ..controller.shard import worker_pool
 from ..controller.checks import check_target_units, check_targets_against_rest, target_labels
 from ..design import Design
+from ..errors import DesignError
 from ..material import Material
 from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
@@ -119,6 +120,10 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
     if overrides:
         settings = settings.replace(**overrides)
     control_settings = settings_or_default(control_settings, ControlSettings, "control_settings")
+    if material is not None and material.hyperelastic and settings.codesign != "off":
+        raise DesignError(f"co-design takes its gradients through the differentiable replay, which does not follow "
+                          f"Material.membrane = {material.membrane!r} yet; design with codesign='off' (--codesign off) "
+                          f"or membrane='springs'")
     targets, names = check_targets(targets, target_names)
     sampler = RadialSampler(targets, device=device, names=target_labels(targets, names))  # rejects non-star shapes
     check_target_units(base, targets, names, what="base mesh")
