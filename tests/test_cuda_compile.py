@@ -69,14 +69,16 @@ class OverloadRecorder:
 
 
 def _designs() -> list:
-    """A design with every force family (IPAMs, cells, bending) and one without bending (k_t = 0)."""
+    """A design with every force family (IPAMs, cells, bending), one without bending (k_t = 0) and one
+    with the hyperelastic membrane (its triangles, jammed with a cell)."""
     rest = ws.icosphere(1, 0.04)
     c = rest.face_centroids()
     full = ws.Design(rest, ws.Material(bending_stiffness=2e-4))
     full.add_ipam(int(np.argmax(c[:, 2])), int(np.argmin(c[:, 2])))
     full.add_cell([0, 1, 2])
     plain = ws.Design(rest, ws.Material(bending_stiffness=0.0))
-    return [full, plain]
+    hyper = full.replace(material=ws.Material(membrane="yeoh", yeoh_c2=1e3))
+    return [full, plain, hyper]
 
 
 def _drive(recorder: OverloadRecorder) -> None:
@@ -100,6 +102,9 @@ def _drive(recorder: OverloadRecorder) -> None:
                         sim.settle_static()
                     if design.n_cells:
                         sim.jam(0)
+                    for fam in sim.model.families:  # what the differentiable replay launches to build them
+                        if fam.name != "ipam":
+                            fam.build(sim.model, wp.array(design.rest.vertices, dtype=sim.model.vec3), wp.launch)
 
 
 #: the differentiable replay's kernels are checked in float64, the precision of its checks and of the
