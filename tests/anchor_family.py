@@ -100,7 +100,7 @@ class AnchorFamily(ForceFamily):
         launch(anchor_force_kernel, (x.shape[0], n), [dev["vertex"], dev["point"], dev["stiffness"],
                                                       dev["rest_length"], x, f])
 
-    def diagonal_stiffness(self, model, state, diag, launch):
+    def diagonal_stiffness(self, model, state, diag, launch, control=None):
         dev = model.actuators[self.name]
         launch(anchor_diagonal_kernel, (diag.shape[0], len(dev["stiffness"])), [dev["vertex"], dev["stiffness"], diag])
 

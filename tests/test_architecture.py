@@ -28,7 +28,7 @@ LAYERS = [
     ("warp_shape.equilibrium", 2),
     ("warp_shape.simulator", 2),
     ("warp_shape.targets", 3), ("warp_shape.sampling", 3), ("warp_shape.scan", 3), ("warp_shape.objectives", 3),
-    ("warp_shape.controller", 4), ("warp_shape.gradients", 4),
+    ("warp_shape.controller", 4), ("warp_shape.gradients", 4), ("warp_shape.feel", 4),
     ("warp_shape.designer", 5), ("warp_shape.scenarios", 5), ("warp_shape.molds", 5),
     ("warp_shape.calibration", 5), ("warp_shape.calibration.files", 6),
     ("warp_shape.io", 6),

@@ -153,7 +153,7 @@ class StaticSettle:
         start = (ke.lbfgs_start_kernel, (W, V), [state.x, self.xv, self.fg, self.volume, self.flags, self.scalars])
         precondition = [(ke.diagonal_stiffness_kernel, (W, m.n_edges), [m.hinges, state.edge, self.precond])]
         for fam in m.families:  # each family's part of the diagonal
-            fam.diagonal_stiffness(m, state, self.precond, lambda *launch: precondition.append(launch))
+            fam.diagonal_stiffness(m, state, self.precond, lambda *launch: precondition.append(launch), control=control)
         precondition.append((ke.invert_diagonal_kernel, (W, V), [m.scalar(self._stiffness_floor()), self.precond]))
         if not self._overloads_made:  # every module of the solve loads once with all its overloads
             iteration = []

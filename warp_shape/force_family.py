@@ -126,10 +126,12 @@ class ForceFamily:
         """Jam the family's elements in cell ``cell`` in the worlds where world_mask (W,) int32 is 1 (an
         element already jammed is left as it is); only for a family with ``jams``."""
 
-    def diagonal_stiffness(self, model, state, diag, launch) -> None:
+    def diagonal_stiffness(self, model, state, diag, launch, control=None) -> None:
         """The static settle's preconditioner part: add each vertex's share of the elements' stiffness
-        (N/m, a diagonal estimate) to diag (W, V) (default: nothing, for forces much softer than the
-        membrane's; a stiff family adds its own, or the settle takes steps too long for it)."""
+        (N/m, a diagonal estimate) to diag (W, V) at the settle's start (``state``, with ``control``: an
+        actuator's stiffness may depend on where its control puts it, e.g. an indenter's contact) (default:
+        nothing, for forces much softer than the membrane's; a stiff family adds its own, or the settle
+        takes steps too long for it)."""
 
     def storable_values(self, host: dict) -> dict:
         """{description: array} of the model values a precision must hold (see ``check_storable``)."""

@@ -20,6 +20,7 @@ from .force_family import families, force_families
 from .step_plan import create_overloads
 from .physics import ipam as ipam_family  # noqa: F401  (registers the IPAM family, the first)
 from .physics import membrane as membrane_family  # noqa: F401  (registers the hyperelastic membrane family)
+from .physics import contact as contact_family  # noqa: F401,I001  (registers the indenter and the hold)
 from .physics.bending_law import dihedral_angles_np
 
 __all__ = ["Model", "State", "Control", "WorldRef", "copy_worlds", "check_layout", "build_model", "check_device",

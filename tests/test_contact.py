@@ -1,0 +1,72 @@
+"""Contact with rigid frictionless indenters and the held plug (warp_shape/physics/contact.py): their
+forces are minus the gradients of their energies (float64 central differences), the settle presses a
+membrane to a depth, and a held membrane keeps its plug where it was."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from warp_shape.physics.contact import add_hold, add_indenter
+
+
+def contact_design():
+    design = ws.Design(ws.icosphere(1, 0.04))
+    x = design.rest.vertices
+    top, bottom = int(np.argmax(x[:, 2])), int(np.argmin(x[:, 2]))
+    add_indenter(design, "sphere", (0, 0, 1), x[top] + [0.0, 0.0, 0.008], 0.008, stiffness=1e4)
+    add_indenter(design, "plate", (0, 0, -1), x[bottom], stiffness=1e4)
+    add_hold(design, [bottom], [x[bottom] + [0.001, 0.0, 0.0]], stiffness=500.0)
+    return design, top, bottom
+
+
+@pytest.mark.parametrize("family", ["indenter", "hold"])
+def test_contact_forces_are_minus_the_gradients_of_their_energies(family):
+    design, top, bottom = contact_design()
+    sim = ws.Simulator(design, precision="float64")
+    sim.set_actuator_controls("indenter", [0.002, 0.001])  # the sphere 2 mm in, the plate 1 mm
+    rng = np.random.default_rng(3)
+    x0 = design.rest.vertices + 2e-4 * rng.standard_normal(design.rest.vertices.shape)
+    sim.positions = x0
+    force = sim.forces(family)
+    touched = np.flatnonzero(np.abs(force).sum(axis=1))
+    # both indenters push (their vertices), the hold pulls its vertex
+    assert set(touched.tolist()) >= ({top, bottom} if family == "indenter" else {bottom})
+    assert sim.energy()[family] > 0
+    h = 1e-7
+    for v in touched:
+        for c in range(3):
+            e = []
+            for s in (1, -1):
+                x = x0.copy()
+                x[v, c] += s * h
+                sim.positions = x
+                e.append(sim.energy()[family])
+            assert force[v, c] == pytest.approx(-(e[0] - e[1]) / (2 * h), rel=1e-5, abs=1e-7)
+    if family == "indenter":  # the sphere pushes its vertex down, the plate its vertex up
+        assert force[top, 2] < -10.0 and force[bottom, 2] > 5.0
+        sim.positions = x0
+        sim.set_actuator_mask("indenter", [False, False])  # masked out: no force, no energy
+        assert np.all(sim.forces("indenter") == 0) and sim.energy()["indenter"] == 0
+
+
+def test_a_settle_presses_the_membrane_to_the_indenters_depth_and_holds_the_plug():
+    design = ws.Design(ws.icosphere(2, 0.04))
+    x = design.rest.vertices
+    top = int(np.argmax(x[:, 2]))
+    plug = np.flatnonzero(x[:, 2] < -0.035)
+    add_indenter(design, "plate", (0, 0, 1), x[top])
+    add_hold(design, plug, x[plug], stiffness=1e5)
+    sim = ws.Simulator(design, precision="float64")
+    sim.air_moles *= 1.3
+    sim.settle_static()
+    free_top = sim.positions[top, 2]
+    sim.set_actuator_controls("indenter", [x[top, 2] - free_top + 0.005])  # 5 mm below the inflated top
+    out = sim.settle_static()
+    assert out.converged.all()
+    xs = sim.positions
+    assert xs[:, 2].max() == pytest.approx(free_top - 0.005, abs=2e-6)  # flattened at the plate (penalty)
+    assert np.abs(xs[plug] - x[plug]).max() < 1e-4  # the plug stayed (its springs: 1e5 N/m)
+    assert sim.forces("indenter")[:, 2].sum() < -0.1  # the plate carries the load
+    assert sim.forces("hold")[:, 2].sum() == pytest.approx(-sim.forces("indenter")[:, 2].sum(), rel=1e-3)

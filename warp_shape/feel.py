@@ -1,0 +1,368 @@
+"""What the hand feels: a rigid frictionless indenter pressed quasi-statically into the display.
+
+``press`` moves a fingertip (a sphere) or a palm (a plate) along -direction onto the surface point
+that direction hits from the shape's centroid, then to each depth in turn, settling the membrane
+statically at every step (``Simulator.settle_static``: the minimum of the potential energy with the
+indenter's depth held as a control, ``physics.contact``); ``stiffness_map`` presses many points of
+one state at once, one press per world. The device is held at its plug: the vertices of the faces
+around the -z pole (within ``PLUG_ANGLE`` of -z, seen from the centroid) are tied to where they are by
+stiff zero-length springs (the "hold" family). docs/feel.md describes the model and its limits.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from .controller.replay import replay_simulator
+from .controller.result import ControlResult
+from .errors import DesignError
+from .physics.contact import (DEFAULT_CONTACT_STIFFNESS, DEFAULT_RADIUS, KINDS, add_hold, add_indenter,
+                              indenter_forces_np, penetration_np)
+from .simulator import Simulator
+
+__all__ = ["Press", "press", "stiffness_map", "press_setup", "plug_vertices", "surface_point", "PLUG_ANGLE",
+           "MAX_INCREMENT", "STIFFNESS_STEP", "HOLD_STIFFNESS_FACTOR"]
+
+#: faces whose centroid lies within this angle of -z, seen from the shape's centroid, form the held plug (rad)
+PLUG_ANGLE = np.radians(25.0)
+#: the largest depth change between two settles of a press, m
+MAX_INCREMENT = 5.0e-4
+#: depth step of the central difference giving the stiffness dF/d depth, m
+STIFFNESS_STEP = 2.0e-5
+#: the hold's spring per vertex, in units of the membrane's largest edge stiffness
+HOLD_STIFFNESS_FACTOR = 1.0e3
+#: a vertex deeper than this (m) inside an indenter counts as touching it (contact area)
+CONTACT_DEPTH = 1.0e-9
+
+
+@dataclass
+class Press:
+    """A press: per depth (n,) the ``depth`` (m from first touch), ``force`` (N, along the press),
+    ``stiffness`` (N/m, dF/d depth), gauge ``pressure`` (Pa), ``contact_area`` (m^2, the projected
+    area of the touching vertices' shares of the surface), ``penetration`` (m, the deepest vertex inside
+    the indenter), ``stored_energy`` (J: springs, bending, gas free energy, actuators, contact and hold)
+    and ``positions`` (n, V, 3) m; ``point`` (3,) the surface point pressed, ``direction`` (3,),
+    ``held`` the plug's vertices."""
+
+    depth: np.ndarray
+    force: np.ndarray
+    stiffness: np.ndarray
+    pressure: np.ndarray
+    contact_area: np.ndarray
+    penetration: np.ndarray
+    stored_energy: np.ndarray
+    positions: np.ndarray
+    point: np.ndarray
+    direction: np.ndarray
+    indenter: str
+    radius: float
+    held: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    jammed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+
+# ---------------------------------------------------------------------- geometry
+def plug_vertices(x: np.ndarray, faces: np.ndarray, angle: float = PLUG_ANGLE) -> np.ndarray:
+    """The vertices of the faces whose centroid lies within ``angle`` of -z seen from the centroid of x."""
+    c = x[faces].mean(axis=1) - x.mean(axis=0)
+    cos = -c[:, 2] / np.maximum(np.linalg.norm(c, axis=1), 1e-300)
+    return np.unique(faces[cos >= np.cos(angle)].reshape(-1))
+
+
+def surface_point(x: np.ndarray, faces: np.ndarray, origin: np.ndarray, u: np.ndarray):
+    """(point, face) where the ray origin + t u (t > 0) first leaves through the surface, or None."""
+    a, b, c = x[faces[:, 0]], x[faces[:, 1]], x[faces[:, 2]]
+    e1, e2 = b - a, c - a
+    p = np.cross(u, e2)
+    det = np.einsum("fi,fi->f", e1, p)
+    ok = np.abs(det) > 1e-300
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = origin - a
+    bu = np.einsum("fi,fi->f", s, p) * inv
+    q = np.cross(s, e1)
+    bv = (q @ u) * inv
+    t = np.einsum("fi,fi->f", e2, q) * inv
+    hit = ok & (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (t > 0)
+    if not hit.any():
+        return None
+    f = int(np.flatnonzero(hit)[np.argmax(t[hit])])  # the outermost crossing: the surface a finger meets
+    return origin + t[f] * u, f
+
+
+def first_touch(x: np.ndarray, point: np.ndarray, u: np.ndarray, kind: str, radius: float) -> np.ndarray:
+    """The indenter's reference point at depth 0: where, coming from outside along -u through ``point``,
+    it first touches a vertex of x (the sphere's centre, or a point of the plate's plane)."""
+    w = x - point
+    a = w @ u
+    if kind == "plate":
+        return point + float(a.max()) * u
+    b2 = np.einsum("vi,vi->v", w, w) - a * a
+    near = b2 < radius * radius
+    if not near.any():
+        return point + (float(a.max()) + radius) * u
+    return point + float(np.max(a[near] + np.sqrt(radius * radius - b2[near]))) * u
+
+
+# ---------------------------------------------------------------------- the press simulator
+def source_simulator(sim_or_result, world: int) -> Simulator:
+    """The simulator holding the state to press: ``sim_or_result`` itself, or a control result's final
+    state replayed on its design."""
+    if isinstance(sim_or_result, ControlResult):
+        if sim_or_result.design is None:
+            raise DesignError("press needs a control result that carries its design (ws.control returns one)")
+        return replay_simulator(sim_or_result.design, [sim_or_result])
+    if not isinstance(sim_or_result, Simulator):
+        raise DesignError(f"press needs a ws.Simulator or a control result, got {type(sim_or_result).__name__}")
+    if isinstance(world, (bool, np.bool_)) or not isinstance(world, (int, np.integer)) \
+            or not 0 <= world < sim_or_result.worlds:
+        raise DesignError(f"world must be an index in 0..{sim_or_result.worlds - 1}, got {world!r}")
+    return sim_or_result
+
+
+def copy_world_state(src: Simulator, world: int, dst: Simulator) -> None:
+    """World ``world`` of ``src`` (positions, air, every actuator family's controls and masks, the jam
+    fields and cell masks) into every world of ``dst``, a simulator of the same design with more families."""
+    W = dst.worlds
+
+    def every(a):
+        return np.broadcast_to(np.asarray(a)[world], (W,) + np.asarray(a).shape[1:]).copy()
+
+    dst.positions = every(src.state.x.numpy().astype(np.float64))
+    dst.air_moles = every(src.control.air.numpy().reshape(src.worlds))
+    for fam in src.model.families:
+        n = src.model.host.count(fam.name)
+        if n:
+            dst.control.values[fam.name].assign(every(src.control.values[fam.name].numpy()))
+            dst.control.enabled[fam.name].assign(every(src.control.enabled[fam.name].numpy()))
+    edge = src.state.edge.numpy()[:, world]
+    wp.copy(dst.state.edge, wp.array(np.broadcast_to(edge[:, None], (4, W) + edge.shape[1:]).astype(
+        dst.model.np_dtype), dtype=dst.model.scalar, device=dst.device))
+    dst.state.jammed.assign(every(src.state.jammed.numpy()))
+    dst.state.cell_enabled[:] = every(src.state.cell_enabled)
+    dst.state.cell_jammed[:] = every(src.state.cell_jammed)
+    dst.state.cell_jam_time[:] = every(src.state.cell_jam_time)
+
+
+@dataclass
+class PressSetup:
+    """A press simulator (one indenter per world, the plug held) and what each world presses."""
+
+    sim: Simulator
+    points: np.ndarray  # (m, 3) surface points pressed
+    directions: np.ndarray  # (m, 3) unit
+    held: np.ndarray  # plug vertices
+    limit: np.ndarray  # (m,) the deepest press allowed, m
+
+
+def check_directions(directions) -> np.ndarray:
+    """(m, 3) unit directions, or a one-line error."""
+    try:
+        u = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    except (TypeError, ValueError):
+        raise DesignError(f"a press direction is a 3-vector (or an (m, 3) array), got {directions!r}") from None
+    n = np.linalg.norm(u, axis=1)
+    if not u.size or not np.all(np.isfinite(u)) or np.any(n <= 0):
+        raise DesignError(f"press directions must be finite non-zero 3-vectors, got {u.tolist()}")
+    return u / n[:, None]
+
+
+def settled_copy(src: Simulator, world: int) -> Simulator:
+    """A float64 one-world simulator of ``src``'s design holding ``src``'s world ``world`` settled
+    statically at its controls and jam state (the state a press starts from)."""
+    sim = Simulator(copy.deepcopy(src.design), device=src.device,
+                    settings=src.settings.replace(precision="float64", bending="exact"), worlds=1)
+    copy_world_state(src, world, sim)
+    sim.settle_static()
+    return sim
+
+
+def press_geometry(x: np.ndarray, faces: np.ndarray, u: np.ndarray, held: np.ndarray):
+    """(points (m, 3), limits (m,)): where each direction (m, 3) from the centroid of x meets the surface,
+    and the deepest press allowed there (80 % of the shape's extent behind that point), or a one-line error."""
+    points, limits = [], []
+    for d in u:
+        hit = surface_point(x, faces, x.mean(axis=0), d)
+        if hit is None:
+            raise DesignError(f"direction {d.round(4).tolist()} from the centroid misses the shape (it is not "
+                              "star-shaped there); press another direction")
+        if np.all(np.isin(faces[hit[1]], held)):
+            raise DesignError(f"direction {d.round(4).tolist()} hits the held plug (the faces within "
+                              f"{np.degrees(PLUG_ANGLE):.0f} deg of -z); press another direction")
+        points.append(hit[0])
+        limits.append(0.8 * float(np.max((hit[0] - x) @ d)))
+    return np.asarray(points), np.asarray(limits)
+
+
+def check_depths(depths, limits: np.ndarray) -> np.ndarray:
+    """(n,) depths in m, finite, >= 0 and within every press's limit, or a one-line error."""
+    try:
+        a = np.asarray(depths, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise DesignError(f"depths must be numbers in m, got {depths!r}") from None
+    if not a.size or not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise DesignError(f"depths must be finite and >= 0 m (from first touch), got {a.tolist()}")
+    if a.max() > limits.min():
+        raise DesignError(f"depth {a.max():.4g} m goes beyond the shape: at most {limits.min():.4g} m (80 % of its "
+                          "extent behind the point pressed) can be pressed there")
+    return a
+
+
+def press_setup(src: Simulator, world: int, directions, indenter: str, radius: float, depths,
+                stiffness: float = DEFAULT_CONTACT_STIFFNESS) -> PressSetup:
+    """Check the press (directions, depths, indenter) on ``src``'s world ``world``, settle it (controls
+    held), find each direction's surface point and first touch, and build the press simulator: ``src``'s
+    design with one indenter per direction (enabled in its own world only) and the plug held, in float64,
+    every world a copy of the settled state. Returns the setup and the checked depths."""
+    if indenter not in KINDS:
+        raise DesignError(f"indenter must be one of {sorted(KINDS)}, got {indenter!r}")
+    if not (isinstance(radius, (int, float, np.floating)) and np.isfinite(radius) and radius > 0):
+        raise DesignError(f"the indenter's radius must be > 0 m, got {radius!r}")
+    u = check_directions(directions)
+    faces = src.design.rest.faces
+    x = np.asarray(src.state.x.numpy()[world], dtype=np.float64)
+    check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces))[1])  # before any work
+    settled = settled_copy(src, world)
+    x = settled.positions.reshape(-1, 3)
+    held = plug_vertices(x, faces)
+    points, limits = press_geometry(x, faces, u, held)
+    depths = check_depths(depths, limits)
+    design = copy.deepcopy(src.design)
+    for d, p in zip(u, points):
+        add_indenter(design, indenter, d, first_touch(x, p, d, indenter, radius), radius, stiffness)
+    add_hold(design, held, x[held], HOLD_STIFFNESS_FACTOR * float(np.max(src.model.host.edge_stiffness)))
+    sim = Simulator(design, device=src.device, settings=settled.settings, worlds=len(u))
+    copy_world_state(settled, 0, sim)
+    sim.set_actuator_mask("indenter", np.eye(len(u), dtype=bool))
+    sim.set_actuator_controls("indenter", np.zeros((len(u), len(u))))
+    return PressSetup(sim, points, u, held, limits), depths
+
+
+# ---------------------------------------------------------------------- pressing
+def vertex_areas(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(W, V, 3) each vertex's share of the outward area vectors of its faces (a third of each), m^2."""
+    a = 0.5 * np.cross(x[:, faces[:, 1]] - x[:, faces[:, 0]], x[:, faces[:, 2]] - x[:, faces[:, 0]])
+    out = np.zeros_like(x)
+    for k in range(3):
+        np.add.at(out, (slice(None), faces[:, k]), a / 3.0)
+    return out
+
+
+def measure(setup: PressSetup) -> dict:
+    """Force, pressure, contact area, penetration and stored energy of every world's press now."""
+    sim = setup.sim
+    host = sim.model.host.actuators["indenter"]
+    W = sim.worlds
+    x = sim.state.x.numpy().astype(np.float64)
+    depth = sim.control.values["indenter"].numpy()[:, :W]
+    own = np.arange(W)
+    force = indenter_forces_np(host, x, depth, np.eye(W, dtype=bool))[own, own]  # (W, V, 3)
+    pen = penetration_np(host, x, depth)[own, own]  # (W, V)
+    u = setup.directions
+    touching = pen > CONTACT_DEPTH
+    area = np.einsum("wvi,wi->wv", vertex_areas(x, sim.design.rest.faces), u)
+    energy = sim.energy()
+    stored = sum(np.atleast_1d(v) for k, v in energy.items() if k not in ("kinetic", "total"))
+    return dict(force=-np.einsum("wvi,wi->w", force, u), pressure=np.atleast_1d(sim.pressure()),
+                contact_area=np.where(touching, area, 0.0).sum(axis=1), penetration=np.maximum(pen.max(axis=1), 0.0),
+                stored_energy=np.asarray(stored, dtype=np.float64), positions=x)
+
+
+def set_depth(setup: PressSetup, depth: np.ndarray) -> None:
+    """Every world's indenter to its depth (W,) m, with the vertices inside it moved onto its surface
+    (the settle's start)."""
+    sim = setup.sim
+    W = sim.worlds
+    sim.set_actuator_controls("indenter", np.diag(np.asarray(depth, dtype=np.float64)))
+    host = sim.model.host.actuators["indenter"]
+    x = sim.positions.reshape(W, -1, 3)
+    own = np.arange(W)
+    d = np.diag(np.asarray(depth, dtype=np.float64))
+    pen = np.maximum(penetration_np(host, x, d)[own, own], 0.0)  # (W, V)
+    push = indenter_forces_np(host, x, d, np.eye(W, dtype=bool))[own, own] / host["stiffness"][:, None, None]
+    sim.positions = x + push * np.where(pen > 0, 1.0, 0.0)[..., None]
+
+
+def settle_at(setup: PressSetup, depth: np.ndarray) -> None:
+    set_depth(setup, depth)
+    setup.sim.settle_static()
+
+
+def advance(setup: PressSetup, start: np.ndarray, end: np.ndarray) -> None:
+    """Press every world from depth ``start`` to ``end`` (W,) in increments of at most ``MAX_INCREMENT``,
+    settling after each."""
+    n = max(1, int(np.ceil(np.max(np.abs(end - start)) / MAX_INCREMENT - 1e-9)))
+    for k in range(1, n + 1):
+        settle_at(setup, start + (end - start) * (k / n))
+
+
+def tangent_stiffness(setup: PressSetup, depth: np.ndarray) -> np.ndarray:
+    """(W,) dF/d depth at the settled state of depth (W,) by central differences (``STIFFNESS_STEP``);
+    the state is left as it was."""
+    sim = setup.sim
+    x0 = sim.positions.copy()
+    f = []
+    for sign in (1.0, -1.0):
+        settle_at(setup, np.maximum(depth + sign * STIFFNESS_STEP, 0.0))
+        f.append(measure(setup)["force"])
+        sim.positions = x0
+    sim.set_actuator_controls("indenter", np.diag(depth))
+    lo = np.maximum(depth - STIFFNESS_STEP, 0.0)
+    return (f[0] - f[1]) / (depth + STIFFNESS_STEP - lo)
+
+
+def press_path(setup: PressSetup, depths: np.ndarray, jam: dict | None = None) -> list:
+    """Every world through ``depths`` (n,) in turn (loading and unloading alike): the measures at each,
+    with the tangent stiffness; after reaching depths[i], the cells ``jam[i]`` jam (in every world)."""
+    W = setup.sim.worlds
+    now = np.zeros(W)
+    setup.sim.settle_static()
+    rows = []
+    for i, d in enumerate(depths):
+        target = np.full(W, d)
+        advance(setup, now, target)
+        now = target
+        row = measure(setup)
+        row["stiffness"] = tangent_stiffness(setup, target)
+        row["jammed"] = setup.sim.state.cell_jammed.copy()
+        rows.append(row)
+        for cell in (jam or {}).get(i, ()):
+            setup.sim.jam(int(cell))
+    return rows
+
+
+def press(sim_or_result, direction, depths, indenter: str = "sphere", radius: float = DEFAULT_RADIUS,
+          world: int = 0, jam: dict | None = None, stiffness: float = DEFAULT_CONTACT_STIFFNESS) -> Press:
+    """Press a rigid frictionless ``indenter`` ("sphere": a fingertip of ``radius`` m; "plate": a palm)
+    along -``direction`` onto the surface point that direction hits from the shape's centroid, to each
+    of ``depths`` (m from first touch) in turn, quasi-statically, the device held at its plug. The
+    state pressed is ``sim_or_result``'s world ``world`` (a Simulator; settled first, controls held) or a
+    control result's final state replayed on its design. ``jam``: {i: cells} jams those cells once
+    depths[i] is reached (they stay jammed). ``stiffness``: the contact penalty, N/m."""
+    src = source_simulator(sim_or_result, world)
+    setup, depths = press_setup(src, world if isinstance(sim_or_result, Simulator) else 0, direction, indenter,
+                                radius, depths, stiffness)
+    if setup.sim.worlds != 1:
+        raise DesignError("press takes one direction (a 3-vector); stiffness_map presses many")
+    rows = press_path(setup, depths, jam)
+
+    def col(key):
+        return np.array([r[key][0] for r in rows])
+
+    return Press(depth=depths, force=col("force"), stiffness=col("stiffness"), pressure=col("pressure"),
+                 contact_area=col("contact_area"), penetration=col("penetration"),
+                 stored_energy=col("stored_energy"), positions=col("positions"), point=setup.points[0],
+                 direction=setup.directions[0], indenter=indenter, radius=float(radius), held=setup.held,
+                 jammed=col("jammed"))
+
+
+def stiffness_map(sim_or_result, directions, depth: float = 0.002, radius: float = DEFAULT_RADIUS,
+                  indenter: str = "sphere", world: int = 0) -> np.ndarray:
+    """(m,) N/m: the tangent stiffness dF/d depth of a press to ``depth`` m along each of ``directions``
+    (m, 3), one press per world of one batch (see ``press``)."""
+    src = source_simulator(sim_or_result, world)
+    setup, depths = press_setup(src, world if isinstance(sim_or_result, Simulator) else 0, directions, indenter,
+                                radius, [depth])
+    return press_path(setup, depths)[0]["stiffness"]

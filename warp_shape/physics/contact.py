@@ -1,0 +1,234 @@
+"""Contact with rigid frictionless indenters (a fingertip sphere, a flat plate) and the hold of the
+device at its plug, as force families: launch wrappers, float64 host laws, stable-step rows.
+
+``IndenterFamily`` ("indenter") is an actuator family whose control is each indenter's depth (m)
+along -axis from its reference point, so the static settle presses to a given depth with the same
+machinery as any other control; ``HoldFamily`` ("hold") is a passive family of zero-length springs
+tying vertices to fixed points (the plug). docs/feel.md describes the model and its error: the
+penalty's penetration is a vertex's contact force over its stiffness, so a vertex carrying at most
+F_max N penetrates at most F_max / k (``DEFAULT_CONTACT_STIFFNESS``: 1e6 N/m, 0.01 mm at 10 N).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from warp_shape.kernels import contact as kc
+
+from ..errors import DesignError
+from ..force_family import ACTUATOR_FAMILIES, FORCE_FAMILIES, ActuatorFamily, ForceFamily
+
+__all__ = ["Indenter", "Hold", "IndenterFamily", "HoldFamily", "INDENTER", "HOLD", "add_indenter", "add_hold",
+           "KINDS", "DEFAULT_CONTACT_STIFFNESS", "DEFAULT_RADIUS", "indenter_centres", "penetration_np",
+           "indenter_forces_np", "indenter_energy_np"]
+
+#: indenter kinds, by name -> kernel code
+KINDS = {"sphere": 0, "plate": 1}
+#: penalty stiffness of a contact, N/m: a vertex carrying 10 N penetrates 0.01 mm
+DEFAULT_CONTACT_STIFFNESS = 1.0e6
+#: the fingertip's radius, m
+DEFAULT_RADIUS = 0.008
+#: a vertex this close to an indenter (m) gets its stiffness on the settle's preconditioner
+PRECONDITION_MARGIN = 2.0e-4
+
+
+@dataclass(frozen=True)
+class Indenter:
+    """A rigid frictionless indenter: ``kind`` "sphere" or "plate", unit ``axis`` pointing out of the
+    device (it presses along -axis), ``origin`` (m) its sphere's centre / a point of its plane at depth 0,
+    ``radius`` (m, the sphere's), penalty ``stiffness`` (N/m)."""
+
+    kind: str
+    axis: tuple
+    origin: tuple
+    radius: float
+    stiffness: float
+
+
+@dataclass(frozen=True)
+class Hold:
+    """Vertex ``vertex`` held at ``point`` (m) by a zero-length spring of ``stiffness`` N/m."""
+
+    vertex: int
+    point: tuple
+    stiffness: float
+
+
+def add_indenter(design, kind: str, axis, origin, radius: float = DEFAULT_RADIUS,
+                 stiffness: float = DEFAULT_CONTACT_STIFFNESS) -> int:
+    """Add an indenter to ``design`` (see ``Indenter``); returns its index."""
+    if kind not in KINDS:
+        raise DesignError(f"indenter must be one of {sorted(KINDS)}, got {kind!r}")
+    u = np.asarray(axis, dtype=np.float64).reshape(3)
+    o = np.asarray(origin, dtype=np.float64).reshape(3)
+    n = float(np.linalg.norm(u))
+    if not (np.all(np.isfinite(u)) and n > 0 and np.all(np.isfinite(o))):
+        raise DesignError(f"an indenter needs a finite non-zero axis and a finite origin, got {u}, {o}")
+    if not (np.isfinite(radius) and radius > 0 and np.isfinite(stiffness) and stiffness > 0):
+        raise DesignError(f"an indenter needs radius > 0 m and stiffness > 0 N/m, got {radius}, {stiffness}")
+    return design.add_element("indenter", Indenter(kind, tuple(u / n), tuple(o), float(radius), float(stiffness)))
+
+
+def add_hold(design, vertices, points, stiffness: float) -> None:
+    """Hold ``vertices`` (n,) of ``design`` at ``points`` (n, 3) m by zero-length springs of ``stiffness`` N/m."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    vs = [design.check_vertex(v, "held vertex") for v in np.asarray(vertices).reshape(-1)]
+    if len(vs) != len(pts) or not np.all(np.isfinite(pts)) or not stiffness > 0:
+        raise DesignError(f"a hold needs one finite point per vertex and stiffness > 0 N/m, got {len(vs)} vertices, "
+                          f"{len(pts)} points, {stiffness} N/m")
+    for v, p in zip(vs, pts):
+        design.add_element("hold", Hold(v, tuple(p), float(stiffness)))
+
+
+# ---------------------------------------------------------------------- host law (float64)
+def indenter_centres(host: dict, depth: np.ndarray) -> np.ndarray:
+    """(W, n, 3) each indenter's centre / plane point at depths (W, n) m."""
+    return host["origin"][None] - np.asarray(depth, dtype=np.float64)[..., None] * host["axis"][None]
+
+
+def penetration_np(host: dict, x: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """(W, n, V) penetration of every vertex of x (W, V, 3) into every indenter (m; <= 0 outside)."""
+    c = indenter_centres(host, depth)
+    d = x[:, None, :, :] - c[:, :, None, :]  # (W, n, V, 3)
+    plate = np.einsum("wnvi,ni->wnv", d, host["axis"])
+    sphere = host["radius"][None, :, None] - np.linalg.norm(d, axis=-1)
+    return np.where((host["kind"] == KINDS["sphere"])[None, :, None], sphere, plate)
+
+
+def indenter_forces_np(host: dict, x: np.ndarray, depth: np.ndarray, enabled: np.ndarray) -> np.ndarray:
+    """(W, n, V, 3) each enabled indenter's force on every vertex, N."""
+    c = indenter_centres(host, depth)
+    d = x[:, None, :, :] - c[:, :, None, :]
+    r = np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-300)
+    pen = np.maximum(penetration_np(host, x, depth), 0.0)[..., None] * np.asarray(enabled, bool)[:, :, None, None]
+    k = host["stiffness"][None, :, None, None]
+    sphere = d / r
+    plate = -np.broadcast_to(host["axis"][None, :, None, :], d.shape)
+    direction = np.where((host["kind"] == KINDS["sphere"])[None, :, None, None], sphere, plate)
+    return k * pen * direction
+
+
+def indenter_energy_np(host: dict, x: np.ndarray, depth: np.ndarray, enabled: np.ndarray) -> np.ndarray:
+    """(W,) penalty energy sum k pen^2 / 2 over enabled indenters and penetrating vertices, J."""
+    pen = np.maximum(penetration_np(host, x, depth), 0.0)
+    e = 0.5 * host["stiffness"][None, :, None] * pen ** 2 * np.asarray(enabled, bool)[:, :, None]
+    return e.sum(axis=(1, 2))
+
+
+class IndenterFamily(ActuatorFamily):
+    """Rigid frictionless indenters whose control is their depth (m)."""
+
+    name = "indenter"
+    summary = "a rigid frictionless indenter (sphere or plate) pressed to a depth, penalty contact"
+    label, plural = "indenter", "indenters"
+    owner = "physics.contact.add_indenter"
+    control_unit, control_name, limits_name = "m", "depth", "its depth range"
+    scene_prim = "Indenters"
+    rigid_invariant = False  # a rigid indenter fixed in space
+    differentiable = True
+    parameters = {"origin": "m", "radius": "m", "stiffness": "N/m"}
+
+    def host_arrays(self, design) -> dict:
+        els = design.elements(self.name)
+        return dict(kind=np.array([KINDS[e.kind] for e in els], dtype=np.int64),
+                    axis=np.array([e.axis for e in els], dtype=np.float64).reshape(-1, 3),
+                    origin=np.array([e.origin for e in els], dtype=np.float64).reshape(-1, 3),
+                    radius=np.array([e.radius for e in els], dtype=np.float64),
+                    stiffness=np.array([e.stiffness for e in els], dtype=np.float64))
+
+    def device_arrays(self, host, arr) -> dict:
+        vec = wp.types.vector(3, arr(np.zeros(1)).dtype)
+        return dict(kind=arr(host["kind"].astype(np.int32), wp.int32), axis=arr(host["axis"], vec),
+                    origin=arr(host["origin"], vec), radius=arr(host["radius"]), stiffness=arr(host["stiffness"]))
+
+    def eval_forces(self, model, state, control, x, v, f, launch):
+        n = model.host.count(self.name)
+        if not n:
+            return
+        dev = model.actuators[self.name]
+        launch(kc.indenter_force_kernel, (x.shape[0], x.shape[1]),
+               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], control.values[self.name],
+                control.enabled[self.name], x, f])
+
+    def diagonal_stiffness(self, model, state, diag, launch, control=None):
+        if control is None:  # where the indenters are is unknown: nothing added
+            return
+        dev = model.actuators[self.name]
+        launch(kc.indenter_diagonal_kernel, (state.x.shape[0], state.x.shape[1]),
+               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"],
+                model.scalar(PRECONDITION_MARGIN), control.values[self.name], control.enabled[self.name], state.x,
+                diag])
+
+    def energy(self, host, x, controls, enabled):
+        return indenter_energy_np(host, x, controls, enabled)
+
+    def stiffness_rows(self, stiff, damp, host, inv_m, inv_sqrt):
+        # a vertex may touch every indenter: its row gains their stiffness (the step with an indenter is
+        # as short as the penalty asks)
+        stiff += float(np.sum(host["stiffness"])) * inv_m[None, :]
+
+    def storable_values(self, host):
+        return {"stiffness": host["stiffness"], "radius": host["radius"]}
+
+    def curve_ends(self, design, positions):
+        ends = []
+        for e in design.elements(self.name):
+            o, u = np.asarray(e.origin), np.asarray(e.axis)
+            ends.append([o, o + u * max(e.radius, 0.01)])
+        ends = np.asarray(ends, dtype=np.float64).reshape(-1, 2, 3)
+        lead = np.asarray(positions).shape[:-2]
+        return np.broadcast_to(ends, lead + ends.shape).copy()
+
+    def add_from_scene(self, design, values, i):
+        raise DesignError("indenters are not read from scenes: a press adds them (ws.press)")
+
+
+class HoldFamily(ForceFamily):
+    """Vertices tied to fixed points by stiff zero-length springs (the plug a press holds)."""
+
+    name = "hold"
+    summary = "vertices tied to fixed points by zero-length springs (the device held at its plug)"
+    label, plural = "held vertex", "held vertices"
+    owner = "physics.contact.add_hold"
+    rigid_invariant = False  # it ties the membrane to points in space
+    differentiable = True
+    parameters = {"point": "m", "stiffness": "N/m"}
+
+    def host_arrays(self, design) -> dict:
+        els = design.elements(self.name)
+        return dict(vertex=np.array([e.vertex for e in els], dtype=np.int64),
+                    point=np.array([e.point for e in els], dtype=np.float64).reshape(-1, 3),
+                    stiffness=np.array([e.stiffness for e in els], dtype=np.float64))
+
+    def device_arrays(self, host, arr) -> dict:
+        vec = wp.types.vector(3, arr(np.zeros(1)).dtype)
+        return dict(vertex=arr(host["vertex"].astype(np.int32), wp.int32), point=arr(host["point"], vec),
+                    stiffness=arr(host["stiffness"]))
+
+    def eval_forces(self, model, state, control, x, v, f, launch):
+        n = model.host.count(self.name)
+        if not n:
+            return
+        dev = model.actuators[self.name]
+        launch(kc.hold_force_kernel, (x.shape[0], n), [dev["vertex"], dev["point"], dev["stiffness"], x, f])
+
+    def diagonal_stiffness(self, model, state, diag, launch, control=None):
+        dev = model.actuators[self.name]
+        launch(kc.hold_diagonal_kernel, (state.x.shape[0], len(dev["vertex"])), [dev["vertex"], dev["stiffness"], diag])
+
+    def energy(self, host, x, controls, enabled):
+        d = x[:, host["vertex"]] - host["point"][None]
+        return 0.5 * np.einsum("n,wni,wni->w", host["stiffness"], d, d)
+
+    def stiffness_rows(self, stiff, damp, host, inv_m, inv_sqrt):
+        np.add.at(stiff, (slice(None), host["vertex"]), host["stiffness"] * inv_m[host["vertex"]])
+
+    def storable_values(self, host):
+        return {"stiffness": host["stiffness"]}
+
+
+INDENTER = ACTUATOR_FAMILIES.register(IndenterFamily())
+HOLD = FORCE_FAMILIES.register(HoldFamily())
