@@ -44,7 +44,9 @@ class Press:
     """A press: per depth (n,) the ``depth`` (m from first touch), ``force`` (N, along the press),
     ``stiffness`` (N/m, dF/d depth), gauge ``pressure`` (Pa), ``contact_area`` (m^2, the projected
     area of the touching vertices' shares of the surface), ``penetration`` (m, the deepest vertex inside
-    the indenter), ``stored_energy`` (J: springs, bending, gas free energy, actuators, contact and hold)
+    the indenter), ``surface_penetration`` (m, the deepest face centroid or edge midpoint inside it: contact
+    acts on vertices, so a face may sag into a fingertip by up to its sagitta, and a fingertip pressed
+    between vertices shows here), ``stored_energy`` (J: springs, bending, gas free energy, actuators, contact and hold)
     and ``positions`` (n, V, 3) m; ``point`` (3,) the surface point pressed, ``direction`` (3,),
     ``held`` the plug's vertices."""
 
@@ -54,6 +56,7 @@ class Press:
     pressure: np.ndarray
     contact_area: np.ndarray
     penetration: np.ndarray
+    surface_penetration: np.ndarray
     stored_energy: np.ndarray
     positions: np.ndarray
     point: np.ndarray
@@ -210,6 +213,18 @@ def check_depths(depths, limits: np.ndarray) -> np.ndarray:
     return a
 
 
+def check_mesh_fineness(x: np.ndarray, edges: np.ndarray, indenter: str, radius: float) -> None:
+    """A fingertip touches vertices only: it must not fit between them. Refuses a sphere whose radius is
+    below the longest edge of x (m) with a one-line error naming both."""
+    if indenter != "sphere":
+        return
+    longest = float(np.max(np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1)))
+    if longest > radius:
+        raise DesignError(f"the mesh is too coarse for a fingertip of radius {radius * 1e3:.3g} mm: its edges reach "
+                          f"{longest * 1e3:.3g} mm and the sphere would slip between its vertices; use a finer rest "
+                          "mesh (more subdivisions) or a radius of at least the longest edge")
+
+
 def press_setup(src: Simulator, world: int, directions, indenter: str, radius: float, depths,
                 stiffness: float = DEFAULT_CONTACT_STIFFNESS) -> PressSetup:
     """Check the press (directions, depths, indenter) on ``src``'s world ``world``, settle it (controls
@@ -224,6 +239,7 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     faces = src.design.rest.faces
     x = np.asarray(src.state.x.numpy()[world], dtype=np.float64)
     check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces))[1])  # before any work
+    check_mesh_fineness(x, src.design.rest.edges, indenter, radius)
     settled = settled_copy(src, world)
     x = settled.positions.reshape(-1, 3)
     held = plug_vertices(x, faces)
@@ -265,7 +281,11 @@ def measure(setup: PressSetup) -> dict:
     area = np.einsum("wvi,wi->wv", vertex_areas(x, sim.design.rest.faces), u)
     energy = sim.energy()
     stored = sum(np.atleast_1d(v) for k, v in energy.items() if k not in ("kinetic", "total"))
+    faces, edges = sim.design.rest.faces, sim.design.rest.edges
+    samples = np.concatenate([x[:, faces].mean(axis=2), 0.5 * (x[:, edges[:, 0]] + x[:, edges[:, 1]])], axis=1)
+    surface = penetration_np(host, samples, depth)[own, own]  # face centroids and edge midpoints
     return dict(force=-np.einsum("wvi,wi->w", force, u), pressure=np.atleast_1d(sim.pressure()),
+                surface_penetration=surface.max(axis=1),
                 contact_area=np.where(touching, area, 0.0).sum(axis=1), penetration=np.maximum(pen.max(axis=1), 0.0),
                 stored_energy=np.asarray(stored, dtype=np.float64), positions=x)
 
@@ -353,6 +373,7 @@ def press(sim_or_result, direction, depths, indenter: str = "sphere", radius: fl
 
     return Press(depth=depths, force=col("force"), stiffness=col("stiffness"), pressure=col("pressure"),
                  contact_area=col("contact_area"), penetration=col("penetration"),
+                 surface_penetration=col("surface_penetration"),
                  stored_energy=col("stored_energy"), positions=col("positions"), point=setup.points[0],
                  direction=setup.directions[0], indenter=indenter, radius=float(radius), held=setup.held,
                  jammed=col("jammed"))

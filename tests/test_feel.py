@@ -1,0 +1,117 @@
+"""Pressing the display (warp_shape/feel.py): a rigid frictionless indenter pressed quasi-statically
+into an inflated membrane held at its plug. Physics checks: the work of the press equals the change of
+the stored energy, the plate's load is the gauge pressure over its contact area (bracketed by the
+discrete contact region), the indenter never passes through the membrane, the fingertip stiffness
+against the pressurised-shell result of Vella et al. (2012); and the errors of a press that cannot
+be done."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import warp_shape as ws
+from warp_shape.errors import DesignError
+
+
+def inflated(subdivisions=2, air=1.3, **material):
+    design = ws.Design(ws.icosphere(subdivisions, 0.04), material=ws.Material(**material))
+    sim = ws.Simulator(design, precision="float64")
+    sim.air_moles *= air
+    return sim
+
+
+def hermite_work(depth, force, stiffness):
+    """Work of the press along the path, by cubic Hermite quadrature of F with its slope dF/d depth."""
+    h = np.diff(depth)
+    return float(np.sum(h * (force[1:] + force[:-1]) / 2 + h * h * (stiffness[:-1] - stiffness[1:]) / 12))
+
+
+def test_a_press_does_work_equal_to_the_stored_energy_and_unloads_along_its_loading():
+    sim = inflated()
+    depths = [0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.008, 0.006, 0.003, 0.0]
+    p = ws.press(sim, (0, 0, 1), depths, radius=0.016)  # a thumb: wider than the 162-vertex mesh's edges
+    load = slice(0, 7)
+    assert np.all(np.diff(p.force[load]) > 0) and p.force[6] > 0.2  # it pushes back harder the deeper
+    work = hermite_work(p.depth[load], p.force[load], p.stiffness[load])
+    stored = p.stored_energy[6] - p.stored_energy[0]  # springs, bending, gas free energy, contact, hold
+    assert work == pytest.approx(stored, rel=2e-3)
+    # no jam: unloading retraces loading (an elastic path), back to the start
+    assert p.force[7] == pytest.approx(p.force[5], rel=1e-4) and p.force[8] == pytest.approx(p.force[3], rel=1e-4)
+    assert abs(p.force[-1]) < 1e-6 and p.stored_energy[-1] == pytest.approx(p.stored_energy[0], abs=1e-9)
+    assert np.all(p.pressure[1:7] > p.pressure[0])  # pressing squeezes the chamber
+    assert p.positions.shape == (len(depths), 162, 3) and p.held.size >= 6
+
+
+def test_a_plate_carries_the_gauge_pressure_over_its_contact_area():
+    """A pure membrane (no bending) pressed by a plate: F = p A_c. A_c lies between the faces wholly in
+    contact and the touching vertices' shares of the surface (``contact_area``)."""
+    sim = inflated(3, bending_stiffness=0.0)
+    p = ws.press(sim, (0, 0, 1), [0.005, 0.01, 0.015], indenter="plate")
+    faces = sim.design.rest.faces
+    for xs, f, pressure, lumped in zip(p.positions, p.force, p.pressure, p.contact_area):
+        touch = xs[:, 2] >= xs[:, 2].max() - 1e-6
+        a = 0.5 * np.cross(xs[faces[:, 1]] - xs[faces[:, 0]], xs[faces[:, 2]] - xs[faces[:, 0]])[:, 2]
+        inner = a[touch[faces].all(axis=1)].sum()
+        assert inner < f / pressure < lumped
+    assert p.force[-1] > 3 * p.force[0]
+
+
+def test_no_indenter_passes_through_the_membrane():
+    """15 mm deep: a fingertip on a 642-vertex sphere and a plate pressing 10 N; no vertex 0.05 mm inside
+    either; faces sag into the fingertip between its vertices (contact acts on vertices) by a quarter of its
+    radius at most (measured 1.6 mm: the sagitta of the stretched 8-9 mm faces), far from passing through."""
+    sim = inflated(3, air=2.0)
+    p = ws.press(sim, (0.3, 0.2, 1.0), [0.015])
+    assert p.force[-1] > 0.5 and np.all(p.penetration < 5e-5)
+    assert p.surface_penetration[-1] < 0.25 * 0.008
+    sim = inflated(2, air=1.4, youngs_modulus=1e6)  # a stiff membrane at about 10 kPa
+    p = ws.press(sim, (0.3, 0.2, 1.0), [0.015], indenter="plate")
+    assert p.force[-1] > 10.0 and np.all(p.penetration < 5e-5)
+    assert np.all(np.isfinite(p.positions))
+
+
+def test_fingertip_stiffness_of_a_pressurised_sphere_against_vella_2012():
+    """Small-indentation stiffness of a pressurised spherical shell (Vella et al. 2012, J. R. Soc.
+    Interface 9, 448): k = pi p R sqrt(tau^2 - 1) / (tau artanh sqrt(1 - 1/tau^2)), tau = p R^2 / (4 sqrt(Y B)),
+    Y = E t, B the plate bending stiffness (the hinge's k_t / sqrt(3)); a thin atmosphere keeps the gas's own
+    stiffness out (the theory holds the pressure). Measured on 642 vertices: 0.81 of it (0.93 on 162
+    vertices): the point-load theory is not met within 10 % (docs/feel.md); this bounds the gap."""
+    sim = inflated(3, air=1.8, atmospheric_pressure=1000.0)
+    sim.settle_static()
+    x = sim.positions
+    radius = float(np.linalg.norm(x - x.mean(axis=0), axis=1).mean())
+    p = ws.press(sim, (0, 0, 1), [1e-4])
+    mat = sim.design.material
+    y, b = mat.youngs_modulus * mat.thickness, mat.bending_stiffness / np.sqrt(3)
+    tau = p.pressure[0] * radius ** 2 / (4 * np.sqrt(y * b))
+    k = np.pi * p.pressure[0] * radius * np.sqrt(tau ** 2 - 1) / (tau * np.arctanh(np.sqrt(1 - tau ** -2)))
+    assert 1.5 < tau < 4  # between the bending and the membrane regimes
+    assert 0.7 * k < p.stiffness[0] < 1.1 * k
+
+
+def test_a_press_that_cannot_be_done_is_refused_before_any_work():
+    sim = inflated(2)
+    with pytest.raises(DesignError, match="beyond the shape"):
+        ws.press(sim, (1, 0, 0), [0.001, 0.5], radius=0.016)
+    with pytest.raises(DesignError, match="held plug"):
+        ws.press(sim, (0, 0, -1), [0.001], radius=0.016)
+    with pytest.raises(DesignError, match="finite non-zero"):
+        ws.press(sim, (0, 0, 0), [0.001])
+    with pytest.raises(DesignError, match="indenter must be one of"):
+        ws.press(sim, (0, 0, 1), [0.001], indenter="finger")
+    with pytest.raises(DesignError, match="depths must be finite"):
+        ws.press(sim, (0, 0, 1), [-0.001], radius=0.016)
+    with pytest.raises(DesignError, match="too coarse for a fingertip"):
+        ws.press(sim, (0, 0, 1), [0.001], radius=0.008)  # 162 vertices: 12 mm edges
+    with pytest.raises(DesignError, match="Simulator or a control result"):
+        ws.press("design.usda", (0, 0, 1), [0.001])
+
+
+def test_a_stiffness_map_presses_each_direction_in_its_own_world():
+    sim = inflated(3)
+    dirs = np.array([[0, 0, 1], [1, 0, 0.2], [0, -1, 0.2]], dtype=float)
+    k = ws.stiffness_map(sim, dirs, depth=0.001)
+    one = ws.press(sim, dirs[1], [0.001])
+    assert k.shape == (3,) and np.all(k > 5) and k[0] > k[2]  # the top, over the plug, is the stiffest
+    assert k[1] == pytest.approx(one.stiffness[0], rel=1e-3)  # the batch's world = the press alone
