@@ -12,6 +12,7 @@ import pytest
 
 import warp_shape as ws
 from warp_shape.errors import DesignError
+from warp_shape.scenarios import cube_fig6_design
 
 
 def inflated(subdivisions=2, air=1.3, **material):
@@ -115,3 +116,25 @@ def test_a_stiffness_map_presses_each_direction_in_its_own_world():
     one = ws.press(sim, dirs[1], [0.001])
     assert k.shape == (3,) and np.all(k > 5) and k[0] > k[2]  # the top, over the plug, is the stiffest
     assert k[1] == pytest.approx(one.stiffness[0], rel=1e-3)  # the batch's world = the press alone
+
+
+def test_jamming_stiffens_the_fig6_device_and_a_press_before_the_jam_leaves_a_dent():
+    """The Fig. 6 device (642 vertices): the cell at the top IPAM's end jammed against free, and the path:
+    jam, press 3 mm, release (back to the jammed shape) against press 3 mm, jam, release (the jam keeps
+    the dent)."""
+    design = cube_fig6_design(3)
+    top = int(design.face_cell()[design.ipams[4].face_a])
+    assert top >= 0
+    sim = ws.Simulator(design, precision="float64")
+    sim.air_moles *= 1.3
+    free = ws.press(sim, (0, 0, 1), [0.003, 0.0], jam={0: [top]})  # press, jam, release
+    jammed_sim = ws.Simulator(design, precision="float64")
+    jammed_sim.air_moles *= 1.3
+    jammed_sim.settle_static()
+    jammed_sim.jam(top)
+    jammed = ws.press(jammed_sim, (0, 0, 1), [0.003, 0.0])  # jam, press, release
+    assert jammed.stiffness[0] > 1.5 * free.stiffness[0]  # the jammed cell is stiffer under the finger
+    assert free.jammed[-1][top] and not free.jammed[0][top]  # jammed after the first depth, kept
+    rise = jammed.positions[-1][:, 2].max() - free.positions[-1][:, 2].max()
+    assert rise > 1e-4  # the press before the jam left a dent (0.2 mm) that the release keeps
+    assert free.force[-1] == pytest.approx(0.0, abs=1e-6)  # released: the dent no longer touches the finger

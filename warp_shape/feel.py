@@ -19,9 +19,9 @@ import warp as wp
 
 from .controller.replay import replay_simulator
 from .controller.result import ControlResult
-from .errors import DesignError
+from .errors import DesignError, SimulationError
 from .physics.contact import (DEFAULT_CONTACT_STIFFNESS, DEFAULT_RADIUS, KINDS, add_hold, add_indenter,
-                              indenter_forces_np, penetration_np)
+                              indenter_forces_np, penetration_np, set_indenter_stiffness)
 from .simulator import Simulator
 
 __all__ = ["Press", "press", "stiffness_map", "press_setup", "plug_vertices", "surface_point", "PLUG_ANGLE",
@@ -35,6 +35,12 @@ MAX_INCREMENT = 5.0e-4
 STIFFNESS_STEP = 2.0e-5
 #: the hold's spring per vertex, in units of the membrane's largest edge stiffness
 HOLD_STIFFNESS_FACTOR = 1.0e3
+#: the contact's stiffness in the first settle of each depth, as a fraction of its own
+SOFT_CONTACT = 0.05
+#: a press's settle leaving a larger residual vertex force than this (N) is an error
+RESIDUAL_LIMIT = 1.0e-4
+#: fresh starts of a settle left above ``RESIDUAL_LIMIT`` before a press gives up
+RESTARTS = 4
 #: a vertex deeper than this (m) inside an indenter counts as touching it (contact area)
 CONTACT_DEPTH = 1.0e-9
 
@@ -306,8 +312,29 @@ def set_depth(setup: PressSetup, depth: np.ndarray) -> None:
 
 
 def settle_at(setup: PressSetup, depth: np.ndarray) -> None:
+    """Settle every world with its indenter at depth (W,): first with the contact softened
+    (``SOFT_CONTACT``: the membrane slides over the indenter to its place), then at full stiffness (started
+    afresh up to ``RESTARTS`` times); a world left with a residual force over ``RESIDUAL_LIMIT`` raises
+    ``SimulationError``."""
     set_depth(setup, depth)
-    setup.sim.settle_static()
+    sim = setup.sim
+    k = sim.model.host.actuators["indenter"]["stiffness"].copy()
+    set_indenter_stiffness(sim.model, SOFT_CONTACT * k)
+    try:
+        sim.settle_static()
+    finally:
+        set_indenter_stiffness(sim.model, k)
+    out = sim.settle_static()
+    for _ in range(RESTARTS):  # a settle stopped at its floor above the limit starts again from where it is
+        if np.all(out.residual <= RESIDUAL_LIMIT):
+            break
+        out = sim.settle_static()
+    bad = np.flatnonzero(out.residual > RESIDUAL_LIMIT)
+    if bad.size:
+        w = int(bad[0])
+        raise SimulationError(f"press: the membrane found no equilibrium at depth {depth[w] * 1e3:.4g} mm in world {w} "
+                              f"(residual force {out.residual[w]:.3g} N); press less deep or with a larger radius",
+                              quantity="equilibrium", world=w)
 
 
 def advance(setup: PressSetup, start: np.ndarray, end: np.ndarray) -> None:

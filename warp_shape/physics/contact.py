@@ -6,7 +6,7 @@ along -axis from its reference point, so the static settle presses to a given de
 machinery as any other control; ``HoldFamily`` ("hold") is a passive family of zero-length springs
 tying vertices to fixed points (the plug). docs/feel.md describes the model and its error: the
 penalty's penetration is a vertex's contact force over its stiffness, so a vertex carrying at most
-F_max N penetrates at most F_max / k (``DEFAULT_CONTACT_STIFFNESS``: 1e6 N/m, 0.01 mm at 10 N).
+F_max N penetrates at most F_max / k (``DEFAULT_CONTACT_STIFFNESS``: 2e5 N/m, 0.05 mm at 10 N on one vertex).
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from ..force_family import ACTUATOR_FAMILIES, FORCE_FAMILIES, ActuatorFamily, Fo
 
 __all__ = ["Indenter", "Hold", "IndenterFamily", "HoldFamily", "INDENTER", "HOLD", "add_indenter", "add_hold",
            "KINDS", "DEFAULT_CONTACT_STIFFNESS", "DEFAULT_RADIUS", "indenter_centres", "penetration_np",
-           "indenter_forces_np", "indenter_energy_np"]
+           "indenter_forces_np", "indenter_energy_np", "set_indenter_stiffness"]
 
 #: indenter kinds, by name -> kernel code
 KINDS = {"sphere": 0, "plate": 1}
-#: penalty stiffness of a contact, N/m: a vertex carrying 10 N penetrates 0.01 mm
-DEFAULT_CONTACT_STIFFNESS = 1.0e6
+#: penalty stiffness of a contact, N/m: a vertex carrying 10 N penetrates 0.05 mm
+DEFAULT_CONTACT_STIFFNESS = 2.0e5
 #: the fingertip's radius, m
 DEFAULT_RADIUS = 0.008
 #: a vertex this close to an indenter (m) gets its stiffness on the settle's preconditioner
@@ -81,6 +81,14 @@ def add_hold(design, vertices, points, stiffness: float) -> None:
                           f"{len(pts)} points, {stiffness} N/m")
     for v, p in zip(vs, pts):
         design.add_element("hold", Hold(v, tuple(p), float(stiffness)))
+
+
+def set_indenter_stiffness(model, stiffness) -> None:
+    """Every indenter's penalty stiffness (N/m; a scalar or (n,)) in ``model``, on the device and in its
+    host arrays alike (a press softens its contact for a first settle, then restores it)."""
+    host = model.host.actuators["indenter"]
+    host["stiffness"][:] = np.broadcast_to(np.asarray(stiffness, dtype=np.float64), host["stiffness"].shape)
+    model.actuators["indenter"]["stiffness"].assign(host["stiffness"].astype(model.np_dtype))
 
 
 # ---------------------------------------------------------------------- host law (float64)
