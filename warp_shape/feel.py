@@ -74,8 +74,10 @@ class Press:
 
 
 # ---------------------------------------------------------------------- geometry
-def plug_vertices(x: np.ndarray, faces: np.ndarray, angle: float = PLUG_ANGLE) -> np.ndarray:
-    """The vertices of the faces whose centroid lies within ``angle`` of -z seen from the centroid of x."""
+def plug_vertices(x: np.ndarray, faces: np.ndarray, angle: float | None = None) -> np.ndarray:
+    """The vertices of the faces whose centroid lies within ``angle`` (rad; None: ``PLUG_ANGLE``) of -z seen
+    from the centroid of x."""
+    angle = PLUG_ANGLE if angle is None else angle
     c = x[faces].mean(axis=1) - x.mean(axis=0)
     cos = -c[:, 2] / np.maximum(np.linalg.norm(c, axis=1), 1e-300)
     return np.unique(faces[cos >= np.cos(angle)].reshape(-1))
@@ -219,6 +221,14 @@ def check_depths(depths, limits: np.ndarray) -> np.ndarray:
     return a
 
 
+def check_plug_angle(angle) -> float:
+    """The plug's angle in degrees, in (0, 90], or a one-line error."""
+    if isinstance(angle, (bool, np.bool_)) or not isinstance(angle, (int, float, np.floating, np.integer)) \
+            or not 0 < angle <= 90:
+        raise DesignError(f"plug_angle is the held cap's half-angle around -z in degrees, in (0, 90], got {angle!r}")
+    return float(angle)
+
+
 def check_mesh_fineness(x: np.ndarray, edges: np.ndarray, indenter: str, radius: float) -> None:
     """A fingertip touches vertices only: it must not fit between them. Refuses a sphere whose radius is
     below the longest edge of x (m) with a one-line error naming both."""
@@ -232,11 +242,13 @@ def check_mesh_fineness(x: np.ndarray, edges: np.ndarray, indenter: str, radius:
 
 
 def press_setup(src: Simulator, world: int, directions, indenter: str, radius: float, depths,
-                stiffness: float = DEFAULT_CONTACT_STIFFNESS) -> PressSetup:
+                stiffness: float = DEFAULT_CONTACT_STIFFNESS, plug_angle: float | None = None) -> PressSetup:
     """Check the press (directions, depths, indenter) on ``src``'s world ``world``, settle it (controls
     held), find each direction's surface point and first touch, and build the press simulator: ``src``'s
     design with one indenter per direction (enabled in its own world only) and the plug held, in float64,
-    every world a copy of the settled state. Returns the setup and the checked depths."""
+    every world a copy of the settled state; ``plug_angle`` (degrees, None: ``PLUG_ANGLE``) the plug's
+    extent around -z. Returns the setup and the checked depths."""
+    angle = None if plug_angle is None else np.radians(check_plug_angle(plug_angle))
     if indenter not in KINDS:
         raise DesignError(f"indenter must be one of {sorted(KINDS)}, got {indenter!r}")
     if not (isinstance(radius, (int, float, np.floating)) and np.isfinite(radius) and radius > 0):
@@ -244,11 +256,11 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     u = check_directions(directions)
     faces = src.design.rest.faces
     x = np.asarray(src.state.x.numpy()[world], dtype=np.float64)
-    check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces))[1])  # before any work
+    check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces, angle))[1])  # before any work
     check_mesh_fineness(x, src.design.rest.edges, indenter, radius)
     settled = settled_copy(src, world)
     x = settled.positions.reshape(-1, 3)
-    held = plug_vertices(x, faces)
+    held = plug_vertices(x, faces, angle)
     points, limits = press_geometry(x, faces, u, held)
     depths = check_depths(depths, limits)
     design = copy.deepcopy(src.design)
@@ -381,16 +393,18 @@ def press_path(setup: PressSetup, depths: np.ndarray, jam: dict | None = None) -
 
 
 def press(sim_or_result, direction, depths, indenter: str = "sphere", radius: float = DEFAULT_RADIUS,
-          world: int = 0, jam: dict | None = None, stiffness: float = DEFAULT_CONTACT_STIFFNESS) -> Press:
+          world: int = 0, jam: dict | None = None, stiffness: float = DEFAULT_CONTACT_STIFFNESS,
+          plug_angle: float | None = None) -> Press:
     """Press a rigid frictionless ``indenter`` ("sphere": a fingertip of ``radius`` m; "plate": a palm)
     along -``direction`` onto the surface point that direction hits from the shape's centroid, to each
     of ``depths`` (m from first touch) in turn, quasi-statically, the device held at its plug. The
     state pressed is ``sim_or_result``'s world ``world`` (a Simulator; settled first, controls held) or a
     control result's final state replayed on its design. ``jam``: {i: cells} jams those cells once
-    depths[i] is reached (they stay jammed). ``stiffness``: the contact penalty, N/m."""
+    depths[i] is reached (they stay jammed). ``stiffness``: the contact penalty, N/m. ``plug_angle``: the
+    held cap's half-angle around -z, degrees (None: ``PLUG_ANGLE``, 25 deg)."""
     src = source_simulator(sim_or_result, world)
     setup, depths = press_setup(src, world if isinstance(sim_or_result, Simulator) else 0, direction, indenter,
-                                radius, depths, stiffness)
+                                radius, depths, stiffness, plug_angle)
     if setup.sim.worlds != 1:
         raise DesignError("press takes one direction (a 3-vector); stiffness_map presses many")
     rows = press_path(setup, depths, jam)
@@ -407,10 +421,10 @@ def press(sim_or_result, direction, depths, indenter: str = "sphere", radius: fl
 
 
 def stiffness_map(sim_or_result, directions, depth: float = 0.002, radius: float = DEFAULT_RADIUS,
-                  indenter: str = "sphere", world: int = 0) -> np.ndarray:
+                  indenter: str = "sphere", world: int = 0, plug_angle: float | None = None) -> np.ndarray:
     """(m,) N/m: the tangent stiffness dF/d depth of a press to ``depth`` m along each of ``directions``
     (m, 3), one press per world of one batch (see ``press``)."""
     src = source_simulator(sim_or_result, world)
     setup, depths = press_setup(src, world if isinstance(sim_or_result, Simulator) else 0, directions, indenter,
-                                radius, [depth])
+                                radius, [depth], plug_angle=plug_angle)
     return press_path(setup, depths)[0]["stiffness"]
