@@ -24,7 +24,8 @@ from .physics.contact import (DEFAULT_CONTACT_STIFFNESS, DEFAULT_RADIUS, KINDS, 
                               indenter_forces_np, penetration_np, set_indenter_stiffness)
 from .simulator import Simulator
 
-__all__ = ["Press", "press", "stiffness_map", "press_setup", "plug_vertices", "surface_point", "PLUG_ANGLE",
+__all__ = ["Press", "press", "stiffness_map", "press_setup", "press_path", "vertex_areas", "plug_vertices",
+           "surface_point", "PLUG_ANGLE",
            "MAX_INCREMENT", "STIFFNESS_STEP", "HOLD_STIFFNESS_FACTOR"]
 
 #: faces whose centroid lies within this angle of -z, seen from the shape's centroid, form the held plug (rad)
