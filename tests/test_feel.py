@@ -7,6 +7,8 @@ be done."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -113,7 +115,7 @@ def test_a_press_that_cannot_be_done_is_refused_before_any_work():
     sim = inflated(2)
     with pytest.raises(DesignError, match="beyond the shape"):
         ws.press(sim, (1, 0, 0), [0.001, 0.5], radius=0.016)
-    with pytest.raises(DesignError, match="held plug"):
+    with pytest.raises(DesignError, match="presses on the held plug"):
         ws.press(sim, (0, 0, -1), [0.001], radius=0.016)
     with pytest.raises(DesignError, match="finite non-zero"):
         ws.press(sim, (0, 0, 0), [0.001])
@@ -158,3 +160,19 @@ def test_jamming_stiffens_the_fig6_device_and_a_press_before_the_jam_leaves_a_de
     rise = jammed.positions[-1][:, 2].max() - free.positions[-1][:, 2].max()
     assert rise > 1e-4  # the press before the jam left a dent (0.2 mm) that the release keeps
     assert free.force[-1] == pytest.approx(0.0, abs=1e-6)  # released: the dent no longer touches the finger
+
+
+def test_feel_command_writes_a_map_per_target(tmp_path, capsys):
+    from warp_shape.cli import main
+
+    out = tmp_path / "feel"
+    rc = main(["feel", "--points", "6", "--method", "paper", "--max-steps", "40", "--out", str(out), "--json"])
+    assert rc == 0
+    rows = (out / "feel_cube.csv").read_text().strip().splitlines()
+    assert rows[0].startswith("point,direction_x") and 3 <= len(rows) - 1 <= 6  # the plug's directions left out
+    k = np.array([float(r.split(",")[-1]) for r in rows[1:]])
+    assert np.all(np.isfinite(k)) and np.all(k > 0.001) and np.all(k < 1.0)  # N/mm of a fingertip on a balloon
+    assert (out / "feel_cube.png").stat().st_size > 10_000
+    assert "## Feel: cube" in (out / "feel_report.md").read_text()
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["cube"]["points"] == len(rows) - 1

@@ -24,7 +24,7 @@ from .physics.contact import (DEFAULT_CONTACT_STIFFNESS, DEFAULT_RADIUS, KINDS, 
                               indenter_forces_np, penetration_np, set_indenter_stiffness)
 from .simulator import Simulator
 
-__all__ = ["Press", "press", "stiffness_map", "press_setup", "press_path", "vertex_areas", "plug_vertices",
+__all__ = ["Press", "press", "stiffness_map", "FeelMap", "feel_map", "pressable_directions", "press_setup", "press_path", "vertex_areas", "plug_vertices",
            "surface_point", "PLUG_ANGLE",
            "MAX_INCREMENT", "STIFFNESS_STEP", "HOLD_STIFFNESS_FACTOR"]
 
@@ -40,6 +40,8 @@ HOLD_STIFFNESS_FACTOR = 1.0e3
 SOFT_CONTACT = 0.05
 #: a press's settle leaving a larger residual vertex force than this (N) is an error
 RESIDUAL_LIMIT = 1.0e-4
+#: a fingertip must be this many times the largest face's circumradius (its stretch under a press)
+FACE_MARGIN = 1.25
 #: fresh starts of a settle left above ``RESIDUAL_LIMIT`` before a press gives up
 RESTARTS = 4
 #: a vertex deeper than this (m) inside an indenter counts as touching it (contact area)
@@ -191,17 +193,24 @@ def settled_copy(src: Simulator, world: int) -> Simulator:
     return sim
 
 
-def press_geometry(x: np.ndarray, faces: np.ndarray, u: np.ndarray, held: np.ndarray):
+def touches_plug(x: np.ndarray, held: np.ndarray, point: np.ndarray, reach: float) -> bool:
+    """Whether a held vertex of x lies within ``reach`` (m) of ``point``."""
+    return bool(held.size) and float(np.min(np.linalg.norm(x[held] - point, axis=1))) < reach
+
+
+def press_geometry(x: np.ndarray, faces: np.ndarray, u: np.ndarray, held: np.ndarray, reach: float = 0.0):
     """(points (m, 3), limits (m,)): where each direction (m, 3) from the centroid of x meets the surface,
-    and the deepest press allowed there (80 % of the shape's extent behind that point), or a one-line error."""
+    and the deepest press allowed there (80 % of the shape's extent behind that point), or a one-line error
+    (a point with a held vertex within ``reach`` m is on the plug)."""
     points, limits = [], []
     for d in u:
         hit = surface_point(x, faces, x.mean(axis=0), d)
         if hit is None:
             raise DesignError(f"direction {d.round(4).tolist()} from the centroid misses the shape (it is not "
                               "star-shaped there); press another direction")
-        if np.all(np.isin(faces[hit[1]], held)):
-            raise DesignError(f"direction {d.round(4).tolist()} hits the held plug (the faces within "
+        if touches_plug(x, held, hit[0], reach):
+            raise DesignError(f"direction {d.round(4).tolist()} presses on the held plug (a held vertex within "
+                              f"{reach * 1e3:.3g} mm of the point; the plug is the faces within "
                               f"{np.degrees(PLUG_ANGLE):.0f} deg of -z); press another direction")
         points.append(hit[0])
         limits.append(0.8 * float(np.max((hit[0] - x) @ d)))
@@ -230,16 +239,19 @@ def check_plug_angle(angle) -> float:
     return float(angle)
 
 
-def check_mesh_fineness(x: np.ndarray, edges: np.ndarray, indenter: str, radius: float) -> None:
-    """A fingertip touches vertices only: it must not fit between them. Refuses a sphere whose radius is
-    below the longest edge of x (m) with a one-line error naming both."""
+def check_mesh_fineness(x: np.ndarray, faces: np.ndarray, indenter: str, radius: float) -> None:
+    """A fingertip touches vertices only: it must not fit through a face. Refuses a sphere whose radius is
+    below ``FACE_MARGIN`` times the largest circumradius of the faces of x (m; the margin leaves room for
+    the faces' stretch under the press) with a one-line error naming both."""
     if indenter != "sphere":
         return
-    longest = float(np.max(np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1)))
-    if longest > radius:
-        raise DesignError(f"the mesh is too coarse for a fingertip of radius {radius * 1e3:.3g} mm: its edges reach "
-                          f"{longest * 1e3:.3g} mm and the sphere would slip between its vertices; use a finer rest "
-                          "mesh (more subdivisions) or a radius of at least the longest edge")
+    a, b, c = (np.linalg.norm(x[faces[:, (k + 1) % 3]] - x[faces[:, k]], axis=1) for k in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]]), axis=1)
+    need = FACE_MARGIN * float(np.max(a * b * c / np.maximum(4 * area, 1e-300)))
+    if need > radius:
+        raise DesignError(f"the mesh is too coarse for a fingertip of radius {radius * 1e3:.3g} mm: it could slip "
+                          f"through its largest faces (a radius of at least {need * 1e3:.3g} mm holds); use a finer "
+                          "rest mesh (more subdivisions) or a larger radius")
 
 
 def press_setup(src: Simulator, world: int, directions, indenter: str, radius: float, depths,
@@ -257,12 +269,13 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     u = check_directions(directions)
     faces = src.design.rest.faces
     x = np.asarray(src.state.x.numpy()[world], dtype=np.float64)
-    check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces, angle))[1])  # before any work
-    check_mesh_fineness(x, src.design.rest.edges, indenter, radius)
+    reach = 1.5 * radius if indenter == "sphere" else 0.0
+    check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces, angle), reach)[1])  # before any work
+    check_mesh_fineness(x, faces, indenter, radius)
     settled = settled_copy(src, world)
     x = settled.positions.reshape(-1, 3)
     held = plug_vertices(x, faces, angle)
-    points, limits = press_geometry(x, faces, u, held)
+    points, limits = press_geometry(x, faces, u, held, reach)
     depths = check_depths(depths, limits)
     design = copy.deepcopy(src.design)
     for d, p in zip(u, points):
@@ -421,11 +434,54 @@ def press(sim_or_result, direction, depths, indenter: str = "sphere", radius: fl
                  jammed=col("jammed"))
 
 
+@dataclass
+class FeelMap:
+    """A stiffness map: per point (m,) the ``stiffness`` (N/m) and ``force`` (N) at ``depth`` m, the
+    ``directions`` (m, 3) and surface ``points`` (m, 3) pressed, and the settled state's ``positions``
+    (V, 3) m before pressing."""
+
+    stiffness: np.ndarray
+    force: np.ndarray
+    directions: np.ndarray
+    points: np.ndarray
+    positions: np.ndarray
+    depth: float
+    radius: float
+
+
+def feel_map(sim_or_result, directions, depth: float = 0.002, radius: float = DEFAULT_RADIUS,
+             indenter: str = "sphere", world: int = 0, plug_angle: float | None = None) -> FeelMap:
+    """``stiffness_map`` with what was pressed where (``FeelMap``)."""
+    src = source_simulator(sim_or_result, world)
+    setup, depths = press_setup(src, world if isinstance(sim_or_result, Simulator) else 0, directions, indenter,
+                                radius, [depth], plug_angle=plug_angle)
+    start = setup.sim.positions.reshape(setup.sim.worlds, -1, 3)[0].copy()
+    row = press_path(setup, depths)[0]
+    return FeelMap(stiffness=row["stiffness"], force=row["force"], directions=setup.directions, points=setup.points,
+                   positions=start, depth=float(depths[0]), radius=float(radius))
+
+
 def stiffness_map(sim_or_result, directions, depth: float = 0.002, radius: float = DEFAULT_RADIUS,
                   indenter: str = "sphere", world: int = 0, plug_angle: float | None = None) -> np.ndarray:
     """(m,) N/m: the tangent stiffness dF/d depth of a press to ``depth`` m along each of ``directions``
     (m, 3), one press per world of one batch (see ``press``)."""
+    return feel_map(sim_or_result, directions, depth, radius, indenter, world, plug_angle).stiffness
+
+
+def pressable_directions(sim_or_result, count: int, world: int = 0, plug_angle: float | None = None,
+                         radius: float = DEFAULT_RADIUS) -> np.ndarray:
+    """(m, 3) of ``count`` directions spread evenly over the sphere (a Fibonacci lattice), those whose
+    ray from the centroid misses the shape or meets it within 2 ``radius`` of the held plug left out."""
     src = source_simulator(sim_or_result, world)
-    setup, depths = press_setup(src, world if isinstance(sim_or_result, Simulator) else 0, directions, indenter,
-                                radius, [depth], plug_angle=plug_angle)
-    return press_path(setup, depths)[0]["stiffness"]
+    x = np.asarray(src.state.x.numpy()[world if isinstance(sim_or_result, Simulator) else 0], dtype=np.float64)
+    faces = src.design.rest.faces
+    held = plug_vertices(x, faces, None if plug_angle is None else np.radians(check_plug_angle(plug_angle)))
+    k = np.arange(count) + 0.5
+    z = 1 - 2 * k / count
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    dirs = np.stack([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z], axis=1)
+    keep = []
+    for d in dirs:
+        hit = surface_point(x, faces, x.mean(axis=0), d)
+        keep.append(hit is not None and not touches_plug(x, held, hit[0], 2.0 * radius))
+    return dirs[np.asarray(keep, dtype=bool)]

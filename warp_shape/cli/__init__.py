@@ -1,6 +1,6 @@
 """The ``warp-shape`` command line: the parser of every subcommand and the entry point ``main``.
 
-Subcommands, one module each: ``simulate``, ``design`` (the main job), ``control``, ``export``,
+Subcommands, one module each: ``simulate``, ``design`` (the main job), ``control``, ``export``, ``feel``,
 ``bench``, ``compare``, ``calibrate``, ``sweep``, ``view``; ``options`` holds what they share, ``progress`` the
 progress bars. Every help text shows the defaults.
 """
@@ -13,7 +13,7 @@ import sys
 from .. import __version__
 from ..errors import WarpShapeError
 from ..registry import load_plugins
-from . import bench, calibrate, compare, control, design, export, simulate, sweep, view
+from . import bench, calibrate, compare, control, design, export, feel, simulate, sweep, view
 from .options import check_bounds, check_warp_cache, interrupts_noted, quiet_warp, stop_if_interrupted, write_failure
 
 __all__ = ["main", "build_parser"]
@@ -43,7 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="warp-shape", description="Simulate and design soft 3-D haptic shape displays.")
     p.add_argument("--version", action="version", version=f"warp-shape {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
-    for module in (simulate, design, control, export, bench, compare, calibrate, sweep, view):
+    for module in (simulate, design, control, export, feel, bench, compare, calibrate, sweep, view):
         module.register(sub)
     _with_defaults(p)
     return p
