@@ -49,6 +49,7 @@ def indenter_force_kernel(
     origin: wp.array(dtype=Any),  # (n,) reference point o at depth 0, m
     radius: wp.array(dtype=Any),  # (n,) m
     stiffness: wp.array(dtype=Any),  # (n,) penalty stiffness, N/m
+    own: int,  # 1: world w holds indenter w only (n == W, a stiffness map); 0: every indenter in every world
     # Control:
     depth: wp.array2d(dtype=wp.float64),  # (W, n) m along -u from o
     enabled: wp.array2d(dtype=wp.int32),  # (W, n)
@@ -60,7 +61,12 @@ def indenter_force_kernel(
     """Every enabled indenter's penalty force on every vertex of every world."""
     w, i = wp.tid()
     xi = x[w, i]
-    for j in range(kind.shape[0]):
+    lo = 0
+    hi = kind.shape[0]
+    if own != 0:
+        lo = w
+        hi = w + 1
+    for j in range(lo, hi):
         if enabled[w, j] != 0:
             k = stiffness[j]
             c = origin[j] - axis[j] * type(k)(depth[w, j])

@@ -278,8 +278,8 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     points, limits = press_geometry(x, faces, u, held, reach)
     depths = check_depths(depths, limits)
     design = copy.deepcopy(src.design)
-    for d, p in zip(u, points):
-        add_indenter(design, indenter, d, first_touch(x, p, d, indenter, radius), radius, stiffness)
+    for w, (d, p) in enumerate(zip(u, points)):
+        add_indenter(design, indenter, d, first_touch(x, p, d, indenter, radius), radius, stiffness, world=w)
     add_hold(design, held, x[held], HOLD_STIFFNESS_FACTOR * float(np.max(src.model.host.edge_stiffness)))
     sim = Simulator(design, device=src.device, settings=settled.settings, worlds=len(u))
     copy_world_state(settled, 0, sim)

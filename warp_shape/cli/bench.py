@@ -30,7 +30,7 @@ def register(subparsers) -> None:
                               description="Speed benchmarks: a table on stdout and bench_<name>.json in --out per bench.")
     b.add_argument("which", nargs="?", default="sim", choices=["sim", "tradeoff", "design", "control", "peer",
                                                                     "rays", "gradient", "control_gradient", "codesign",
-                                                                    "membrane", "all"],
+                                                                    "membrane", "feel", "all"],
                    help="; ".join(f"{k}: {v}" for k, v in ABOUT.items()) + "; all: every one but codesign")
     b.add_argument("--device", default="cpu", help="Warp device: cpu or cuda:N")
     add_bounded(b, "--subdivisions", 1, 7, type=int, nargs="+", default=[3, 4, 5, 6],
@@ -182,6 +182,7 @@ ABOUT = {
     "codesign": "per target fit after co-design beside Algorithm 1 and the default placement (minutes per case)",
     "membrane": "the membrane laws: one ellipsoid on five meshings, the thin sphere against its law, a step's cost "
                 "with each law side by side",
+    "feel": "a 64-point fingertip stiffness map of the Fig. 6 device's controlled cube beside one control run",
 }
 
 
@@ -226,6 +227,14 @@ def _run_one(name: str, args, sim_bench, results: dict, membrane_bench=None) -> 
         results["codesign"] = _codesign(args, format_rows)
     elif name == "membrane":
         results["membrane"] = _membrane(args, format_rows, membrane_bench)
+    elif name == "feel":
+        from ..benchmarks.feel import FEEL_COLUMNS, bench_feel
+
+        rows = bench_feel(device=args.device)
+        results["feel"] = rows
+        print("feel: a 64-point fingertip stiffness map (2 mm, one press per world) of the Fig. 6 device's controlled "
+              "cube beside the control run (paper's law) that made the state; ratio = map / control")
+        print(format_rows(rows, FEEL_COLUMNS))
     elif name in ("gradient", "control_gradient"):
         from ..benchmarks import control_gradient, gradient
 

@@ -46,6 +46,7 @@ class Indenter:
     origin: tuple
     radius: float
     stiffness: float
+    world: int = -1  # the one world it presses in (its index = the world's: a stiffness map), or -1: every world
 
 
 @dataclass(frozen=True)
@@ -58,8 +59,10 @@ class Hold:
 
 
 def add_indenter(design, kind: str, axis, origin, radius: float = DEFAULT_RADIUS,
-                 stiffness: float = DEFAULT_CONTACT_STIFFNESS) -> int:
-    """Add an indenter to ``design`` (see ``Indenter``); returns its index."""
+                 stiffness: float = DEFAULT_CONTACT_STIFFNESS, world: int = -1) -> int:
+    """Add an indenter to ``design`` (see ``Indenter``); returns its index. ``world`` >= 0: it presses in that
+    world only (its mask must say so too); when indenter j presses in world j for every j, a force
+    evaluation visits one indenter per world instead of all of them."""
     if kind not in KINDS:
         raise DesignError(f"indenter must be one of {sorted(KINDS)}, got {kind!r}")
     u = np.asarray(axis, dtype=np.float64).reshape(3)
@@ -69,7 +72,8 @@ def add_indenter(design, kind: str, axis, origin, radius: float = DEFAULT_RADIUS
         raise DesignError(f"an indenter needs a finite non-zero axis and a finite origin, got {u}, {o}")
     if not (np.isfinite(radius) and radius > 0 and np.isfinite(stiffness) and stiffness > 0):
         raise DesignError(f"an indenter needs radius > 0 m and stiffness > 0 N/m, got {radius}, {stiffness}")
-    return design.add_element("indenter", Indenter(kind, tuple(u / n), tuple(o), float(radius), float(stiffness)))
+    return design.add_element("indenter", Indenter(kind, tuple(u / n), tuple(o), float(radius), float(stiffness),
+                                                   int(world)))
 
 
 def add_hold(design, vertices, points, stiffness: float) -> None:
@@ -145,7 +149,8 @@ class IndenterFamily(ActuatorFamily):
                     axis=np.array([e.axis for e in els], dtype=np.float64).reshape(-1, 3),
                     origin=np.array([e.origin for e in els], dtype=np.float64).reshape(-1, 3),
                     radius=np.array([e.radius for e in els], dtype=np.float64),
-                    stiffness=np.array([e.stiffness for e in els], dtype=np.float64))
+                    stiffness=np.array([e.stiffness for e in els], dtype=np.float64),
+                    world=np.array([e.world for e in els], dtype=np.int64))
 
     def device_arrays(self, host, arr) -> dict:
         vec = wp.types.vector(3, arr(np.zeros(1)).dtype)
@@ -157,8 +162,10 @@ class IndenterFamily(ActuatorFamily):
         if not n:
             return
         dev = model.actuators[self.name]
+        world = model.host.actuators[self.name]["world"]
+        own = int(n == x.shape[0] and np.array_equal(world, np.arange(n)))
         launch(kc.indenter_force_kernel, (x.shape[0], x.shape[1]),
-               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], control.values[self.name],
+               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], own, control.values[self.name],
                 control.enabled[self.name], x, f])
 
     def diagonal_stiffness(self, model, state, diag, launch, control=None):
