@@ -166,7 +166,7 @@ def test_feel_command_writes_a_map_per_target(tmp_path, capsys):
     from warp_shape.cli import main
 
     out = tmp_path / "feel"
-    rc = main(["feel", "--points", "6", "--method", "paper", "--max-steps", "40", "--out", str(out), "--json"])
+    rc = main(["feel", "--points", "6", "--method", "paper", "--max-steps", "10", "--out", str(out), "--json"])
     assert rc == 0
     rows = (out / "feel_cube.csv").read_text().strip().splitlines()
     assert rows[0].startswith("point,direction_x") and 3 <= len(rows) - 1 <= 6  # the plug's directions left out

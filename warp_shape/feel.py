@@ -31,7 +31,7 @@ __all__ = ["Press", "press", "stiffness_map", "FeelMap", "feel_map", "pressable_
 #: faces whose centroid lies within this angle of -z, seen from the shape's centroid, form the held plug (rad)
 PLUG_ANGLE = np.radians(25.0)
 #: the largest depth change between two settles of a press, m
-MAX_INCREMENT = 5.0e-4
+MAX_INCREMENT = 1.0e-3
 #: depth step of the central difference giving the stiffness dF/d depth, m
 STIFFNESS_STEP = 2.0e-5
 #: the hold's spring per vertex, in units of the membrane's largest edge stiffness
