@@ -6,9 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import warp as wp
 
 import warp_shape as ws
 from warp_shape.physics.contact import add_hold, add_indenter
+
+
+@wp.kernel
+def dot_kernel(f: wp.array2d(dtype=wp.vec3d), r: wp.array2d(dtype=wp.vec3d), loss: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    wp.atomic_add(loss, 0, wp.dot(f[0, i], r[0, i]))
 
 
 def contact_design():
@@ -70,3 +77,48 @@ def test_a_settle_presses_the_membrane_to_the_indenters_depth_and_holds_the_plug
     assert np.abs(xs[plug] - x[plug]).max() < 1e-4  # the plug stayed (its springs: 1e5 N/m)
     assert sim.forces("indenter")[:, 2].sum() < -0.1  # the plate carries the load
     assert sim.forces("hold")[:, 2].sum() == pytest.approx(-sim.forces("indenter")[:, 2].sum(), rel=1e-3)
+
+
+def test_the_contact_kernels_adjoints_match_central_differences():
+    """The indenter's and the hold's force kernels run backward (Warp's adjoint): d (f . r) / dx from the
+    tape against float64 central differences of f . r (a Hessian-vector product of the penalty)."""
+    from warp_shape.kernels import contact as kc
+
+    design, top, bottom = contact_design()
+    sim = ws.Simulator(design, precision="float64")
+    sim.set_actuator_controls("indenter", [0.002, 0.001])
+    dev, host = sim.model.actuators, sim.model.host.actuators
+    rng = np.random.default_rng(5)
+    x0 = design.rest.vertices + 2e-4 * rng.standard_normal(design.rest.vertices.shape)
+    r = rng.standard_normal(x0.shape)
+
+    def f_dot_r(x_np, grad=False):
+        x = wp.array(x_np[None], dtype=wp.vec3d, requires_grad=grad)
+        f = wp.zeros_like(x)
+        loss = wp.zeros(1, dtype=wp.float64, requires_grad=grad)
+        rr = wp.array(r[None], dtype=wp.vec3d)
+        tape = wp.Tape()
+        with tape:
+            ind = dev["indenter"]
+            wp.launch(kc.indenter_force_kernel, (1, len(x0)), [ind["kind"], ind["axis"], ind["origin"], ind["radius"],
+                                                               ind["stiffness"], 0, sim.control.values["indenter"],
+                                                               sim.control.enabled["indenter"], x, f])
+            hold = dev["hold"]
+            wp.launch(kc.hold_force_kernel, (1, len(host["hold"]["vertex"])),
+                      [hold["vertex"], hold["point"], hold["stiffness"], x, f])
+            wp.launch(dot_kernel, len(x0), [f, rr, loss])
+        if not grad:
+            return float(loss.numpy()[0])
+        tape.backward(loss)
+        return x.grad.numpy()[0]
+
+    g = f_dot_r(x0, grad=True)
+    assert np.abs(g[top]).max() > 1.0 and np.abs(g[bottom]).max() > 1.0
+    h = 1e-8
+    for v in (top, bottom):
+        for c in range(3):
+            xp, xm = x0.copy(), x0.copy()
+            xp[v, c] += h
+            xm[v, c] -= h
+            assert g[v, c] == pytest.approx((f_dot_r(xp) - f_dot_r(xm)) / (2 * h), rel=1e-5, abs=1e-4)
+
