@@ -176,3 +176,24 @@ def test_feel_command_writes_a_map_per_target(tmp_path, capsys):
     assert "## Feel: cube" in (out / "feel_report.md").read_text()
     summary = json.loads(capsys.readouterr().out)
     assert summary["cube"]["points"] == len(rows) - 1
+
+
+def test_press_takes_a_control_result_and_the_spec_signatures():
+    """SPEC section 16 as written: ws.press(sim, direction, depths, indenter=, radius=, world=) and
+    ws.stiffness_map(sim_or_result, directions, depth=, radius=); a control result's final state replayed."""
+    design = ws.Design(ws.icosphere(3, 0.04))
+    c = design.rest.face_centroids()
+    design.add_ipam(0, int(np.argmin(c @ c[0])))
+    res = ws.control(design, ws.target("oval"), method="paper", max_steps=6, max_settle_steps=2)
+    p = ws.press(res, (0, 0, 1), [0.001, 0.002], indenter="sphere", radius=0.008, world=0)
+    for name in ("depth", "force", "stiffness", "pressure", "contact_area"):
+        assert getattr(p, name).shape == (2,) and np.all(np.isfinite(getattr(p, name)))
+    assert p.positions.shape == (2, 642, 3) and p.force[1] > p.force[0] > 0
+    replayed = ws.Simulator(design, settings=res.settings.simulation)
+    replayed.positions = ws.replay(design, res)
+    replayed.air_moles = float(res.air_moles)
+    replayed.ipam_pressures = res.ipam_pressures
+    again = ws.press(replayed, (0, 0, 1), [0.001, 0.002])
+    np.testing.assert_allclose(again.force, p.force, rtol=1e-3)  # the same state: the result's final one
+    k = ws.stiffness_map(res, [(0, 0, 1), (1, 0, 0)], depth=0.002, radius=0.008)
+    assert k.shape == (2,) and k[0] == pytest.approx(p.stiffness[1], rel=1e-3)
