@@ -12,8 +12,9 @@ from warp_shape.feel import feel_map, pressable_directions
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.targets import target
 
-__all__ = ["bench_feel", "FEEL_COLUMNS"]
+__all__ = ["bench_feel", "FEEL_COLUMNS", "stiffness_by_pressure", "PRESSURE_COLUMNS"]
 
+PRESSURE_COLUMNS = ["air", "pressure_pa", "top_n_per_mm", "top_jammed_n_per_mm", "side_n_per_mm"]
 FEEL_COLUMNS = ["vertices", "method", "control_s", "points", "depth_mm", "map_s", "ratio", "min_n_per_mm",
                 "median_n_per_mm", "max_n_per_mm"]
 
@@ -38,3 +39,25 @@ def bench_feel(device: str = "cpu", points: int = 64, depth: float = 0.002, meth
                  depth_mm=depth * 1e3, map_s=round(map_s, 2), ratio=round(map_s / control_s, 3),
                  min_n_per_mm=round(float(k.min()), 4), median_n_per_mm=round(float(np.median(k)), 4),
                  max_n_per_mm=round(float(k.max()), 4))]
+
+
+def stiffness_by_pressure(airs=(1.1, 1.2, 1.3, 1.4), depth: float = 0.002, device: str = "cpu") -> list[dict]:
+    """The Fig. 6 device inflated by each air factor (IPAMs at rest), settled: the fingertip's stiffness at
+    ``depth`` on the top (free and with its cell jammed) and on the +x side, with the chamber's gauge pressure."""
+    from warp_shape.feel import press, stiffness_map
+    from warp_shape.simulator import Simulator
+
+    design = cube_fig6_design()
+    top_cell = int(design.face_cell()[design.ipams[4].face_a])
+    rows = []
+    for air in airs:
+        sim = Simulator(design, device=device, precision="float64")
+        sim.air_moles *= air
+        sim.settle_static()
+        k = stiffness_map(sim, [(0, 0, 1), (1, 0, 0.1)], depth=depth)
+        sim.jam(top_cell)
+        jammed = press(sim, (0, 0, 1), [depth])
+        rows.append(dict(air=air, pressure_pa=round(float(jammed.pressure[0]), 1), top_n_per_mm=round(float(k[0]) / 1e3, 4),
+                         top_jammed_n_per_mm=round(float(jammed.stiffness[0]) / 1e3, 4),
+                         side_n_per_mm=round(float(k[1]) / 1e3, 4)))
+    return rows

@@ -43,7 +43,7 @@ RESIDUAL_LIMIT = 1.0e-4
 #: a fingertip must be this many times the largest face's circumradius (its stretch under a press)
 FACE_MARGIN = 1.25
 #: fresh starts of a settle left above ``RESIDUAL_LIMIT`` before a press gives up
-RESTARTS = 4
+RESTARTS = 12
 #: a vertex deeper than this (m) inside an indenter counts as touching it (contact area)
 CONTACT_DEPTH = 1.0e-9
 

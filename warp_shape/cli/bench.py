@@ -228,13 +228,17 @@ def _run_one(name: str, args, sim_bench, results: dict, membrane_bench=None) -> 
     elif name == "membrane":
         results["membrane"] = _membrane(args, format_rows, membrane_bench)
     elif name == "feel":
-        from ..benchmarks.feel import FEEL_COLUMNS, bench_feel
+        from ..benchmarks.feel import FEEL_COLUMNS, PRESSURE_COLUMNS, bench_feel, stiffness_by_pressure
 
         rows = bench_feel(device=args.device)
-        results["feel"] = rows
         print("feel: a 64-point fingertip stiffness map (2 mm, one press per world) of the Fig. 6 device's controlled "
               "cube beside the control run (paper's law) that made the state; ratio = map / control")
         print(format_rows(rows, FEEL_COLUMNS))
+        by_pressure = stiffness_by_pressure(device=args.device)
+        results["feel"] = dict(map=rows, pressure=by_pressure)
+        print("\nfeel by chamber pressure: the Fig. 6 device inflated (IPAMs at rest), an 8 mm fingertip 2 mm deep on "
+              "the top (free, and with its cell jammed) and on the +x side")
+        print(format_rows(by_pressure, PRESSURE_COLUMNS))
     elif name in ("gradient", "control_gradient"):
         from ..benchmarks import control_gradient, gradient
 
