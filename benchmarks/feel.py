@@ -57,7 +57,8 @@ def stiffness_by_pressure(airs=(1.1, 1.2, 1.3, 1.4), depth: float = 0.002, devic
         k = stiffness_map(sim, [(0, 0, 1), (1, 0, 0.1)], depth=depth)
         sim.jam(top_cell)
         jammed = press(sim, (0, 0, 1), [depth])
-        rows.append(dict(air=air, pressure_pa=round(float(jammed.pressure[0]), 1), top_n_per_mm=round(float(k[0]) / 1e3, 4),
+        rows.append(dict(air=air, pressure_pa=round(float(jammed.pressure[0]), 1),
+                         top_n_per_mm=round(float(k[0]) / 1e3, 4),
                          top_jammed_n_per_mm=round(float(jammed.stiffness[0]) / 1e3, 4),
                          side_n_per_mm=round(float(k[1]) / 1e3, 4)))
     return rows

@@ -28,8 +28,8 @@ def register(subparsers) -> None:
     c.add_argument("scene", nargs="?", default=None, help="design.usda, a scene file/name or cube_fig6 (default)")
     c.add_argument("--target", nargs="+", dest="targets", metavar="NAME",
                    help="target names (default: the design's targets)")
-    add_bounded(c, "--points", 4, 4096, type=int, default=64, help="directions pressed (a Fibonacci lattice, the plug's "
-                                                                   "left out)")
+    add_bounded(c, "--points", 4, 4096, type=int, default=64,
+                help="directions pressed (a Fibonacci lattice, the plug's left out)")
     add_bounded(c, "--depth", 1e-5, 0.02, type=float, default=0.002, help="press depth, m")
     add_bounded(c, "--radius", 1e-3, 0.05, type=float, default=0.008, help="fingertip radius, m")
     c.add_argument("--method", default=None, choices=list(CONTROL_METHODS),

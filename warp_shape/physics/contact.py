@@ -165,8 +165,8 @@ class IndenterFamily(ActuatorFamily):
         world = model.host.actuators[self.name]["world"]
         own = int(n == x.shape[0] and np.array_equal(world, np.arange(n)))
         launch(kc.indenter_force_kernel, (x.shape[0], x.shape[1]),
-               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], own, control.values[self.name],
-                control.enabled[self.name], x, f])
+               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], own,
+                control.values[self.name], control.enabled[self.name], x, f])
 
     def diagonal_stiffness(self, model, state, diag, launch, control=None):
         if control is None:  # where the indenters are is unknown: nothing added
