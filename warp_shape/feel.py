@@ -24,8 +24,8 @@ from .physics.contact import (DEFAULT_CONTACT_STIFFNESS, DEFAULT_RADIUS, KINDS, 
                               indenter_forces_np, penetration_np, set_indenter_stiffness)
 from .simulator import Simulator
 
-__all__ = ["Press", "press", "stiffness_map", "FeelMap", "feel_map", "pressable_directions", "press_setup", "press_path",
-           "vertex_areas", "plug_vertices",
+__all__ = ["Press", "press", "stiffness_map", "FeelMap", "feel_map", "pressable_directions", "press_setup",
+           "press_path", "vertex_areas", "plug_vertices",
            "surface_point", "PLUG_ANGLE",
            "MAX_INCREMENT", "STIFFNESS_STEP", "HOLD_STIFFNESS_FACTOR"]
 
