@@ -11,7 +11,6 @@ stiff zero-length springs (the "hold" family). docs/feel.md describes the model 
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -187,7 +186,7 @@ def check_directions(directions) -> np.ndarray:
 def settled_copy(src: Simulator, world: int) -> Simulator:
     """A float64 one-world simulator of ``src``'s design holding ``src``'s world ``world`` settled
     statically at its controls and jam state (the state a press starts from)."""
-    sim = Simulator(copy.deepcopy(src.design), device=src.device,
+    sim = Simulator(src.design.replace(), device=src.device,
                     settings=src.settings.replace(precision="float64", bending="exact"), worlds=1)
     copy_world_state(src, world, sim)
     sim.settle_static()
@@ -278,7 +277,7 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     held = plug_vertices(x, faces, angle)
     points, limits = press_geometry(x, faces, u, held, reach)
     depths = check_depths(depths, limits)
-    design = copy.deepcopy(src.design)
+    design = src.design.replace()
     for w, (d, p) in enumerate(zip(u, points)):
         add_indenter(design, indenter, d, first_touch(x, p, d, indenter, radius), radius, stiffness, world=w)
     add_hold(design, held, x[held], HOLD_STIFFNESS_FACTOR * float(np.max(src.model.host.edge_stiffness)))
