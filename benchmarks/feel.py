@@ -8,8 +8,9 @@ import time
 import numpy as np
 
 from warp_shape.controller import control
-from warp_shape.feel import feel_map, pressable_directions
+from warp_shape.feel import feel_map, press, pressable_directions, stiffness_map
 from warp_shape.scenarios import cube_fig6_design
+from warp_shape.simulator import Simulator
 from warp_shape.targets import target
 
 __all__ = ["bench_feel", "FEEL_COLUMNS", "stiffness_by_pressure", "PRESSURE_COLUMNS"]
@@ -44,9 +45,6 @@ def bench_feel(device: str = "cpu", points: int = 64, depth: float = 0.002, meth
 def stiffness_by_pressure(airs=(1.1, 1.2, 1.3, 1.4), depth: float = 0.002, device: str = "cpu") -> list[dict]:
     """The Fig. 6 device inflated by each air factor (IPAMs at rest), settled: the fingertip's stiffness at
     ``depth`` on the top (free and with its cell jammed) and on the +x side, with the chamber's gauge pressure."""
-    from warp_shape.feel import press, stiffness_map
-    from warp_shape.simulator import Simulator
-
     design = cube_fig6_design()
     top_cell = int(design.face_cell()[design.ipams[4].face_a])
     rows = []

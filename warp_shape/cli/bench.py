@@ -10,6 +10,7 @@ from pathlib import Path
 
 import warp as wp
 
+from ..benchmarks.feel import FEEL_COLUMNS, PRESSURE_COLUMNS, bench_feel, stiffness_by_pressure  # light: the API's own
 from ..errors import DesignError
 from ..io.atomic import StagedFolder, write_json
 from ..limits import MAX_CANDIDATES, MAX_WORLDS
@@ -228,8 +229,6 @@ def _run_one(name: str, args, sim_bench, results: dict, membrane_bench=None) -> 
     elif name == "membrane":
         results["membrane"] = _membrane(args, format_rows, membrane_bench)
     elif name == "feel":
-        from ..benchmarks.feel import FEEL_COLUMNS, PRESSURE_COLUMNS, bench_feel, stiffness_by_pressure
-
         rows = bench_feel(device=args.device)
         print("feel: a 64-point fingertip stiffness map (2 mm, one press per world) of the Fig. 6 device's controlled "
               "cube beside the control run (paper's law) that made the state; ratio = map / control")
