@@ -22,6 +22,7 @@ import pytest
 import warp as wp
 
 import warp_shape as ws
+from warp_shape.physics.contact import add_hold, add_indenter
 import warp_shape.kernels
 from warp_shape.gradients import DifferentiableReplay
 from warp_shape.physics import FORCE_TERMS
@@ -69,13 +70,16 @@ class OverloadRecorder:
 
 
 def _designs() -> list:
-    """A design with every force family (IPAMs, cells, bending), one without bending (k_t = 0) and one
-    with the hyperelastic membrane (its triangles, jammed with a cell)."""
+    """A design with every force family (IPAMs, cells, bending, an indenter and a held vertex), one without
+    bending (k_t = 0) and one with the hyperelastic membrane (its triangles, jammed with a cell)."""
     rest = ws.icosphere(1, 0.04)
     c = rest.face_centroids()
     full = ws.Design(rest, ws.Material(bending_stiffness=2e-4))
     full.add_ipam(int(np.argmax(c[:, 2])), int(np.argmin(c[:, 2])))
     full.add_cell([0, 1, 2])
+    x = rest.vertices
+    add_indenter(full, "sphere", (0, 0, 1), x[int(np.argmax(x[:, 2]))] + [0.0, 0.0, 0.008])
+    add_hold(full, [int(np.argmin(x[:, 2]))], x[[int(np.argmin(x[:, 2]))]], stiffness=1e3)
     plain = ws.Design(rest, ws.Material(bending_stiffness=0.0))
     hyper = full.replace(material=ws.Material(membrane="yeoh", yeoh_c2=1e3))
     return [full, plain, hyper]
