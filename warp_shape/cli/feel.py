@@ -12,7 +12,7 @@ from ..feel import feel_map, pressable_directions
 from ..io.atomic import StagedFolder, atomic_write
 from ..limits import MAX_CONTROL_STEPS
 from ..io.feel_outputs import feel_figure, feel_report_section, write_feel_csv
-from .options import (actuator_selection, add_bounded, add_common_args, check_device, check_out, print_outputs,
+from .options import (actuator_selection, add_bounded, add_common_args, check_device, check_out, commit, print_outputs,
                       resolve_design_and_targets, stop_if_interrupted)
 
 __all__ = ["register", "run"]
@@ -40,34 +40,39 @@ def register(subparsers) -> None:
     c.set_defaults(func=run)
 
 
+def write_maps(results, names, design, folder: Path, args) -> tuple[list, dict]:
+    """Per target the map's CSV and figure, then the report, into ``folder``; (paths, summary)."""
+    written, sections, summary = [], ["# Feel\n"], {}
+    for name, res in zip(names, results):
+        fm = feel_map(res, pressable_directions(res, args.points, radius=args.radius), args.depth, args.radius)
+        written.append(write_feel_csv(folder / f"feel_{name}.csv", fm.directions, fm.points, fm.stiffness))
+        written.append(feel_figure(folder / f"feel_{name}.png", fm.positions, design.rest.faces, design.face_cell(),
+                                   fm.points, fm.stiffness, title=f"{name}: fingertip stiffness at "
+                                                                  f"{args.depth * 1e3:.3g} mm"))
+        sections.append(feel_report_section(name, fm.stiffness, fm.depth, fm.radius, fm.points))
+        summary[name] = dict(points=len(fm.stiffness), min_n_per_mm=float(fm.stiffness.min()) / 1000,
+                             median_n_per_mm=float(sorted(fm.stiffness)[len(fm.stiffness) // 2]) / 1000,
+                             max_n_per_mm=float(fm.stiffness.max()) / 1000)
+    written.append(atomic_write(folder / "feel_report.md", "\n".join(sections)))
+    return written, summary
+
+
 def run(args) -> int:
     """Control the design to every target, then map the fingertip's stiffness over each final shape."""
-    staged = StagedFolder(args.out, owned=lambda name: name.startswith("feel_"))
-    check_out(staged, replaced=False, kind="feel")
+    staged = StagedFolder(args.out, owned=lambda name: name.startswith("feel_"), command="feel")
+    check_out(staged)
     check_device(args.device)
     design, targets, scene_settings = resolve_design_and_targets(args.scene, args.targets)
     stop_if_interrupted()
     names = [n for n, _ in targets]
     settings = RunSettings.from_groups(scene_settings,
                                        controller=dict(max_steps=args.max_steps, method=args.method)).control
-    results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
-                           target_names=names, **actuator_selection(args, scene_settings, names))
+    with staged.writing():
+        results = control_many(design, [t for _, t in targets], device=args.device, settings=settings,
+                               target_names=names, **actuator_selection(args, scene_settings, names))
+        written, summary = write_maps(results, names, design, staged.path, args)
+        commit(staged, args)
     out = Path(args.out)
-    written, sections, summary = [], ["# Feel\n"], {}
-    try:
-        for name, res in zip(names, results):
-            fm = feel_map(res, pressable_directions(res, args.points, radius=args.radius), args.depth, args.radius)
-            written.append(write_feel_csv(out / f"feel_{name}.csv", fm.directions, fm.points, fm.stiffness))
-            written.append(feel_figure(out / f"feel_{name}.png", fm.positions, design.rest.faces, design.face_cell(),
-                                       fm.points, fm.stiffness, title=f"{name}: fingertip stiffness at "
-                                                                      f"{args.depth * 1e3:.3g} mm"))
-            sections.append(feel_report_section(name, fm.stiffness, fm.depth, fm.radius, fm.points))
-            summary[name] = dict(points=len(fm.stiffness), min_n_per_mm=float(fm.stiffness.min()) / 1000,
-                                 median_n_per_mm=float(sorted(fm.stiffness)[len(fm.stiffness) // 2]) / 1000,
-                                 max_n_per_mm=float(fm.stiffness.max()) / 1000)
-        written.append(atomic_write(out / "feel_report.md", "\n".join(sections)))
-    finally:
-        staged.record(written, "feel")
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
