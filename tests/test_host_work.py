@@ -9,6 +9,7 @@ import pytest
 
 import warp_shape as ws
 from warp_shape import sampling
+from warp_shape.objectives import radial
 from warp_shape import stability as st
 from warp_shape.errors import ShapeError
 from warp_shape.scenarios import cube_fig6_design
@@ -77,13 +78,13 @@ def test_sampling_and_fit_of_many_worlds_equal_one_world_at_a_time():
     r, R = np.linalg.norm(pts, axis=2), np.linalg.norm(hits, axis=2)
     weights = sampling.vertex_area_shares(hits, rest.faces)
     vols = np.array([targets[k].volume() for k in wt])
-    fit = sampling.fit_metrics(r, R, vols, weights)
+    fit = radial.fit_metrics(r, R, vols, weights)
     for w in range(W):
-        assert fit["objective"][w] == sampling.fit_objective(r[w], R[w], vols[w], weights[w])
+        assert fit["objective"][w] == radial.fit_objective(r[w], R[w], vols[w], weights[w])
         assert fit["pcc"][w] == sampling.pcc(r[w], R[w])
         assert fit["mare"][w] == sampling.mare(r[w], R[w])
         assert fit["mpre"][w] == sampling.mpre(r[w], R[w])
-    flat = sampling.fit_metrics(np.ones((2, 5)), np.full((2, 5), 1.1), np.ones(2), np.ones((2, 5)))
+    flat = radial.fit_metrics(np.ones((2, 5)), np.full((2, 5), 1.1), np.ones(2), np.ones((2, 5)))
     np.testing.assert_array_equal(flat["pcc"], [0.0, 0.0])  # no spread: no shape to correlate
 
 
@@ -92,13 +93,13 @@ def test_fit_metrics_name_bad_inputs():
     with pytest.raises(ShapeError, match=r"r\[1, 2\] is not finite"):
         bad = r.copy()
         bad[1, 2] = np.nan
-        sampling.fit_metrics(bad, r, np.ones(2), r)
+        radial.fit_metrics(bad, r, np.ones(2), r)
     with pytest.raises(ShapeError, match="one positive target volume per world"):
-        sampling.fit_metrics(r, r, np.ones(3), r)
+        radial.fit_metrics(r, r, np.ones(3), r)
     with pytest.raises(ShapeError, match=r"sampled radius R\[0, 0\] is not positive"):
-        sampling.fit_metrics(r, -r, np.ones(2), r)
+        radial.fit_metrics(r, -r, np.ones(2), r)
     with pytest.raises(ShapeError, match="same shape"):
-        sampling.fit_metrics(r, np.ones((2, 3)), np.ones(2), r)
+        radial.fit_metrics(r, np.ones((2, 3)), np.ones(2), r)
 
 
 def test_control_breakdown_splits_a_period_into_device_and_host():

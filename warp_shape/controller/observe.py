@@ -3,7 +3,7 @@
 An observation holds, per world: the membrane and the target sampled radially through its vertices,
 the enclosed and target volumes and the absolute chamber pressure, each IPAM's length, target length
 and axial force (and what every other actuator family observes), each cell's curvature and target curvature and jam state, the mean edge stretch, the
-largest vertex speed and the fit: the objective (``sampling.fit_objective``: area-weighted RMS of
+largest vertex speed and the fit: the objective (``objectives.radial.fit_objective``: area-weighted RMS of
 (R - r) / V_t^(1/3), weights the sampled target's vertex area shares, V_t the target mesh's own
 volume), PCC, MARE and MPRE, each by its one implementation in ``sampling``.
 """

@@ -6,7 +6,7 @@ batches of worlds (``Explorer``), each world started from the current state of i
 1. the settled shape's finite-difference Jacobian: the current controls and one perturbed control per
    world (air by ``AIR_STEP`` of the rest air, a pressure by ``PRESSURE_STEP``, away from its limit);
    the residual is sqrt(w / sum w) (R - r) / V_t^(1/3) at the vertices, so that its norm is the fit
-   objective (``sampling.fit_objective``). After a full accepted step the Jacobian is carried on by
+   objective (``objectives.radial.fit_objective``). After a full accepted step the Jacobian is carried on by
    Broyden's rank-one update instead, and this batch is skipped; it is rebuilt after a shorter step
    or when a Broyden-updated step fails;
 2. the bounded damped Gauss-Newton step (Levenberg-Marquardt damping, pressure limits, a trust box of
