@@ -602,3 +602,33 @@ def test_calibrate_and_bench_refuse_the_users_files_before_any_work(tmp_path, mo
     (bench / "bench_rays.json").write_text("{}")
     err = one_line_error(capsys, 2, ["bench", "rays", "--out", str(bench)])
     assert "holds files no run wrote (bench_rays.json)" in err and (bench / "bench_rays.json").read_text() == "{}"
+
+
+@pytest.mark.parametrize("command, module, name", [("export", "warp_shape.cli.export", "write_molds"),
+                                                   ("control", "warp_shape.cli.control", "write_control_outputs"),
+                                                   ("calibrate", "warp_shape.cli.calibrate", "calibrate")])
+def test_ctrl_c_while_a_command_writes_keeps_the_previous_set(small_lab, tmp_path, monkeypatch, capsys,
+                                                              command, module, name):
+    """Ctrl-C (SIGINT) after export's or control's first staged file, or during calibrate's fit: exit 130
+    with one line, the previous set whole, no staging folder, no lock; the next run goes ahead."""
+    import importlib
+
+    cli_module = importlib.import_module(module)
+    out = tmp_path / "out"
+    staged = StagedFolder(out, command=command)
+    (staged.path / ("calibration.md" if command == "calibrate" else "control_old.csv")).write_text("previous")
+    staged.commit(True)
+    before = snapshot(out)
+    real = getattr(cli_module, name)
+
+    def interrupted(*args, **kwargs):
+        if command != "calibrate":
+            real(*args, **kwargs)  # its files staged, then the press
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_module, name, interrupted)
+    first = _kill_cases(small_lab)[command][1]
+    assert main([*first, "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == "warp-shape: interrupted"
+    assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
+    assert not (tmp_path / ".out.lock").exists()

@@ -32,9 +32,9 @@ from ..material import Material
 from ..limits import MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS
 from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
-from .options import (MAX_LENGTH, MIN_LENGTH, add_bounded, add_common_args, add_membrane_arg, add_units_arg, add_workers_arg, check_device, check_mold_flags,
-                      material_with_membrane,
-                      check_out, check_rerun, load_targets, open_recorder, print_outputs, recording_entry, run_progress,
+from .options import (MAX_LENGTH, MIN_LENGTH, add_bounded, add_common_args, add_membrane_arg, add_units_arg,
+                      add_workers_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
+                      material_with_membrane, open_recorder, print_outputs, recording_entry, run_progress,
                       stop_if_interrupted)
 
 __all__ = ["register", "run"]
@@ -67,9 +67,9 @@ def register(subparsers) -> None:
                         "('rest+ipams'), never worse on any target; 'off' keeps the placed design (default: the scene's, else "
                         "rest+ipams; docs/gradients.md)")
     d.add_argument("--keep-rest", action="store_true", help="single-target mode: keep the scene's rest shape")
-    add_bounded(d, "--layer-thickness", MIN_LENGTH, MAX_LENGTH, type=float, default=5e-3, metavar="M",
+    d.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
-    add_bounded(d, "--marker-height", MIN_LENGTH, MAX_LENGTH, zero=True, type=float, default=2e-3, metavar="M",
+    d.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
                    help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
     add_units_arg(d)
     add_workers_arg(d)

@@ -17,7 +17,7 @@ from ..io.valve import write_valve_outputs
 from ..molds import equivalent_radius
 from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
-from .options import (MAX_LENGTH, MIN_LENGTH, actuator_selection, add_bounded, add_common_args, check_device, check_mold_flags, check_out,
+from .options import (actuator_selection, add_common_args, check_device, check_mold_flags, check_out,
                       check_rerun, commit, control_progress, load_targets, open_recorder, stop_if_interrupted)
 
 __all__ = ["register", "run"]
@@ -35,9 +35,9 @@ def register(subparsers) -> None:
     e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
     e.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
-    add_bounded(e, "--layer-thickness", MIN_LENGTH, MAX_LENGTH, type=float, default=5e-3, metavar="M",
+    e.add_argument("--layer-thickness", type=float, default=5e-3, metavar="M",
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
-    add_bounded(e, "--marker-height", MIN_LENGTH, MAX_LENGTH, zero=True, type=float, default=2e-3, metavar="M",
+    e.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
                    help="IPAM boss height on the mold core, m (0: none; at most a quarter of the device's radius)")
     e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
                    help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")

@@ -320,6 +320,11 @@ def check_mold_flags(args, radius: float) -> None:
     before any work (``molds.check_mold_lengths``)."""
     check_mold_lengths(radius, spell=lambda name: "--" + name.replace("_", "-"),
                        layer_thickness=args.layer_thickness, marker_height=args.marker_height)
+    for flag, value in (("--layer-thickness", args.layer_thickness), ("--marker-height", args.marker_height)):
+        if 0 < value < MIN_LENGTH:
+            raise DesignError(f"{flag} {value:g} m is below {MIN_LENGTH:g} m (0.1 mm, finer than a mold is printed)"
+                              f"{'; give 0 for no marker' if flag == '--marker-height' else ''}; lengths are in "
+                              f"metres: give at least {MIN_LENGTH:g}")
 
 
 def control_progress(step, total, done, worlds, prefix: str = "") -> None:
