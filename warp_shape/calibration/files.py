@@ -276,13 +276,27 @@ def valve_sequence(path: Path, design: Design, *, row: int | None = None, time_s
     design's temperature and atmosphere), IPAM pressures (kPa -> Pa) and jam states."""
     rows = _schedule_rows(path, design, ["time_s", "sim_time_s", "chamber_air_ml"], "pressure_kpa", "valve schedule")
     rows = _up_to(rows, _column(rows, "time_s", path), row, time_s, path.name)
+    if "control_step" in rows[0]:  # the simulated sequence's own rows (and the chosen row, if between)
+        rows = [r for k, r in enumerate(rows) if str(r["control_step"]).strip() == "1" or k == len(rows) - 1]
     mat = design.material
     air = _column(rows, "chamber_air_ml", path) * 1e-6 * mat.atmospheric_pressure / (GAS_CONSTANT * mat.temperature)
     p = np.stack([_column(rows, f"ipam{i}_pressure_kpa", path, 1e3) for i in range(design.n_ipams)], axis=1) \
         if design.n_ipams else np.zeros((len(rows), 0))
     times = _column(rows, "sim_time_s", path)
     return Sequence(times - times[0], air, p.reshape(len(rows), design.n_ipams), _jams(rows, design),
-                    simulation=SimulationSettings())
+                    *_passive_of(path), simulation=SimulationSettings())
+
+
+def _passive_of(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(passive IPAMs, passive cells) of a valve schedule, from its sidecar ``valve_<target>.json``
+    beside it (none where there is none): the run left them out, its replay masks them out too."""
+    side = path.with_suffix(".json")
+    try:
+        data = json.loads(side.read_text()) if side.is_file() else {}
+        return tuple(np.asarray(data.get(k, []), np.int64).reshape(-1) for k in ("passive_ipams", "passive_cells"))
+    except (OSError, ValueError, TypeError):
+        raise DesignError(f"{side.name} beside {path.name} is not the schedule's sidecar (JSON with passive_ipams, "
+                          f"passive_cells); give the valve_<target>.json written with it") from None
 
 
 def control_sequence(path: Path, design: Design, *, row: int | None = None, time_s: float | None = None) -> Sequence:

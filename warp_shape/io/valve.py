@@ -20,12 +20,23 @@ not changed: the lab schedule is the simulated sequence, retimed. The columns of
   gauge pressure at which its natural length equals its current length so it exerts no force
   (``passive="neutral"``); ``passive="zero"`` writes 0 kPa (vented) instead. Which IPAMs are
   passive is in the sidecar JSON (``passive_ipams``).
-- ``chamber_pressure_kpa``: the chamber's gauge pressure in kPa as simulated (what a pressure
-  sensor on the chamber should read; the lab doses air, it does not command this pressure).
+- ``control_step``: 1 on the rows that are control steps of the simulated sequence (their controls
+  and jam states are the run's own, to 9 digits), 0 on the rows between (ramps). A model replays
+  the file from these rows (``calibration.files.valve_sequence``): the sequence the run simulated.
+- ``chamber_pressure_kpa``: the chamber's gauge pressure in kPa at rest under the row's controls and
+  jams (quasi-static: what a sensor on the chamber reads while the lab plays the schedule slowly;
+  the lab doses air, it does not command this pressure). At each control step it is the chamber
+  pressure of the static equilibrium reached from the run's frame (``Simulator.settle_static``, each
+  jammed cell jammed at the frame it was jammed at), linear between control steps. It is not the
+  pressure of the simulated transient: a 60 ms simulated inflation reads below atmospheric while
+  its membrane overshoots, a slow lab inflation never does. A record without frames or a design
+  keeps the simulated pressure (the sidecar's ``chamber_pressure_source`` says which).
 - ``chamber_air_ml``: the chamber's air as a volume at atmospheric pressure and the air temperature
   (the design's material: 101.325 kPa, 293.15 K by default), in mL: n R T / p_atm.
   ``chamber_air_added_ml``: the same less the first row's, what a syringe pump has dosed since t = 0.
-- ``cell{j}_jammed``: 1 while cell j's vacuum valve is open (jammed), else 0.
+- ``cell{j}_jammed``: 1 while cell j's vacuum valve is open (jammed), else 0. A cell the run
+  jammed at a control step shows 1 from the row after that step on, while the controls ramp to
+  the next step (the simulated run jammed it there, then applied the next controls).
 
 **Retiming** (``ValveTiming``, defaults 5 mL/s, 100 kPa/s, 50 Hz). Each interval between two
 control steps is stretched so that the chamber air changes by at most ``max_flow_ml_s`` mL per
@@ -35,7 +46,8 @@ their simulated length. Each limit is planned to ``PLAN_MARGIN`` below its value
 printed numbers stay within it. With ``rate_hz`` every interval is then rounded up to whole grid
 periods, so every control step falls on the grid (the last row included), and the sequence is
 sampled at that rate: pressures, air and simulated time linearly between control steps (which
-keeps both limits), jam states and phase held from the last control step at or before the sample.
+keeps both limits), phase held from the last control step at or before the sample and jam states
+from the next control step (the jam precedes the ramp, as simulated).
 """
 
 from __future__ import annotations
@@ -47,13 +59,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DesignError
+from ..controller.worlds import mask_passive, passive_masks
+from ..errors import DesignError, SimulationError
 from ..material import GAS_CONSTANT
+from ..simulator import Simulator
 from .atomic import atomic_write, write_json
 
 __all__ = ["DEFAULT_RATE_HZ", "DEFAULT_MAX_SLEW_KPA_S", "DEFAULT_MAX_FLOW_ML_S", "PLAN_MARGIN", "MAX_VALVE_RATE_HZ",
            "MIN_VALVE_SLEW_KPA_S", "MIN_VALVE_FLOW_ML_S", "MAX_VALVE_ROWS", "ValveTiming", "row_times", "peak_rates",
-           "valve_schedule", "valve_csv_text", "valve_sidecar", "write_valve_outputs"]
+           "valve_schedule", "valve_csv_text", "valve_sidecar", "write_valve_outputs", "quasi_static_pressure"]
 
 DEFAULT_RATE_HZ = 50.0
 DEFAULT_MAX_SLEW_KPA_S = 100.0
@@ -115,8 +129,57 @@ def _check_passive(passive) -> None:
         raise DesignError(f"passive IPAM pressure must be 'neutral' or 'zero', got {passive!r}")
 
 
-def _lab_columns(result, passive: str) -> dict:
-    """The history in lab units, one row per control step (simulated times from 0)."""
+def _jammed_at_their_frames(sim, history: dict, frames: np.ndarray, n_cell: int) -> None:
+    """Jam every world's cells as the run did: cell j in world k (control step k) where row k shows it
+    jammed, its jam taken at the frame of the control step before the first row showing it (when
+    the run jammed it, ``controller.replay``)."""
+    for j in range(n_cell):
+        col = np.asarray(history[f"cell{j}_jammed"]).astype(bool)
+        if not col.any():
+            continue
+        first = int(np.argmax(col))
+        sim.positions = np.broadcast_to(frames[max(first - 1, 0)], frames.shape)
+        for w in np.flatnonzero(col):
+            sim.jam(j, world=int(w))
+
+
+def quasi_static_pressure(result, device: str = "cpu") -> tuple[np.ndarray, str]:
+    """((n_rows,) Pa gauge, source): the chamber's pressure at rest under each control step's
+    controls and jams (module docstring: a static settle of every control step at once, from its
+    frame, passive actuators masked as in the run), source ``"quasi-static"``; a record without
+    frames or design, or one whose settle fails, gives its simulated pressures, source
+    ``"simulated ..."`` saying why."""
+    h = result.history
+    simulated = np.asarray(h["pressure_pa"], dtype=np.float64)
+    design, frames = getattr(result, "design", None), getattr(result, "frames", None)
+    settings = getattr(getattr(result, "settings", None), "simulation", None)
+    if design is None or frames is None or settings is None or len(frames) != len(simulated):
+        return simulated, "simulated (the record holds no frames to settle)"
+    n_ipam, n_cell = _counts(h)
+    frames = np.asarray(frames, dtype=np.float64)
+    n = len(frames)
+    try:
+        sim = Simulator(design, device=device, settings=settings.replace(bending="exact"), worlds=n)
+        mask_passive(sim, *passive_masks([result] * n, design.n_ipams, design.n_cells))
+        _jammed_at_their_frames(sim, h, frames, n_cell)
+        sim.positions = frames
+        sim.air_moles = np.asarray(h["air_mol"], dtype=np.float64)
+        if n_ipam:
+            sim.ipam_pressures = np.stack([h[f"ipam{i}_pressure_pa"] for i in range(n_ipam)], axis=1)
+        done = sim.settle_static()
+    except SimulationError as exc:
+        return simulated, f"simulated (the static settle failed: {exc})"
+    p = np.atleast_1d(np.asarray(sim.pressure(), dtype=np.float64))
+    if not np.all(np.isfinite(p)):
+        return simulated, "simulated (the static settle gave non-finite pressures)"
+    late = int(np.count_nonzero(~np.asarray(done.converged, dtype=bool)))
+    return p, "quasi-static" + (f" ({late} control steps not fully settled)" if late else "")
+
+
+def _lab_columns(result, passive: str, chamber=True) -> dict:
+    """The history in lab units, one row per control step (simulated times from 0); the chamber's
+    quasi-static pressure with ``chamber`` True (a static settle per control step: not needed for
+    timing), or ``chamber`` given as ``quasi_static_pressure``'s (Pa, source)."""
     h = result.history
     if "time" not in h or len(h["time"]) == 0:
         raise DesignError("the control result has no history rows; run the controller first")
@@ -124,11 +187,13 @@ def _lab_columns(result, passive: str) -> dict:
     temp, p_atm = _conditions(result)
     passive_set = {int(i) for i in np.atleast_1d(getattr(result, "passive_ipams", []))}
     t = np.asarray(h["time"], dtype=np.float64)
-    cols = {"time_s": t - t[0], "sim_time_s": t - t[0], "phase": np.asarray(h["phase"], dtype=np.int64)}
+    cols = {"time_s": t - t[0], "sim_time_s": t - t[0], "phase": np.asarray(h["phase"], dtype=np.int64),
+            "control_step": np.ones(len(t), dtype=np.int64)}
     for i in range(n_ipam):
         p = np.asarray(h[f"ipam{i}_pressure_pa"], dtype=np.float64) / 1e3
         cols[f"ipam{i}_pressure_kpa"] = np.zeros_like(p) if (passive == "zero" and i in passive_set) else p
-    cols["chamber_pressure_kpa"] = np.asarray(h["pressure_pa"], dtype=np.float64) / 1e3
+    if chamber is not False:
+        cols["chamber_pressure_kpa"] = (quasi_static_pressure(result) if chamber is True else chamber)[0] / 1e3
     air_ml = np.asarray(h["air_mol"], dtype=np.float64) * GAS_CONSTANT * temp / p_atm * 1e6
     cols["chamber_air_ml"] = air_ml
     cols["chamber_air_added_ml"] = air_ml - air_ml[0]
@@ -144,7 +209,8 @@ def _intervals(cols: dict, timing: ValveTiming) -> np.ndarray:
     dt = np.diff(cols["sim_time_s"])
     keep = 1.0 - PLAN_MARGIN
     if timing.max_slew_kpa_s is not None:
-        p = np.stack([v for k, v in cols.items() if k.endswith("_pressure_kpa")], axis=1)
+        p = np.stack([v for k, v in cols.items() if k.startswith("ipam") and k.endswith("_pressure_kpa")]
+                     or [np.zeros(len(dt) + 1)], axis=1)
         dt = np.maximum(dt, np.max(np.abs(np.diff(p, axis=0)), axis=1) / (keep * timing.max_slew_kpa_s))
     if timing.max_flow_ml_s is not None:
         dt = np.maximum(dt, np.abs(np.diff(cols["chamber_air_ml"])) / (keep * timing.max_flow_ml_s))
@@ -166,7 +232,7 @@ def row_times(result, timing: ValveTiming | None = None) -> np.ndarray:
     ``ValveTiming()``): the times of the valve CSV's control-step rows, of the USD animation's frames
     and of the figures' time axis. ``ValveTiming(None, None, None)``: the simulated times from 0."""
     timing = timing or ValveTiming()
-    ticks = _row_ticks(_lab_columns(result, "neutral"), timing)
+    ticks = _row_ticks(_lab_columns(result, "neutral", chamber=False), timing)
     return ticks / timing.rate_hz if timing.rate_hz is not None else ticks
 
 
@@ -181,21 +247,25 @@ def _resample(cols: dict, ticks: np.ndarray, rate_hz: float) -> dict:
                           f"(--max-slew, --max-flow)")
     grid = np.arange(int(ticks[-1]) + 1, dtype=np.float64)
     held = np.clip(np.searchsorted(ticks, grid, side="right") - 1, 0, len(ticks) - 1)
+    coming = np.clip(np.searchsorted(ticks, grid, side="left"), 0, len(ticks) - 1)
     out = {"time_s": grid / rate_hz}
     for k, v in cols.items():
         if k == "time_s":
             continue
-        out[k] = v[held] if (k == "phase" or k.endswith("_jammed")) else np.interp(grid, ticks, v)
+        out[k] = v[held] if k == "phase" else v[coming] if k.endswith("_jammed") else np.interp(grid, ticks, v)
+    out["control_step"] = np.zeros(len(grid), dtype=np.int64)
+    out["control_step"][ticks.astype(np.int64)] = 1
     return out
 
 
-def valve_schedule(result, timing: ValveTiming | None = None, *, passive: str = "neutral") -> dict:
+def valve_schedule(result, timing: ValveTiming | None = None, *, passive: str = "neutral", chamber=None) -> dict:
     """A control result's sequence in lab units on the lab's clock: column name -> array (module
-    docstring). ``timing``: default ``ValveTiming()`` (5 mL/s, 100 kPa/s, 50 Hz)."""
+    docstring). ``timing``: default ``ValveTiming()`` (5 mL/s, 100 kPa/s, 50 Hz); ``chamber``:
+    ``quasi_static_pressure(result)`` where already computed."""
     timing = timing or ValveTiming()
     _check_passive(passive)
-    cols = _lab_columns(result, passive)
-    ticks = _row_ticks(_lab_columns(result, "neutral") if passive != "neutral" else cols, timing)
+    cols = _lab_columns(result, passive, chamber if chamber is not None else True)
+    ticks = _row_ticks(_lab_columns(result, "neutral", chamber=False) if passive != "neutral" else cols, timing)
     if timing.rate_hz is None or len(ticks) < 2:
         cols["time_s"] = ticks / timing.rate_hz if timing.rate_hz is not None else ticks
         return cols
@@ -207,7 +277,8 @@ def peak_rates(schedule: dict) -> dict:
     dt = np.diff(schedule["time_s"])
     if dt.size == 0:
         return dict(flow_ml_s=0.0, slew_kpa_s=0.0)
-    p = np.stack([v for k, v in schedule.items() if k.endswith("_pressure_kpa")], axis=1)
+    p = np.stack([v for k, v in schedule.items() if k.startswith("ipam") and k.endswith("_pressure_kpa")]
+                 or [np.zeros(len(dt) + 1)], axis=1)
     return dict(flow_ml_s=float(np.max(np.abs(np.diff(schedule["chamber_air_ml"])) / dt)),
                 slew_kpa_s=float(np.max(np.abs(np.diff(p, axis=0)) / dt[:, None])))
 
@@ -225,7 +296,7 @@ def valve_csv_text(schedule: dict) -> str:
 
 
 def valve_sidecar(result, schedule: dict, *, target_name: str, timing: ValveTiming | None = None,
-                  passive: str = "neutral") -> dict:
+                  passive: str = "neutral", chamber_source: str = "quasi-static") -> dict:
     """What the CSV's columns mean, which IPAMs are passive, how the sequence was timed and the
     fastest flow and slew it asks for."""
     timing = timing or ValveTiming()
@@ -235,7 +306,11 @@ def valve_sidecar(result, schedule: dict, *, target_name: str, timing: ValveTimi
     units = {"time_s": f"s from the start, lab time ({timing.describe()})",
              "sim_time_s": "s from the start, simulated time of the row's state",
              "phase": "1 inflation, 2 shape control, 3 hold, 4 planned (model-based control)",
-             "chamber_pressure_kpa": "kPa gauge, simulated (what a sensor on the chamber should read)",
+             "control_step": "1 a control step of the simulated sequence (its controls and jams as simulated), "
+                             "0 a row between two (ramp)",
+             "chamber_pressure_kpa": "kPa gauge at rest under the row's controls (quasi-static: what a sensor on "
+                                     "the chamber reads when the schedule is played at this pace), "
+                                     + chamber_source,
              "chamber_air_ml": f"mL of air at {p_atm / 1e3:g} kPa and {temp:g} K (total in the chamber)",
              "chamber_air_added_ml": "mL at the same conditions, dosed since t = 0"}
     units.update({f"ipam{i}_pressure_kpa": "kPa gauge, command" for i in range(n_ipam)})
@@ -246,6 +321,7 @@ def valve_sidecar(result, schedule: dict, *, target_name: str, timing: ValveTimi
     t = schedule["time_s"]
     return dict(target=target_name, csv=f"valve_{target_name}.csv", columns=units,
                 passive_ipams=passive_ipams, passive_ipam_pressure=passive, passive_note=note,
+                chamber_pressure_source=chamber_source,
                 passive_cells=sorted(int(j) for j in np.atleast_1d(getattr(result, "passive_cells", []))),
                 **timing.to_dict(), duration_s=float(t[-1]), rows=len(t), peak=peak_rates(schedule),
                 air_reference=dict(temperature_k=temp, pressure_kpa=p_atm / 1e3),
@@ -258,8 +334,9 @@ def write_valve_outputs(results, names, out_dir, timing: ValveTiming | None = No
     out = Path(out_dir)
     written = []
     for name, res in zip(names, results):
-        sched = valve_schedule(res, timing, passive=passive)
-        side = valve_sidecar(res, sched, target_name=name, timing=timing, passive=passive)
+        chamber = quasi_static_pressure(res)
+        sched = valve_schedule(res, timing, passive=passive, chamber=chamber)
+        side = valve_sidecar(res, sched, target_name=name, timing=timing, passive=passive, chamber_source=chamber[1])
         written.append(atomic_write(out / f"valve_{name}.csv", valve_csv_text(sched)))
         written.append(write_json(out / f"valve_{name}.json", side))
     return written
