@@ -36,3 +36,58 @@ def test_a_valve_file_replays_to_the_designs_final_frame(designed):
         final, _ = load_actuated_shape(out / "design.usda", target=name)
         moved = np.linalg.norm(x - final.vertices, axis=1)
         assert moved.max() < 5e-5, (name, moved.max())
+
+
+NOISE = 3e-4  # m, per coordinate
+POINTS = 3000  # per scan
+
+
+def _scan(shape: ws.TriMesh, rng) -> np.ndarray:
+    """A noisy scan of 60 % of ``shape`` in a random pose, mm."""
+    from test_calibration import rotation
+    from warp_shape.scan import surface_samples
+
+    pts = surface_samples(shape, int(POINTS / 0.6), seed=int(rng.integers(1 << 30)))
+    u = rng.normal(size=3)
+    d = pts - shape.centroid()
+    pts = pts[(d / np.linalg.norm(d, axis=1, keepdims=True)) @ (u / np.linalg.norm(u)) > -0.2]
+    pts = pts + rng.normal(0.0, NOISE, pts.shape)
+    return (pts @ rotation(rng).T + rng.normal(0.0, 0.05, 3)) * 1e3
+
+
+def test_a_calibration_on_scans_of_the_designs_own_frames_moves_nothing_unflagged(designed, capsys):
+    """The issue's case: scans of the design's own final frames (so the truth is "no change"), the
+    manifest on the valve files as a lab's would be: every parameter within 3 % of its start or
+    flagged, no parameter moved by more than 3 standard errors unflagged, and the held-out scan's
+    prediction shown in the command's output."""
+    import json
+
+    import trimesh
+
+    out, design = designed
+    rng = np.random.default_rng(5)
+    lab = out.parent / "lab"
+    lab.mkdir()
+    entries = []
+    for name, held in (("oval", False), ("heart", False), ("oval", True)):
+        final, _ = load_actuated_shape(out / "design.usda", target=name)
+        scan = f"scan_{name}{'_held' if held else ''}.ply"
+        trimesh.PointCloud(_scan(final, rng)).export(lab / scan)
+        (lab / f"valve_{name}.csv").write_bytes((out / f"valve_{name}.csv").read_bytes())
+        (lab / f"valve_{name}.json").write_bytes((out / f"valve_{name}.json").read_bytes())
+        entries.append({"scan": scan, "valve": f"valve_{name}.csv", "held_out": held})
+    (lab / "manifest.json").write_text(json.dumps({"observations": entries}))
+    cal = lab / "cal"
+    assert main(["calibrate", str(lab / "manifest.json"), "--design", str(out / "design.usda"), "--out", str(cal)]) == 0
+    text = capsys.readouterr().out
+    data = json.loads((cal / "calibration.json").read_text())
+    flagged = " ".join(data["flags"])
+    for name, value in data["values"].items():
+        for i, (v, v0) in enumerate(zip(np.atleast_1d(value), np.atleast_1d(data["start"][name]))):
+            label = name if np.ndim(value) == 0 else f"{name}[{i}]"
+            if abs(v / v0 - 1) > 0.03:
+                assert f"{label} " in flagged, (label, v / v0 - 1, data["flags"])
+    for label, z in data["z"].items():
+        assert z <= 3 or f"{label} moved" in flagged, (label, z)
+    assert len(data["held_out"]) == 1 and "held-out scan" in text and "scan_oval_held.ply" in text
+    assert data["noise_mm"] == pytest.approx(NOISE * 1e3, rel=0.25)  # the noise is told from the model error

@@ -62,7 +62,10 @@ def calibration_data(result: CalibrationResult, design: Design) -> dict:
             "at_bounds": bounds_reached(result),
             "residual_mm": [float(x) for x in result.residual_mm],
             "initial_residual_mm": [float(x) for x in result.initial_residual_mm],
-            "observations": list(result.observation_names)}
+            "observations": list(result.observation_names), "noise_mm": _plain(result.noise_mm),
+            "model_error_mm": _plain(result.model_error_mm), "stderr_scale": _plain(result.error_scale),
+            "z": {k: _plain(v) for k, v in result.z.items()}, "flags": list(result.flags),
+            "held_out": [{"scan": n, "rms_before_mm": a, "rms_after_mm": b} for n, a, b in result.held_out]}
 
 
 def bounds_reached(result: CalibrationResult) -> list[str]:
@@ -100,7 +103,7 @@ def write_calibration(result: CalibrationResult, design: Design, path) -> Path:
 #: the keys a manifest, one of its observations and a given state may have
 MANIFEST_KEYS = ("observations", "wrt", "regions")
 OBSERVATION_KEYS = ("scan", "units", "name", "chamber_pressure_kpa", "pressure_stderr_kpa", "valve", "control",
-                    "state", "row", "time_s")
+                    "state", "row", "time_s", "held_out")
 STATE_KEYS = ("air_mol", "ipam_pressures_kpa", "jammed")
 
 
@@ -372,7 +375,7 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
     "auto", optionally "chamber_pressure_kpa" (a reading) and "pressure_stderr_kpa" (default 0.1), and
     "valve": FILE (a ``valve_<target>.csv``; "row" or "time_s" on its lab clock) or "control": FILE (a
     ``control_<target>.csv``; "row" or simulated "time_s"), or "state": {"air_mol", "ipam_pressures_kpa",
-    "jammed"}}, ...],
+    "jammed"}}, optionally "held_out": true (predicted before and after the fit, not fitted), ...],
     "wrt": [...], "regions": [...]}`` (``regions``: of ``calibrate``). Returns (observations, wrt or None,
     regions or None). Every path is relative to the manifest's folder and must stay in it;
     each observation's state is checked against ``design``. Errors are one line, before any work."""
@@ -391,7 +394,7 @@ def read_manifest(path, design: Design) -> tuple[list[ScanObservation], tuple | 
         _known_keys(e, OBSERVATION_KEYS, f"manifest {what}")
         scan = _inside(folder, e["scan"], f"{what} scan")
         o = ScanObservation(str(scan), _observed_state(e, folder, design, what), units=_text(e, "units", what, "auto"),
-                            name=_text(e, "name", what, Path(scan).name), **_reading(e, what))
+                            name=_text(e, "name", what, Path(scan).name), held_out=e.get("held_out", False) is True, **_reading(e, what))
         o.sequence(design)  # checked against the design here
         obs.append(o)
     wrt = data.get("wrt")
@@ -411,14 +414,24 @@ def calibration_markdown(result: CalibrationResult) -> str:
     lines = ["# Calibration from scans", "",
              f"{len(result.observation_names)} scan(s); {result.iterations} Gauss-Newton iteration(s), "
              f"{result.jacobians} finite-difference Jacobian(s); {'converged' if result.converged else 'stopped at the iteration limit'}.",
-             "", "| parameter | start | fitted | std. error | change |", "|---|---|---|---|---|"]
+             "", f"Scan noise {result.noise_mm:.3f} mm, model error {result.model_error_mm:.3f} mm RMS (the residual "
+             f"the model cannot follow); standard errors widened x{result.error_scale:.2f} for it.",
+             "", "| parameter | start | fitted | std. error | change | z | flagged |", "|---|---|---|---|---|---|---|"]
     for label, start, value, se in _rows(result):
         se_text = "not identifiable" if not math.isfinite(se) else f"{se:.4g}"
-        lines.append(f"| {label} | {start:.4g} | {value:.4g} | {se_text} | {100 * (value / start - 1):+.1f} % |")
+        z = result.z.get(label)
+        lines.append(f"| {label} | {start:.4g} | {value:.4g} | {se_text} | {100 * (value / start - 1):+.1f} % | "
+                     f"{'-' if z is None else f'{z:.1f}'} | {'**yes**' if result.flagged(label) else 'no'} |")
     lines += ["", "Units: " + ", ".join(f"{k} {UNITS[k]}" for k in CALIBRATION_PARAMETERS), "",
               "| scan | RMS residual before (mm) | after (mm) |", "|---|---|---|"]
     for name, a, b in zip(result.observation_names, result.initial_residual_mm, result.residual_mm):
         lines.append(f"| {name} | {a:.3f} | {b:.3f} |")
+    if result.held_out:
+        lines += ["", "| held-out scan | RMS on the start model (mm) | calibrated (mm) | predicted |", "|---|---|---|---|"]
+        lines += [f"| {n} | {a:.3f} | {b:.3f} | {'better' if b < a - 1e-3 else 'worse' if b > a + 1e-3 else 'no better'} |"
+                  for n, a, b in result.held_out]
+    if result.flags:
+        lines += ["", "## Flagged", ""] + [f"- {f}" for f in result.flags]
     if result.realigned:
         lines += ["", "Aligned again in another turn after a first fit (docs/calibration.md, Align): "
                   + ", ".join(result.realigned)]

@@ -22,7 +22,7 @@ from .regions import region_faces
 from .replay import HOLD_S, replay_held
 from .result import CalibrationResult, ScanResidual
 
-__all__ = ["calibrate", "scan_residuals", "FIT_POINTS", "MIN_COVERAGE", "MAX_MEDIAN_DISTANCE"]
+__all__ = ["calibrate", "scan_residuals", "FIT_POINTS", "MIN_COVERAGE", "MAX_MEDIAN_DISTANCE", "FLAG_Z"]
 
 #: scan points used per observation (a fixed random subset)
 FIT_POINTS = 20000
@@ -56,6 +56,10 @@ NULL_COLUMN = 1e-4
 #: a direction of the fitted logarithms whose standard error exceeds this (a relative change) is named
 #: poorly determined
 LOOSE_STDERR = 0.05
+#: a parameter moved by more than this many standard errors is flagged
+FLAG_Z = 3.0
+#: a change larger than this (%) within FLAG_Z standard errors is flagged as not established
+NOTED_CHANGE_PCT = 3.0
 
 
 class _Fit:
@@ -73,6 +77,7 @@ class _Fit:
         self.pressures = {}  # id of a shapes array -> its chamber pressures
         self.sigma = 3e-4  # m: a scan point's noise, what a pressure reading's row is scaled to (set_sigma)
         self.other_turns = []  # per scan, the alignment's other turns [(R, t), ...] (robust_poses)
+        self.say = lambda line: None  # a progress line per iteration (calibrate's ``progress``)
 
     def set_sigma(self, r: np.ndarray) -> None:
         """The scans' robust residual scale (1.4826 median |r| of the scan rows of ``r``), m."""
@@ -424,8 +429,10 @@ def _levenberg_marquardt(fit: _Fit, s: _State, max_iterations: int, tolerance: f
     while info["iterations"] < max_iterations:
         info["iterations"] += 1
         if s.jp is None or info.pop("refresh", False):
+            fit.say(f"iteration {info['iterations']}: finite-difference Jacobian ({len(s.x)} replays)")
             s.jp, s.fresh = _jacobian(fit, s.x, s.poses, s.r), True
             info["jacobians"] += 1
+        fit.say(f"iteration {info['iterations']}: RMS residual {1e3 * np.sqrt(np.mean(s.r ** 2)):.4f} mm")
         delta, most = _step(s, lam, n_par)
         x1 = fit.params.clip(s.x + delta[:n_par])
         poses1 = _moved(s.poses, delta[n_par:])
@@ -530,9 +537,9 @@ def _structural_nulls(params: ParameterSet, idx: np.ndarray, n_faces: int) -> li
     return [v]
 
 
-def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray, list]:
+def _identify(s: _State, fit: _Fit, scale2: float = 1.0) -> tuple[np.ndarray, list, list, np.ndarray, list]:
     """(stderr of log-parameters (P,), unidentifiable names, notes, correlation matrix, poorly determined
-    directions)."""
+    directions); the covariance multiplied by ``scale2`` (the model error's share, ``_error_scale``)."""
     labels = fit.params.labels
     npar = len(labels)
     keep = s.w > 0
@@ -564,7 +571,7 @@ def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray,
             free[members] = True
         else:
             cov += np.outer(vec[:, k], vec[:, k]) / lam[k]
-    cov = sigma2 * cov / np.outer(d[idx], d[idx])
+    cov = scale2 * sigma2 * cov / np.outer(d[idx], d[idx])
     loose = _loose(cov, idx, labels, fit)
     se = np.full(npar, np.inf)
     se[idx] = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -573,6 +580,82 @@ def _identify(s: _State, fit: _Fit) -> tuple[np.ndarray, list, list, np.ndarray,
     sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
     corr[np.ix_(idx, idx)] = cov / np.outer(sd, sd)
     return se, names, notes, corr, loose
+
+
+def _noise_and_model_error(s: _State, noise: float | None) -> tuple[float, float, float]:
+    """(noise variance, model error variance, points per vertex patch) of the kept scan points at the
+    fit's end, m^2: each point's residual is the mean residual of the points nearest its vertex (the
+    smooth part: the model error, correlated over the patch) plus its scatter about that mean (the
+    scanner's noise, unless ``noise`` (m) is stated). The patch size is sum n_v^2 / sum n_v."""
+    within, total, n_all, patches, sq = 0.0, 0.0, 0, 0, 0.0
+    start = 0
+    for x, m in zip(s.shapes, s.sizes):
+        sl = slice(start, start + m)
+        start += m
+        keep = s.w[sl] > 0
+        p, r = s.p[sl][keep], s.r[sl][keep]
+        if not len(r):
+            continue
+        near = np.argmin(((p[:, None, :] - x[None, :, :]) ** 2).sum(axis=2), axis=1)
+        count = np.bincount(near, minlength=len(x))
+        mean = np.bincount(near, weights=r, minlength=len(x)) / np.maximum(count, 1)
+        within += float(np.sum((r - mean[near]) ** 2))
+        total += float(np.sum(r * r))
+        n_all += len(r)
+        patches += int(np.count_nonzero(count))
+        sq += float(np.sum(count.astype(np.float64) ** 2))
+    if not n_all:
+        return 1.0, 0.0, 1.0
+    noise2 = float(noise) ** 2 if noise is not None else within / max(n_all - patches, 1)
+    return noise2, max(total / n_all - noise2, 0.0), sq / n_all
+
+
+def _error_scale(noise2: float, model2: float, patch: float) -> float:
+    """The factor on the parameters' covariance for model error: the residual's variance is noise2 +
+    model2, but the model error is shared by the ``patch`` points of a vertex patch, so it weighs as
+    noise of variance patch x model2 would (a fit to 20000 points of 0.1 mm correlated error knows a
+    parameter no better than a fit to the patches' means); at least 1."""
+    return max((noise2 + patch * model2) / max(noise2 + model2, 1e-30), 1.0)
+
+
+def _flags(params, x: np.ndarray, se: np.ndarray, noise_mm: float, model_mm: float) -> tuple[dict, list]:
+    """({label: z}, flag lines): parameters moved by more than ``FLAG_Z`` standard errors, parameters at
+    a bound, and a model error above the noise."""
+    z, flags = {}, []
+    for i, lab in enumerate(params.labels):
+        move = float(x[i] - params.x0[i])
+        change = 100.0 * np.expm1(move)
+        if np.isfinite(se[i]) and se[i] > 0:
+            z[lab] = abs(move) / float(se[i])
+            if z[lab] > FLAG_Z:
+                flags.append(f"{lab} moved {change:+.1f} %, {z[lab]:.1f} standard errors: more than the scans support "
+                             f"unless the device changed; the model's error ({model_mm:.3f} mm RMS beyond the "
+                             f"{noise_mm:.3f} mm noise) may have moved it: check it on a held-out scan")
+            elif abs(change) > NOTED_CHANGE_PCT:
+                flags.append(f"{lab} changed {change:+.1f} % but only {z[lab]:.1f} standard errors (+-"
+                             f"{100 * float(se[i]):.1f} %): the change is not established; scan more states")
+        for bound, side in ((params.lower[i], "lower"), (params.upper[i], "upper")):
+            if abs(x[i] - bound) < 1e-6:
+                flags.append(f"{lab} stopped at its {side} bound ({change:+.1f} %): the fit wanted to go further; "
+                             f"the value is a limit, not a measurement")
+    if model_mm > noise_mm:
+        flags.append(f"model error: the residual keeps {model_mm:.3f} mm RMS the model cannot follow, more than the "
+                     f"scans' {noise_mm:.3f} mm noise; the standard errors are widened for it")
+    return z, flags
+
+
+def _held_out_check(design: Design, calibrated: Design, held: list, device: str, hold_s: float) -> tuple[list, list]:
+    """([(name, RMS before, RMS after) mm], flag lines) of the held-out scans on the start and the
+    calibrated model."""
+    rows, flags = [], []
+    for o in held:
+        a = scan_residuals(design, o, device=device, hold_s=hold_s).rms_mm
+        b = scan_residuals(calibrated, o, device=device, hold_s=hold_s).rms_mm
+        rows.append((o.name, a, b))
+        if not b < a - 1e-3:
+            flags.append(f"held-out scan {o.name}: the calibrated model predicts it {'worse' if b > a + 1e-3 else 'no better'}"
+                         f" ({a:.3f} -> {b:.3f} mm RMS): no change of the fit is confirmed by a scan it did not see")
+    return rows, flags
 
 
 def _vertex_residual(vertices: np.ndarray, points: np.ndarray, r: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -611,7 +694,7 @@ def _checked_observations(design, observations) -> list:
 
 def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, device: str = "cpu",
               max_iterations: int = 20, tolerance: float = 0.5, hold_s: float = HOLD_S,
-              seed: int = 0) -> CalibrationResult:
+              seed: int = 0, noise: float | None = None, progress=None) -> CalibrationResult:
     """Fit ``design``'s parameters ``wrt`` (names of ``CALIBRATION_PARAMETERS``) to the scans of
     ``observations`` (``ScanObservation``): each observation's sequence is replayed on the model and held
     ``hold_s`` s until at rest, its scan aligned to it (unknown pose, as ``compare``), and the signed
@@ -621,22 +704,35 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
     ``CalibrationResult``; ``tolerance``: a step on a fresh Jacobian that lowers the robust cost by less
     than this many residual variances ends the fit. ``regions``: parts of the membrane whose E t is fitted
     on its own (``region_stretch``, added to ``wrt``): names of ``calibration.regions.REGION_KINDS``
-    (``"plug"``, ``"cell_boundaries"``, ``"patches:N"``) or {name: face indices}.
+    (``"plug"``, ``"cell_boundaries"``, ``"patches:N"``) or {name: face indices}. ``noise``: the
+    scanner's noise per coordinate, m (None: estimated from the scans); a residual above it is model
+    error and widens the standard errors (``CalibrationResult.flags`` names what moved beyond them).
+    Observations marked ``held_out`` are not fitted: each is predicted before and after the fit.
+    ``progress(line)``: called with a line per phase and iteration.
     docs/calibration.md gives the algorithm and its measured accuracy."""
-    obs = _checked_observations(design, observations)
+    every = _checked_observations(design, observations)
+    obs = [o for o in every if not o.held_out]
+    if not obs:
+        raise DesignError("every observation is held out: fit at least one (\"held_out\": false)")
+    say = progress or (lambda line: None)
     faces = region_faces(design, regions)
     wrt = check_wrt(wrt)
     if faces and "region_stretch" not in wrt:
         wrt += ("region_stretch",)
     params = ParameterSet(design, wrt, faces)
     fit = _Fit(design, obs, params, device, hold_s, seed)
+    fit.say = say
+    say(f"replaying {len(obs)} scan state(s) on the design and aligning the scans")
     shapes = fit.shapes(params.x0)
     s = _State(fit, params.x0.copy(), _initial_poses(fit, shapes), shapes)
     fit.set_sigma(s.r)
     s = _State(fit, s.x, _realign(fit, shapes, s.poses), shapes)
     initial = [m.rms_mm for m in _maps(fit, s)]
+    say(f"aligned {len(obs)} scan(s): RMS residual {', '.join(f'{a:.3f}' for a in initial)} mm; fitting "
+        f"{len(params.labels)} parameter(s)")
     s, info = _levenberg_marquardt(fit, s, max_iterations, tolerance)
     s = _other_turns(fit, s, info, max_iterations, tolerance)
+    say(f"fitted: {info['iterations']} iteration(s), {info['jacobians']} Jacobian(s), {fit.replays} replays")
     if any(o.pressure is not None for o in obs):  # the readings weighed at the final noise
         jp, sigma0 = s.jp.copy(), fit.sigma
         fit.set_sigma(s.r)
@@ -644,17 +740,33 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
         n = len(s.r) - sum(s.sizes)
         jp[len(jp) - n:] *= fit.sigma / sigma0
         s2.jp, s2.fresh, s = jp, s.fresh, s2
-    se, names, notes, corr, loose = _identify(s, fit)
-    values = params.values(s.x)
-    stderr = params.per_name(se * np.exp(s.x))
+    result = _result(fit, s, info, initial, faces, noise)
+    held = [o for o in every if o.held_out]
+    if held:
+        say(f"predicting {len(held)} held-out scan(s) on the start and the calibrated model")
+        result.held_out, late = _held_out_check(design, result.design, held, device, hold_s)
+        result.flags += late
+    return result
+
+
+def _result(fit: _Fit, s: _State, info: dict, initial: list, faces: dict, noise: float | None) -> CalibrationResult:
+    """The fit's outcome: values, standard errors widened for the model error, flags, residual maps."""
+    params = fit.params
+    noise2, model2, patch = _noise_and_model_error(s, noise)
+    scale2 = _error_scale(noise2, model2, patch)
+    se, names, notes, corr, loose = _identify(s, fit, scale2)
+    noise_mm, model_mm = 1e3 * np.sqrt(noise2), 1e3 * np.sqrt(model2)
+    z, flags = _flags(params, s.x, se, noise_mm, model_mm)
     maps = _maps(fit, s)
-    return CalibrationResult(values=values, stderr=stderr, start=params.values(params.x0),
-                             design=params.design(design, s.x), residual_mm=[m.rms_mm for m in maps],
+    return CalibrationResult(values=params.values(s.x), stderr=params.per_name(se * np.exp(s.x)),
+                             start=params.values(params.x0), design=params.design(fit.design, s.x),
+                             residual_mm=[m.rms_mm for m in maps],
                              initial_residual_mm=initial, unidentifiable=names, notes=notes, residuals=maps,
                              labels=params.labels, correlation=corr, iterations=info["iterations"],
                              jacobians=info["jacobians"], converged=info["converged"], costs=info["costs"],
-                             wrt=params.names, observation_names=[o.name for o in obs], regions=faces,
-                             poorly_determined=loose, realigned=info["realigned"])
+                             wrt=params.names, observation_names=[o.name for o in fit.obs], regions=faces,
+                             poorly_determined=loose, realigned=info["realigned"], noise_mm=float(noise_mm),
+                             model_error_mm=float(model_mm), error_scale=float(np.sqrt(scale2)), z=z, flags=flags)
 
 
 def scan_residuals(design: Design, observation: ScanObservation, *, device: str = "cpu", hold_s: float = HOLD_S,

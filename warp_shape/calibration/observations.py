@@ -125,10 +125,12 @@ class ScanObservation:
     (``time`` unused). ``name`` labels it in reports. ``pressure``: the chamber's gauge pressure read
     when the scan was taken (Pa; None: not read), with the sensor's standard deviation
     ``pressure_stderr`` (Pa): a reading fixes the stiffness scale shape alone leaves loose
-    (docs/calibration.md). The points are read and checked here."""
+    (docs/calibration.md). ``held_out``: not fitted; ``calibrate`` predicts it before and after the
+    fit (does the calibrated model predict a scan it did not see better?). The points are read and
+    checked here."""
 
     def __init__(self, scan, result=None, time: float | None = None, *, units: str = "auto", name: str | None = None,
-                 pressure: float | None = None, pressure_stderr: float = 100.0):
+                 pressure: float | None = None, pressure_stderr: float = 100.0, held_out: bool = False):
         if not isinstance(result, (ControlResult, ControlState, Sequence)):
             raise DesignError(f"ScanObservation needs the control result (ws.control returns one) or a ControlState "
                               f"it was taken at, got {type(result).__name__}")
@@ -150,6 +152,7 @@ class ScanObservation:
                               f"pressure_stderr > 0 (Pa), got {pressure!r}, {pressure_stderr!r}")
         self.pressure = None if pressure is None else float(pressure)
         self.pressure_stderr = float(pressure_stderr)
+        self.held_out = bool(held_out)
 
     def sequence(self, design: Design) -> Sequence:
         """The sequence to replay on ``design`` (checked against it: IPAM and cell counts)."""

@@ -48,7 +48,16 @@ class CalibrationResult:
     ``jacobians`` (finite-difference Jacobians computed), ``converged``, ``costs`` (robust cost per iteration);
     ``regions`` {name: rest face indices} of ``region_stretch`` (labelled ``region_stretch[name]``);
     ``poorly_determined``: the identifiable combinations whose standard error exceeds 5 %, each with
-    its members and what would fix it (e.g. the stiffnesses' common scale without pressure readings)."""
+    its members and what would fix it (e.g. the stiffnesses' common scale without pressure readings).
+
+    What the fit can stand behind (docs/calibration.md, *What a calibration flags*): ``noise_mm`` the
+    scans' point noise (the stated one, else estimated from the scatter about each vertex's mean
+    residual), ``model_error_mm`` the RMS of the residual that is not noise (smooth over the membrane:
+    what the model cannot follow), ``error_scale`` the factor the standard errors were multiplied by
+    for it (1: none); ``z`` {label: |log change| / its standard error}; ``flags``: one line per
+    parameter moved by more than ``FLAG_Z`` standard errors or stopped at a bound, and where the
+    model error exceeds the noise; ``held_out`` per held-out scan (name, RMS residual on the start
+    model, on the calibrated model; mm)."""
 
     values: dict
     stderr: dict
@@ -70,6 +79,16 @@ class CalibrationResult:
     regions: dict = field(default_factory=dict, repr=False)  # {name: (n,) rest faces} of region_stretch
     poorly_determined: list = field(default_factory=list)  # directions known only to > 5 %, with the remedy
     realigned: list = field(default_factory=list)  # scans whose pose a first fit had in a wrong turn
+    noise_mm: float = float("nan")
+    model_error_mm: float = float("nan")
+    error_scale: float = 1.0
+    z: dict = field(default_factory=dict)
+    flags: list = field(default_factory=list)
+    held_out: list = field(default_factory=list)  # [(name, rms before mm, rms after mm)]
+
+    def flagged(self, label: str) -> bool:
+        """Whether a fitted scalar (``labels``) is named by a flag."""
+        return any(f.startswith(label + " ") for f in self.flags)
 
     def relative_change(self) -> dict:
         """{name: value / start - 1}."""
@@ -89,4 +108,7 @@ class CalibrationResult:
                     unidentifiable=list(self.unidentifiable), notes=list(self.notes),
                     poorly_determined=list(self.poorly_determined), realigned=list(self.realigned),
                     iterations=self.iterations, jacobians=self.jacobians, converged=self.converged,
+                    noise_mm=self.noise_mm, model_error_mm=self.model_error_mm, error_scale=self.error_scale,
+                    z={k: plain(v) for k, v in self.z.items()}, flags=list(self.flags),
+                    held_out=[dict(scan=n, before_mm=a, after_mm=b) for n, a, b in self.held_out],
                     observations=list(self.observation_names))

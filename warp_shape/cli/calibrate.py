@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,8 +32,8 @@ def register(subparsers) -> None:
                     "calibration.md and a residual map per scan.")
     c.add_argument("manifest", help="manifest (JSON) listing the scans and the control state of each; its paths are "
                                     "relative to its folder (docs/calibration.md)")
-    c.add_argument("--design", default=None, help="the design that was built: its design.usda, a scene name, or "
-                                                  "cube_fig6 (default)")
+    c.add_argument("--design", required=True, help="the design that was built: its design.usda (e.g. out/design.usda) "
+                                                   "or a shipped scene name (e.g. cube_fig6)")
     c.add_argument("--wrt", nargs="+", default=None, choices=list(CALIBRATION_PARAMETERS),
                    help=f"parameters to fit (default: the manifest's \"wrt\", else {' '.join(DEFAULT_WRT)})")
     c.add_argument("--regions", nargs="+", default=None, metavar="REGION",
@@ -59,6 +60,11 @@ def calibration_output(name: str) -> bool:
     return name in CALIBRATION_OUTPUTS or name.startswith("residuals_")
 
 
+def _progress(line: str) -> None:
+    """A progress line on stderr, flushed: it reaches a log file as it happens, not only a terminal."""
+    print(f"calibrate: {line}", file=sys.stderr, flush=True)
+
+
 def run(args) -> int:
     """Read and check every input (``--out`` first), fit, then write the calibration file, the report
     and the figures, staged and swapped into ``--out`` whole."""
@@ -72,7 +78,7 @@ def run(args) -> int:
     wrt = check_wrt(args.wrt) if args.wrt else (manifest_wrt or DEFAULT_WRT)
     with staged.writing():
         result = calibrate(design, observations, wrt=wrt, regions=args.regions or manifest_regions,
-                           device=args.device)  # its regions are checked before any replay
+                           device=args.device, progress=_progress)  # regions checked before any replay
         written = [write_calibration(result, design, staged.path / "calibration.json"),
                    atomic_write(staged.path / "calibration.md", calibration_markdown(result))]
         written += write_residual_figures(result, design.rest.faces, staged.path)
