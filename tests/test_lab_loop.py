@@ -91,3 +91,13 @@ def test_a_calibration_on_scans_of_the_designs_own_frames_moves_nothing_unflagge
         assert z <= 3 or f"{label} moved" in flagged, (label, z)
     assert len(data["held_out"]) == 1 and "held-out scan" in text and "scan_oval_held.ply" in text
     assert data["noise_mm"] == pytest.approx(NOISE * 1e3, rel=0.25)  # the noise is told from the model error
+
+
+def test_export_writes_the_designs_own_sequences(designed, tmp_path, capsys):
+    """``export`` of a design replays the sequences the design run saved beside it: the same valve
+    files byte for byte, and it says so on stderr."""
+    out, _ = designed
+    assert main(["export", str(out / "design.usda"), "--what", "control", "--out", str(tmp_path / "e")]) == 0
+    assert "the design's saved sequences" in capsys.readouterr().err
+    for name in ("oval", "heart"):
+        assert (tmp_path / "e" / f"valve_{name}.csv").read_bytes() == (out / f"valve_{name}.csv").read_bytes(), name

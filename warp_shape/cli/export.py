@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from ..calibration.files import apply_calibration
@@ -11,6 +12,7 @@ from ..designer.run_settings import RunSettings
 from ..errors import DesignError
 from ..io.atomic import StagedFolder
 from ..io.outputs import is_run_output, write_control_outputs, write_figures_or_skip, write_molds
+from ..io.saved_runs import replayed_saved_results
 from ..io.scene_read import load_scene
 from ..io.scene_write import save_scene
 from ..io.valve import write_valve_outputs
@@ -31,7 +33,8 @@ def register(subparsers) -> None:
     e.add_argument("scene", help="a design scene: a .usda/.usdc file (e.g. out/design.usda) or a shipped name")
     e.add_argument("--what", nargs="+", default=["molds", "control", "usd"], choices=["molds", "control", "usd"],
                    help="molds: mold_*.stl and molds_<units>.json; control: control and valve sequences per target "
-                        "(simulated again); usd: design.usda (with control: actuation_<target>.usdc)")
+                        "(the design's saved sequences replayed where they lie beside the scene, else controlled "
+                        "anew); usd: design.usda (with control: actuation_<target>.usdc)")
     e.add_argument("--targets", nargs="+", help="control targets (default: the scene's targets)")
     e.add_argument("--all-actuators", action="store_true",
                    help="use every actuator for every target, ignoring the design's per-target selection")
@@ -99,10 +102,26 @@ def _write(args, scene, named, settings, timing, out: Path, written: list, contr
         written.append(save_scene(scene, out / "design.usda"))
     if "control" in args.what and named:
         names = [n for n, _ in named]
-        with open_recorder(args) as rec:
-            results = control_many(controlled or scene.design, [t for _, t in named], device=args.device, settings=settings,
-                                   progress=control_progress, recorder=rec, target_names=names,
-                                   **actuator_selection(args, scene.settings, names))
+        results, note = _saved(args, scene, named, settings, controlled)
+        if results is None:
+            with open_recorder(args) as rec:
+                results = control_many(controlled or scene.design, [t for _, t in named], device=args.device,
+                                       settings=settings, progress=control_progress, recorder=rec, target_names=names,
+                                       **actuator_selection(args, scene.settings, names))
+        print(f"control sequences: {note}", file=sys.stderr)
         written += write_control_outputs(results, names, out, usd="usd" in args.what, timing=timing)
         written += write_valve_outputs(results, names, out, timing, passive=args.passive)
         written += write_figures_or_skip(results, out, names, timing=timing)
+
+
+def _saved(args, scene, named, settings, controlled):
+    """(the design's saved sequences replayed, or None; a line saying which sequences are written and
+    why): they are reused unless --calibration or --all-actuators asks for other ones."""
+    if args.calibration or args.all_actuators:
+        return None, "controlled anew (" + ("--calibration" if args.calibration else "--all-actuators") + \
+            " asks for sequences other than the design's)"
+    folder = Path(args.scene).parent if Path(args.scene).is_file() else None
+    if folder is None:
+        return None, "controlled anew (a shipped scene has no saved sequences)"
+    results, note = replayed_saved_results(folder, named, controlled or scene.design, settings, device=args.device)
+    return results, note if results is not None else f"controlled anew ({note})"

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from ..designer import PLACEMENTS
 
-__all__ = ["design_markdown", "figures_section", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
+__all__ = ["design_markdown", "verdict", "largest_error_mm", "idle_actuators", "REACHED_MPRE", "REACHED_PCC",
+           "PARTLY_MPRE", "HELPS_PCC", "figures_section", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
 
 
 def _pcc_table(result) -> list[str]:
@@ -22,9 +23,19 @@ def _pcc_table(result) -> list[str]:
 
 def _added_table(result) -> list[str]:
     names = result.target_names
-    lines = ["## Actuators added", "", "| # | placed for | face a | face b | max scaled error |", "|---|---|---|---|---|"]
+    pcc = result.pcc_by_round
+    lines = ["## Actuators added", "",
+             "| # | placed for | face a | face b | max scaled error | best PCC gain in its round |", "|---|---|---|---|---|---|"]
     for k, a in enumerate(result.added):
-        lines.append(f"| {k} | {names[a['target']]} | {a['face_a']} | {a['face_b']} | {a['error']:+.4f} |")
+        gain = float((pcc[k + 1] - pcc[k]).max()) if k + 1 < len(pcc) else float("nan")
+        lines.append(f"| {k} | {names[a['target']]} | {a['face_a']} | {a['face_b']} | {a['error']:+.4f} | {gain:+.4f} |")
+    idle = idle_actuators(result)
+    if idle:
+        lines += ["", f"**Helps no target**: IPAM {', '.join(map(str, idle))} (held neutral for every target, or its "
+                  f"round raised no target's PCC by {HELPS_PCC:g}); a build may leave {'them' if len(idle) > 1 else 'it'} out."]
+    reached0 = [names[j] for j in range(len(names)) if result.rounds and verdict(result.rounds[0][j]) == "reached"]
+    if reached0:
+        lines += ["", f"Reached before any actuator (round 0): {', '.join(reached0)}."]
     if result.added and len(names) > 1:
         first = result.added[0]["target"]
         others = [j for j in range(len(names)) if j != first]
@@ -36,26 +47,80 @@ def _added_table(result) -> list[str]:
     return lines
 
 
+#: a target is *reached* where its mean percent radial error is at most REACHED_MPRE % and its PCC at
+#: least REACHED_PCC; *partly* where the error is at most PARTLY_MPRE %; else *not reached*
+#: (README, *How the report judges a fit*)
+REACHED_MPRE = 2.5
+REACHED_PCC = 0.95
+PARTLY_MPRE = 5.0
+#: an actuator whose round raised no target's PCC by this much helps no target
+HELPS_PCC = 1e-3
+
+
+def verdict(r) -> str:
+    """"reached", "partly" or "not reached": a control result's fit against the thresholds above."""
+    if r.mpre <= REACHED_MPRE and r.pcc >= REACHED_PCC:
+        return "reached"
+    return "partly" if r.mpre <= PARTLY_MPRE else "not reached"
+
+
+def largest_error_mm(r) -> float:
+    """The largest |R - r| over the membrane, mm: the distance from each achieved vertex to the target
+    point on its ray (``sampled_target``)."""
+    d = r.sampled_target.vertices - r.achieved.vertices
+    return float(((d ** 2).sum(axis=1) ** 0.5).max() * 1e3)
+
+
+def _limits(r, n_ipams: int) -> str:
+    """What holds a target back: IPAMs at a limit, no air, a membrane still moving, or (none of those)
+    the actuators and the rest shape themselves."""
+    why = [x.replace("ipam ", "IPAM ") for x in r.saturated]
+    if not getattr(r, "settled", True):
+        why.append(f"still moving at {r.max_speed * 1e3:.2f} mm/s when measured")
+    if why:
+        return "limited by " + "; ".join(why)
+    used = n_ipams - len(getattr(r, "passive_ipams", []))
+    return f"no actuator at a limit: {used} IPAM{'s' if used != 1 else ''} in use cannot bend it closer (more " \
+           f"actuators, or a rest shape nearer the target)"
+
+
 def _achieved(result) -> list[str]:
-    """What the design achieves, first: each target's fit in a line."""
-    lines = ["## Achieved fit (final design, at rest)", ""]
+    """What the design achieves, first: each target's fit in a line, judged (``verdict``)."""
+    moving = [n for n, r in zip(result.target_names, result.results) if not getattr(r, "settled", True)]
+    head = "at rest" if not moving else f"{', '.join(moving)} not at rest"
+    lines = [f"## Achieved fit (final design; {head})", "",
+             f"Reached: mean percent radial error at most {REACHED_MPRE:g} % and PCC at least {REACHED_PCC:g}; "
+             f"partly: error at most {PARTLY_MPRE:g} %; else not reached.", ""]
     for n, r in zip(result.target_names, result.results):
-        k = len(r.saturated)
-        lines.append(f"- **{n}**: mean radial error {r.mare * 1e3:.2f} mm (objective {r.objective:.4f}, PCC "
-                     f"{r.pcc:.4f}, volume within {100 * abs(r.volume_error):.1f} %)"
-                     + (f"; {k} actuator limit{'s' if k > 1 else ''} reached, see Actuator requirements" if k else ""))
+        v = verdict(r)
+        lines.append(f"- **{n}**: **{v}**; mean radial error {r.mare * 1e3:.2f} mm ({r.mpre:.1f} %, largest "
+                     f"{largest_error_mm(r):.1f} mm; objective {r.objective:.4f}, PCC {r.pcc:.4f}, volume within "
+                     f"{100 * abs(r.volume_error):.1f} %)" + ("" if v == "reached" else f"; {_limits(r, result.design.n_ipams)}"))
     return lines
 
 
+def idle_actuators(result) -> list[int]:
+    """IPAMs that help no target: held neutral for every target, or added in a round that raised no
+    target's PCC by ``HELPS_PCC``."""
+    pcc = result.pcc_by_round
+    idle = []
+    for k in range(result.design.n_ipams):
+        neutral = all(k in {int(i) for i in getattr(r, "passive_ipams", [])} for r in result.results)
+        flat = k + 1 < len(pcc) and float((pcc[k + 1] - pcc[k]).max()) < HELPS_PCC
+        if neutral or flat:
+            idle.append(k)
+    return idle
+
+
 def _fit_table(result) -> list[str]:
-    lines = ["## Final fit (measured at rest)", "",
+    lines = ["## Final fit (measured at the end of each sequence; \"at rest\": every vertex slower than 1 mm/s)", "",
              "Objective: area-weighted RMS of the radial error scaled by the target's size, (R - r) / V_t^(1/3); "
              "0 is a perfect fit.", "",
-             "| target | objective | PCC | MARE (mm) | MPRE (%) | volume error (%) | at rest |",
-             "|---|---|---|---|---|---|---|"]
+             "| target | objective | PCC | MARE (mm) | MPRE (%) | max (mm) | volume error (%) | at rest | verdict |", "|---|---|---|---|---|---|---|---|---|"]
     for n, r in zip(result.target_names, result.results):
         lines.append(f"| {n} | {r.objective:.4f} | {r.pcc:.4f} | {r.mare * 1e3:.3f} | {r.mpre:.2f} | "
-                     f"{100 * r.volume_error:.3f} | {'yes' if getattr(r, 'settled', True) else 'no'} |")
+                     f"{largest_error_mm(r):.2f} | {100 * r.volume_error:.3f} | "
+                     f"{'yes' if getattr(r, 'settled', True) else 'no'} | {verdict(r)} |")
     return lines
 
 
