@@ -1,0 +1,63 @@
+"""The design report judges: each target reached / partly / not reached against the thresholds the
+README states, what limits a target short of reached, the actuators that help no target, and an
+"at rest" that never contradicts the table."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from warp_shape.io.report import PARTLY_MPRE, REACHED_MPRE, design_markdown, idle_actuators, verdict
+from warp_shape.scenarios import cube_fig6_design
+
+
+def _result(rest, *, mpre, pcc, scale=1.0, saturated=(), settled=True, passive=()):
+    achieved = rest.copy_with(rest.vertices * scale)
+    return SimpleNamespace(achieved=achieved, sampled_target=rest, objective=mpre / 250, pcc=pcc, mare=mpre * 4e-4,
+                           mpre=mpre, volume_error=0.01, saturated=list(saturated), settled=settled,
+                           max_speed=1.6e-3 if not settled else 1e-4, passive_ipams=np.array(passive, dtype=int),
+                           actuator_summary=[])
+
+
+def _design_result(rounds, pcc_by_round):
+    d = cube_fig6_design(subdivisions=2)
+    added = [dict(target=0, face_a=ip.face_a, face_b=ip.face_b, error=0.1) for ip in d.ipams]
+    return SimpleNamespace(design=d, target_names=["egg", "pear"], rounds=rounds, results=rounds[-1],
+                           pcc_by_round=np.array(pcc_by_round), added=added, placement={}, codesign={})
+
+
+def test_the_report_judges_each_target_and_names_what_limits_it():
+    rest = cube_fig6_design(subdivisions=2).rest
+    egg = _result(rest, mpre=1.2, pcc=0.999)
+    pear = _result(rest, mpre=9.3, pcc=0.93, scale=1.2, saturated=["ipam 1 at P_max 300 kPa"], settled=False)
+    assert verdict(egg) == "reached" and verdict(pear) == "not reached"
+    assert verdict(_result(rest, mpre=(REACHED_MPRE + PARTLY_MPRE) / 2, pcc=0.99)) == "partly"
+    assert verdict(_result(rest, mpre=1.0, pcc=0.9)) == "partly"  # a small error of the wrong shape
+    # the egg is reached before any actuator; IPAMs 1-4 raise no target's PCC in their rounds
+    pcc = [[0.999, 0.80], [0.999, 0.85]] + [[0.999, 0.85]] * 4
+    md = design_markdown(_design_result([[egg, pear]] * 6, pcc))
+    achieved = md.split("## Achieved fit")[1].split("\n## ")[0]
+    assert "pear not at rest" in achieved.splitlines()[0]  # the heading does not claim "at rest"
+    pear_line = next(x for x in achieved.splitlines() if x.startswith("- **pear**"))
+    assert "**not reached**" in pear_line and "limited by IPAM 1 at P_max 300 kPa" in pear_line
+    assert "still moving at 1.60 mm/s" in pear_line
+    assert f"largest {np.linalg.norm(0.2 * rest.vertices, axis=1).max() * 1e3:.1f} mm" in pear_line
+    assert "**reached**" in next(x for x in achieved.splitlines() if x.startswith("- **egg**"))
+    assert f"at most {REACHED_MPRE:g} %" in achieved  # the thresholds are in the report
+    table = md.split("## Final fit")[1].split("\n## ")[0]
+    pear_row = next(x for x in table.splitlines() if x.startswith("| pear"))
+    assert "| no | not reached |" in pear_row
+    assert idle_actuators(_design_result([[egg, pear]] * 6, pcc)) == [1, 2, 3, 4]
+    assert "**Helps no target**: IPAM 1, 2, 3, 4" in md and "Reached before any actuator (round 0): egg" in md
+
+
+def test_the_largest_error_is_the_distance_to_the_target_on_each_ray():
+    from warp_shape.io.report import largest_error_mm
+
+    rest = cube_fig6_design(subdivisions=2).rest
+    c = rest.vertices.mean(axis=0)
+    grown = rest.copy_with(c + (rest.vertices - c) * 1.1)
+    r = SimpleNamespace(achieved=rest, sampled_target=grown)
+    expect = float(np.linalg.norm(rest.vertices - c, axis=1).max() * 0.1 * 1e3)
+    assert abs(largest_error_mm(r) - expect) < 1e-6
