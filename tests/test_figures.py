@@ -153,27 +153,33 @@ def test_report_gives_ipam_ends_and_cells_in_mm_and_a_glossary():
 
 
 def test_fit_figure_colours_the_membrane_by_its_signed_radial_error(small_design):
-    """The achieved heart, coloured by r - R in mm: red where it lies outside the target, blue inside,
-    on a scale symmetric about 0; the rest-shape figure draws every IPAM and colours every cell."""
+    """The achieved heart, coloured by R - r in mm (the report's sign): red where it lies inside the
+    target, blue outside, on a scale symmetric about 0 that clips nothing; the target drawn; the
+    rest-shape figure draws every IPAM and colours every cell."""
     from warp_shape.io.figures import build_fit_figure, build_rest_figure, signed_radial_error
 
     res = small_design.results[1]
     err = signed_radial_error(res)
     r = np.linalg.norm(res.achieved.vertices, axis=1)
     R = np.linalg.norm(res.sampled_target.vertices, axis=1)
-    np.testing.assert_allclose(err, r - R)
+    np.testing.assert_allclose(err, R - r)
     assert np.mean(np.abs(err)) == pytest.approx(res.mare, rel=0.3)  # the same error as the MARE measures
     fig = build_fit_figure(res, "heart")
     bar = [ax for ax in fig.axes if "signed radial error" in ax.get_ylabel()]
-    assert len(bar) == 1 and "(mm)" in bar[0].get_ylabel()
+    assert len(bar) == 1 and "(mm)" in bar[0].get_ylabel() and "R - r" in bar[0].get_ylabel()
     lo, hi = bar[0].get_ylim()
-    assert lo == pytest.approx(-hi) and hi > 0.1
-    poly = [c for ax in fig.axes if ax.name == "3d" for c in ax.collections]
+    assert lo == pytest.approx(-hi) and hi == pytest.approx(np.abs(err).max() * 1e3)  # nothing clipped
+    assert f"+-{hi:.2f} mm" in fig._suptitle.get_text()
+    every = [c for ax in fig.axes if ax.name == "3d" for c in ax.collections]
+    assert len([c for c in every if c.get_gid() == "target"]) == 2  # the target, in both views
+    poly = [c for c in every if c.get_gid() != "target"]
     assert len(poly) == 2  # two views
     colors = poly[0].get_facecolor()  # (faces may be drawn in depth order)
     assert len(colors) == res.achieved.n_faces
     reddest, bluest = colors[np.argmax(colors[:, 0] - colors[:, 2])], colors[np.argmax(colors[:, 2] - colors[:, 0])]
-    assert reddest[0] > reddest[2] + 0.3 and bluest[2] > bluest[0] + 0.3  # red outside, blue inside, both there
+    assert reddest[0] > reddest[2] + 0.3 and bluest[2] > bluest[0] + 0.3  # red inside, blue outside, both there
+    face_err_of = err[np.asarray(res.achieved.faces)].mean(axis=1)
+    assert face_err_of[np.argmax(colors[:, 0] - colors[:, 2])] > 0  # the reddest face lies inside the target
     face_err = err[np.asarray(res.achieved.faces)].mean(axis=1)
     assert face_err.max() > 0 > face_err.min()
     rest = build_rest_figure(small_design.design)
@@ -208,3 +214,29 @@ def test_figures_drawn_by_a_runs_workers_are_the_ones_drawn_here(small_design, t
     for a, b in zip(here, there):
         if a.suffix == ".png":
             assert a.read_bytes() == b.read_bytes(), a.name
+
+
+def test_a_runs_fit_figures_share_one_colour_scale_and_the_final_round_is_marked(small_design, tmp_path, monkeypatch):
+    """Every fit figure of a run is drawn on one scale, the run's largest |R - r| (an egg's 0.2 mm
+    and a pear's 10 mm are then told apart by colour); the PCC-by-round figure marks its last round
+    as the finished design under its own controller and its PCC axis reaches 1."""
+    import warp_shape.io.figures as figures
+
+    jobs = []
+    monkeypatch.setattr(figures, "run_jobs", lambda fn, js: jobs.extend(js) or [j[2] for j in js])
+    figures.write_figures(small_design, tmp_path)
+    lim = figures.fit_colour_limit(small_design.results)
+    fits = [j for j in jobs if j[0] == "fit"]
+    assert len(fits) == 2 and all(j[4] == lim for j in fits)
+    own = [float(np.abs(figures.signed_radial_error(r)).max()) * 1e3 for r in small_design.results]
+    assert lim == pytest.approx(max(own)) and min(own) < lim
+    for res in small_design.results:
+        fig = figures.build_fit_figure(res, limit=lim)
+        bar = next(ax for ax in fig.axes if "signed radial error" in ax.get_ylabel())
+        assert bar.get_ylim() == pytest.approx((-lim, lim))
+    measures, names = next(j[1] for j in jobs if j[0] == "by_round")
+    fig = figures.build_by_round_figure(measures, names, None)
+    pcc_ax = next(ax for ax in fig.axes if ax.get_ylabel() == "PCC")
+    assert pcc_ax.get_ylim()[1] >= 1.0
+    assert pcc_ax.get_xticklabels()[-1].get_text().endswith("final")
+    assert any(p.get_gid() == "final" for p in pcc_ax.patches)

@@ -721,8 +721,7 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
         wrt += ("region_stretch",)
     params = ParameterSet(design, wrt, faces)
     fit = _Fit(design, obs, params, device, hold_s, seed)
-    fit.say = say
-    say(f"replaying {len(obs)} scan state(s) on the design and aligning the scans")
+    fit.say = say  # the first line once every scan is checked (an input error stays one line)
     shapes = fit.shapes(params.x0)
     s = _State(fit, params.x0.copy(), _initial_poses(fit, shapes), shapes)
     fit.set_sigma(s.r)

@@ -9,8 +9,9 @@
   labelled so; the initial inflation is a grey band, named in panel (a).
 - ``pcc_by_round_figure(design_result_or_array, target_names, path)``: the objective, MARE and PCC
   per target against the number of IPAMs placed (Figs. 9 and 13b).
-- ``build_fit_figure(result)``: the achieved membrane coloured by its signed radial error (mm)
-  against the target; ``build_rest_figure(design)``: the rest shape with its jamming cells and
+- ``build_fit_figure(result)``: the achieved membrane coloured by its signed radial error R - r (mm,
+  the report's sign) with the target drawn as a wire surface, a run's fit figures on one colour
+  scale (``fit_colour_limit``); ``build_rest_figure(design)``: the rest shape with its jamming cells and
   IPAMs (both seen from two sides).
 - ``write_figures(result, out_dir)``: ``pcc_by_round``, ``rest_shape`` and ``fit_<target>``
   (design results only) and ``control_<target>`` for each target; inside a run whose worker
@@ -32,7 +33,7 @@ from .atomic import atomic_write
 from .valve import ValveTiming, row_times
 
 __all__ = ["build_control_figure", "control_figure", "pcc_by_round_figure", "write_figures", "line_colors", "svg_path",
-           "signed_radial_error", "build_fit_figure", "build_rest_figure", "write_shape_figures"]
+           "signed_radial_error", "fit_colour_limit", "build_by_round_figure", "build_fit_figure", "build_rest_figure", "write_shape_figures"]
 
 DPI = 120
 
@@ -303,10 +304,11 @@ def pcc_by_round_figure(design_result_or_array, target_names=None, path="pcc_by_
     each axis fitted to its values; for an array, PCC alone."""
     if target_names is None:
         target_names = getattr(design_result_or_array, "target_names", None)
-    return _save(_build_by_round_figure(_by_round(design_result_or_array), target_names, title), path)
+    return _save(build_by_round_figure(_by_round(design_result_or_array), target_names, title), path)
 
 
-def _build_by_round_figure(measures: dict, target_names, title: str | None):
+def build_by_round_figure(measures: dict, target_names, title: str | None):
+    """The figure of ``pcc_by_round_figure`` from its measures ({name: (rounds, n_targets)}), unsaved."""
     pcc = measures["PCC"]
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(pcc.shape[1])]
     rounds = np.arange(pcc.shape[0])
@@ -314,18 +316,25 @@ def _build_by_round_figure(measures: dict, target_names, title: str | None):
     axes = np.atleast_1d(fig.subplots(1, len(measures)))
     markers = "osD^vP*X"
     colors = line_colors(len(names))
+    final = "MARE (mm)" in measures and len(rounds) > 1  # a design's last row: the final design's own controller
     for ax, (what, values) in zip(axes, measures.items()):
         for j, name in enumerate(names):
             ax.plot(rounds, values[:, j], marker=markers[j % len(markers)], color=colors[j], lw=1.8, label=name)
         ax.set_xlabel("number of IPAMs")
         ax.set_ylabel(what)
-        ax.set_xticks(rounds)
+        ax.set_xticks(rounds, [str(int(r)) for r in rounds[:-1]] + [f"{int(rounds[-1])}" + ("\nfinal" if final else "")])
         ax.margins(y=0.08)
+        if what == "PCC":  # the axis reaches 1 (the same shape): the gap left is drawn, not cut off
+            ax.set_ylim(top=1.0 + 0.04 * (1.0 - float(np.nanmin(values))))
+        if final:
+            ax.axvspan(rounds[-1] - 0.5, rounds[-1] + 0.5, color="0.93", zorder=0, lw=0, gid="final")
         ax.grid(True, lw=0.4, alpha=0.5)
         ax.set_title({"PCC": "PCC (1 = same shape)"}.get(what, what.split(" (")[0]) + (" (lower is better)"
                      if what != "PCC" else ""), fontsize=10)
     axes[0].legend(loc="best", fontsize=8)
-    fig.suptitle(title or "Fit by actuator round")
+    fig.suptitle((title or "Fit by actuator round") + ("\n(grey, \"final\": the finished design under its own "
+                                                        "controller, with refinement and co-design; not the last "
+                                                        "IPAM's gain alone)" if final else ""), fontsize=10)
     return fig
 
 
@@ -355,8 +364,10 @@ def write_figures(result, out_dir, target_names=None, timing=None) -> list[Path]
 
 
 def _shape_jobs(design, results, names, out: Path) -> list[tuple]:
+    """The rest shape's figure and a fit figure per target, all fit figures on one colour scale."""
+    lim = fit_colour_limit(results) if results else None
     return [("rest", design, out / "rest_shape.png", None, None)] + [
-        ("fit", r, out / f"fit_{name}.png", f"Achieved {name}", None) for name, r in zip(names, results)]
+        ("fit", r, out / f"fit_{name}.png", f"Achieved {name}", lim) for name, r in zip(names, results)]
 
 
 _COST = {"control": 0, "fit": 1, "rest": 2, "by_round": 3}  # the order figures are handed out: slowest first
@@ -389,15 +400,16 @@ def prepare_drawing() -> None:
 def draw_figure(kind: str, what, path, title: str | None, timing, *, progress=None) -> Path:
     """One report figure ``kind`` ("control", "fit", "rest", "by_round") of ``what`` (a control
     result, a design, or (measures, names)) saved at ``path`` (PNG, and an SVG beside it): a job a
-    worker process can run (``progress`` is the pool's, unused)."""
+    worker process can run (``progress`` is the pool's, unused). ``timing``: a control figure's
+    lab clock; a fit figure's colour limit (mm)."""
     if kind == "control":
         fig = build_control_figure(what, title, timing)
     elif kind == "fit":
-        fig = build_fit_figure(what, title=title)
+        fig = build_fit_figure(what, title=title, limit=timing)
     elif kind == "rest":
         fig = build_rest_figure(what, title)
     elif kind == "by_round":
-        fig = _build_by_round_figure(*what, title)
+        fig = build_by_round_figure(*what, title)
     else:
         raise ValueError(f"unknown figure kind {kind!r}")
     return _save(fig, path)
@@ -429,17 +441,25 @@ VIEWS = ((20, -60), (20, 120))  # front-left and back-right
 
 
 def signed_radial_error(result) -> np.ndarray:
-    """(V,) r - R of the achieved membrane against the target, m, per vertex: r its radius, R the
-    target's along the same ray from the target's centroid (``ControlResult.sampled_target``);
-    > 0 where the membrane lies outside the target."""
+    """(V,) R - r of the achieved membrane against the target, m, per vertex (the report's sign): r
+    its radius, R the target's along the same ray from the target's centroid
+    (``ControlResult.sampled_target``); > 0 where the membrane lies inside the target (it must move out)."""
     x = np.asarray(result.achieved.vertices, dtype=np.float64)
-    return np.linalg.norm(x, axis=1) - np.linalg.norm(np.asarray(result.sampled_target.vertices), axis=1)
+    return np.linalg.norm(np.asarray(result.sampled_target.vertices), axis=1) - np.linalg.norm(x, axis=1)
 
 
-def build_fit_figure(result, title: str | None = None):
-    """The achieved membrane of one control run coloured by its signed radial error against the
-    target (mm, blue inside, red outside; the scale symmetric about 0), from two sides, as a
-    matplotlib ``Figure``."""
+def fit_colour_limit(results) -> float:
+    """The colour scale's half-width (mm) shared by a run's fit figures: the largest |R - r| of any of
+    them (at least 0.1 mm), so one colour means one error in every figure and nothing is clipped."""
+    return max([float(np.abs(signed_radial_error(r)).max()) * 1e3 for r in results] + [0.1])
+
+
+def build_fit_figure(result, title: str | None = None, limit: float | None = None):
+    """The achieved membrane of one control run coloured by its signed radial error R - r against
+    the target (mm, red inside the target, blue outside; the scale symmetric about 0 and ``limit``
+    mm wide each way, default this figure's largest error: give a run's ``fit_colour_limit`` to share
+    one scale), with the target drawn as a grey wire surface, from two sides, as a matplotlib
+    ``Figure``."""
     from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
@@ -447,20 +467,32 @@ def build_fit_figure(result, title: str | None = None):
     err_mm = signed_radial_error(result) * 1e3
     faces = np.asarray(result.achieved.faces)
     x_mm = np.asarray(result.achieved.vertices) * 1e3
-    lim = max(float(np.percentile(np.abs(err_mm), 99)), 0.1)
+    target_mm = np.asarray(result.sampled_target.vertices) * 1e3
+    lim = float(limit) if limit is not None else fit_colour_limit([result])
     norm, cmap = Normalize(-lim, lim), colormaps["RdBu_r"]
     colors = cmap(norm(err_mm[faces].mean(axis=1)))
     fig = _figure((10.0, 5.0))
     grid = fig.add_gridspec(1, 3, width_ratios=[1, 1, 0.06])
-    extent = 0.55 * float(np.max(x_mm.max(axis=0) - x_mm.min(axis=0)))
+    extent = 0.55 * float(np.max(np.r_[x_mm, target_mm].max(axis=0) - np.r_[x_mm, target_mm].min(axis=0)))
     for k, view in enumerate(VIEWS):
-        _draw_mesh(_mesh_axes(fig, grid[0, k], ("front" if k == 0 else "back") + " view", extent, view),
-                   x_mm, faces, colors)
+        ax = _mesh_axes(fig, grid[0, k], ("front" if k == 0 else "back") + " view", extent, view)
+        _draw_mesh(ax, x_mm, faces, colors)
+        _draw_target(ax, target_mm, faces)
     bar = fig.colorbar(ScalarMappable(norm=norm, cmap=cmap), cax=fig.add_subplot(grid[0, 2]))
-    bar.set_label("signed radial error r - R (mm): + outside the target, - inside")
-    fig.suptitle(f"{title or 'Achieved shape'}: MARE {result.mare * 1e3:.2f} mm, largest |error| "
-                 f"{float(np.abs(err_mm).max()):.2f} mm, PCC {result.pcc:.4f}")
+    bar.set_label("signed radial error R - r (mm): + inside the target, - outside; grey wire: the target")
+    fig.suptitle(f"{title or 'Achieved shape'}: MARE {result.mare * 1e3:.2f} mm, largest |R - r| "
+                 f"{float(np.abs(err_mm).max()):.2f} mm, PCC {result.pcc:.4f} (colour scale +-{lim:.2f} mm)")
     return fig
+
+
+def _draw_target(ax, target_mm: np.ndarray, faces: np.ndarray) -> None:
+    """The target where the membrane's rays meet it, as a grey wire surface (``gid`` "target")."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    wire = Poly3DCollection(target_mm[faces], facecolors=(0, 0, 0, 0), edgecolors=(0.3, 0.3, 0.3, 0.35),
+                            linewidths=0.3)
+    wire.set_gid("target")
+    ax.add_collection3d(wire)
 
 
 def build_rest_figure(design, title: str | None = None):
