@@ -55,14 +55,14 @@ def test_compare_reads_millimetre_files_as_millimetres(mm_files, capsys):
     scan, ref = mm_files
     truth = _compare(capsys, scan, "--to", "oval", "--units", "mm")
     assert truth["scan_units"] == "mm" and truth["reference_units"] == "m"
-    assert 1e-4 < truth["mare"] < 1e-3  # the 0.4 mm noise, in metres
+    assert 1e-4 < truth["mare_m"] < 1e-3  # the 0.4 mm noise, in metres
     for reference in ("oval", ref):  # detected: against a shipped target and against a millimetre STL
         res = _compare(capsys, scan, "--to", reference)
-        assert res["scan_units"] == "mm" and res["mare"] == pytest.approx(truth["mare"], rel=0.05)
+        assert res["scan_units"] == "mm" and res["mare_m"] == pytest.approx(truth["mare_m"], rel=0.05)
     assert res["reference_units"] == "mm"
     assert main(["compare", str(scan), "--to", str(ref)]) == 0
     table = capsys.readouterr().out
-    assert "(read in millimetres)" in table and f"MARE         {truth['mare'] * 1e3:.3f} mm" in table
+    assert "(read in millimetres)" in table and f"MARE         {truth['mare_m'] * 1e3:.3f} mm" in table
 
 
 def test_compare_refuses_a_unit_that_makes_no_display(mm_files, capsys):
@@ -95,12 +95,12 @@ def design_folder(tmp_path_factory):
 def test_compare_with_the_designs_actuated_shape(design_folder, capsys):
     d, scan = design_folder
     at_1s = _compare(capsys, scan, "--to", d / "design.usda", "--time", "1")
-    assert at_1s["mare"] < 1e-5 and at_1s["scan_units"] == "mm"
+    assert at_1s["mare_m"] < 1e-5 and at_1s["scan_units"] == "mm"
     assert "target blob, simulated shape at 1.000 of 2.000 s" in at_1s["reference"]
     achieved = _compare(capsys, scan, "--to", d / "actuation_blob.usdc")  # default: the end of the schedule
-    assert 0.25 * R < achieved["mare"] < 0.3 * R  # 0.3 R apart, less what ICP's shift takes up
+    assert 0.25 * R < achieved["mare_m"] < 0.3 * R  # 0.3 R apart, less what ICP's shift takes up
     halfway = _compare(capsys, scan, "--to", d / "design.usda", "--target", "blob", "--time", "0.5")
-    assert halfway["mare"] == pytest.approx(0.1 * R, rel=0.05)  # interpolated between the samples: 1.1 R
+    assert halfway["mare_m"] == pytest.approx(0.1 * R, rel=0.05)  # interpolated between the samples: 1.1 R
     err = error_of(capsys, ["compare", str(scan), "--to", str(d / "design.usda"), "--time", "3"])
     assert "--time 3 s lies outside the run of target blob (0 to 2 s" in err
     err = error_of(capsys, ["compare", str(scan), "--to", str(d / "design.usda"), "--target", "oval"])

@@ -147,8 +147,8 @@ def no_simulation(monkeypatch):
 @pytest.mark.parametrize("case,match", [
     ("millimetres", "looks like millimetres: scale it by 1e-3"),
     ("too_large", "beyond max_stretch"),
-    ("too_small", r"smaller than the rest shape .* initialise the rest shape \(design\(\.\.\., initialize=True\)\) "
-                  r"or use a smaller base"),
+    ("too_small", r"smaller than the rest shape .* initialise the rest shape from the targets \(warp-shape design "
+                  r"does; in Python ws\.design\(\.\.\., initialize=True\)\) or use a smaller base"),
     ("inverted", "faces inverted: the rest shape does not surround the target's centre"),
 ])
 def test_targets_checked_against_the_device_first(no_simulation, case, match):

@@ -51,7 +51,7 @@ from .mesh import TriMesh, regular_file_resolver
 from .sampling import RadialSampler, radial_metrics
 from .targets import TARGET_NAMES, target
 
-__all__ = ["ScanComparison", "IcpConvergenceWarning", "compare_scan", "surface_samples", "load_scan", "icp", "kabsch",
+__all__ = ["ScanComparison", "JSON_KEYS", "IcpConvergenceWarning", "compare_scan", "surface_samples", "load_scan", "icp", "kabsch",
            "surface_distances", "closest_points_query", "detect_length_unit", "length_unit_of", "LENGTH_UNITS", "PLAUSIBLE_EXTENT_M"]
 
 # Ignore pairs farther than this many robust standard deviations of the pair distances.
@@ -69,6 +69,12 @@ LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 #: Largest extent (m) of a plausible shape display or a scan of one; a file whose numbers fit this
 #: range read as metres is in metres, one whose numbers fit it read as millimetres in millimetres.
 PLAUSIBLE_EXTENT_M = (0.02, 2.0)
+
+
+#: ``ScanComparison`` field -> its key in ``to_dict`` (and ``compare --json``): the unit in the name
+JSON_KEYS = {"transform": "transform_m", "mare": "mare_m", "mpre": "mpre_pct", "rms": "rms_m",
+             "last_move": "last_move_m", "coverage_radius": "coverage_radius_m",
+             "reference_centroid": "reference_centroid_m"}
 
 
 class IcpConvergenceWarning(UserWarning):
@@ -109,11 +115,11 @@ class ScanComparison:
     reference_units: str = "m"
 
     def to_dict(self) -> dict:
-        """The comparison as a JSON-ready dict (lengths in m, MPRE in %)."""
-        d = asdict(self)
-        for k, v in d.items():
-            if isinstance(v, np.ndarray):
-                d[k] = v.tolist()
+        """The comparison as a JSON-ready dict, every key that carries a unit named with it (``JSON_KEYS``:
+        ``mare_m``, ``rms_m``, ``mpre_pct``, ``transform_m`` (its translation in m) ...)."""
+        d = {}
+        for k, v in asdict(self).items():
+            d[JSON_KEYS.get(k, k)] = v.tolist() if isinstance(v, np.ndarray) else v
         return d
 
 

@@ -64,15 +64,16 @@ def _check_size(rest: TriMesh, t: TriMesh, name: str, max_stretch: float) -> Non
         raise ShapeError(
             f"{name} is {s:.2f}x the size of the rest shape (volume {v_t * 1e6:.4g} cm^3 against "
             f"{v_rest * 1e6:.4g} cm^3): the membrane would need a mean stretch of about {s:.2f}, beyond "
-            f"max_stretch {max_stretch:g}; scale the target down, use a larger rest shape (or initialise it: "
-            f"design(..., initialize=True)), or raise max_stretch")
+            f"max_stretch {max_stretch:g}; scale the target down, use a larger rest shape (or initialise it from "
+            f"the targets: warp-shape design does; in Python ws.design(..., initialize=True)), or raise max_stretch")
     if v_t < v_rest:
         hint = (" (the rest shape is about 1000x the target: is the design in millimetres? scale it by 1e-3)"
                 if 1.0 / UNITS_RATIO[1] <= s <= 1.0 / UNITS_RATIO[0] else "")
         raise ShapeError(
             f"{name} is smaller than the rest shape (volume {v_t * 1e6:.4g} cm^3 against "
             f"{v_rest * 1e6:.4g} cm^3): the membrane cannot shrink below its rest shape and would go slack"
-            f"{hint}; initialise the rest shape (design(..., initialize=True)) or use a smaller base")
+            f"{hint}; initialise the rest shape from the targets (warp-shape design does; in Python "
+            f"ws.design(..., initialize=True)) or use a smaller base")
 
 
 def _check_sampled(rest: TriMesh, sampled: np.ndarray, name: str) -> None:
