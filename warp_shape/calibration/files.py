@@ -480,6 +480,9 @@ def write_residual_figures(result: CalibrationResult, faces: np.ndarray, out_dir
                               linewidth=0.1, edgecolor="0.5")
         tri.set_array(np.nan_to_num(face_r * 1e3, nan=0.0))
         fig.colorbar(tri, ax=ax, shrink=0.7, label="signed residual, mm (grey: not scanned)")
+        ax.set_box_aspect(tuple(np.ptp(v, axis=0)))  # equal scale on the three axes: the membrane's true shape
+        for set_label, axis in ((ax.set_xlabel, "x"), (ax.set_ylabel, "y"), (ax.set_zlabel, "z")):
+            set_label(f"{axis} (mm, model frame)", fontsize=7)
         ax.set_title(f"{m.name}: RMS {m.rms_mm:.3f} mm")
         path = Path(out_dir) / f"residuals_{k}.png"
         buf = io.BytesIO()

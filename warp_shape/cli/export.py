@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -42,8 +43,9 @@ def register(subparsers) -> None:
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
     e.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
                    help="IPAM boss height on the mold core, m (0: none; at most a quarter of the device's radius)")
-    e.add_argument("--units", default="mm", choices=["mm", "cm", "m", "in"],
+    e.add_argument("--mold-units", dest="units", default="mm", choices=["mm", "cm", "m", "in"],
                    help="length unit of the mold STL files (in their names, e.g. mold_core_mm.stl); default mm")
+    e.add_argument("--units", dest="input_units", default=None, help=argparse.SUPPRESS)  # another command's meaning
     add_timing_args(e)
     e.add_argument("--passive", choices=["neutral", "zero"], default="neutral",
                    help="pressure written for IPAMs a target does not use: the simulated neutral pressure "
@@ -59,6 +61,9 @@ def _checked_inputs(args, staged):
     ``--calibration``) once every input is checked, before any work:
     ``--out`` (``staged``), the device, the recording path, the scene (a design, its settings), the
     mold lengths and the targets."""
+    if args.input_units is not None:
+        raise DesignError("export has no --units: elsewhere --units is the unit of input mesh files; the molds' "
+                          f"unit is --mold-units (e.g. --mold-units {args.input_units})")
     check_out(staged)
     check_device(args.device)
     check_rerun(args, staged, inputs=[args.scene, args.calibration, *(args.targets or [])])
