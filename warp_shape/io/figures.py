@@ -33,7 +33,7 @@ from .atomic import atomic_write
 from .valve import ValveTiming, row_times
 
 __all__ = ["build_control_figure", "control_figure", "pcc_by_round_figure", "write_figures", "line_colors", "svg_path",
-           "signed_radial_error", "fit_colour_limit", "build_by_round_figure", "build_fit_figure", "build_rest_figure", "write_shape_figures"]
+           "signed_radial_error", "fit_colour_limit", "build_by_round_figure", "label_spots", "build_fit_figure", "build_rest_figure", "write_shape_figures"]
 
 DPI = 120
 
@@ -513,17 +513,42 @@ def build_rest_figure(design, title: str | None = None):
     fig = _figure((10.0, 5.2))
     grid = fig.add_gridspec(1, 2)
     extent = 0.55 * float(np.max(x_mm.max(axis=0) - x_mm.min(axis=0)))
+    spots = label_spots([(ends[ip.face_a], ends[ip.face_b]) for ip in design.ipams])
     for k, view in enumerate(VIEWS):
         ax = _mesh_axes(fig, grid[0, k], ("front" if k == 0 else "back") + " view", extent, view)
         _draw_mesh(ax, x_mm, faces, colors)
         for i, ip in enumerate(design.ipams):
             a, b = ends[ip.face_a], ends[ip.face_b]
             ax.plot(*np.stack([a, b]).T, color="k", lw=2.0, zorder=10)
-            # the label near end a: IPAMs tend to cross near the centre
-            ax.text(*(a + 0.2 * (b - a)), f"IPAM {i}", fontsize=7, color="k", zorder=11)
+            ax.text(*spots[i], str(i), fontsize=7, color="k", zorder=11,
+                    bbox=dict(boxstyle="round,pad=0.15", fc="w", ec="k", lw=0.4, alpha=0.85))
+    _rest_legend(fig, design, palette)
     fig.suptitle(f"{title or 'Rest shape'}: {design.n_ipams} IPAMs (black lines between their end faces), "
                  f"{design.n_cells} jamming cells (coloured), {rest.n_vertices} vertices", fontsize=10)
     return fig
+
+
+def label_spots(segments: list) -> list[np.ndarray]:
+    """A label point on each IPAM's line (``segments``: (end a, end b) in mm): of the points 15 %, 30 %,
+    ..., 85 % along it, the one farthest from the labels placed before it (IPAMs cross near the
+    centre, where labels at one fixed fraction overlap)."""
+    placed = []
+    for a, b in segments:
+        a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        tries = [a + f * (b - a) for f in (0.15, 0.3, 0.45, 0.55, 0.7, 0.85)]
+        placed.append(max(tries, key=lambda p: min([float(np.linalg.norm(p - q)) for q in placed] + [np.inf])))
+    return placed
+
+
+def _rest_legend(fig, design, palette) -> None:
+    """What the rest-shape figure's colours and lines are: IPAMs (numbered) and each jamming cell."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [Line2D([], [], color="k", lw=2, label="IPAM (number: its index), between its end faces")]
+    handles += [Patch(color=palette[j], label=f"cell {j}") for j in range(design.n_cells)]
+    handles.append(Patch(color=(0.88, 0.88, 0.88), label="membrane (no cell)"))
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=7, frameon=False)
 
 
 def write_shape_figures(result, out_dir, target_names=None) -> list[Path]:
