@@ -61,3 +61,24 @@ def test_the_largest_error_is_the_distance_to_the_target_on_each_ray():
     r = SimpleNamespace(achieved=rest, sampled_target=grown)
     expect = float(np.linalg.norm(rest.vertices - c, axis=1).max() * 0.1 * 1e3)
     assert abs(largest_error_mm(r) - expect) < 1e-6
+
+
+def test_a_replayed_sequence_says_it_is_not_at_rest_where_it_is_not():
+    """A design's final results are its sequences replayed on the final design: where the replay ends
+    moving, its reason says so beside the original run's (which was at rest), and it is not converged
+    (report.json once read "converged; at rest" beside converged False)."""
+    import dataclasses
+
+    import warp_shape as ws
+    from warp_shape.controller.replay import replay_result
+
+    design = cube_fig6_design(subdivisions=2)
+    res = ws.control(design, ws.target("oval"), method="paper", max_steps=40)
+    assert res.settled and "at rest" in res.reason
+    cut = dataclasses.replace(res, history={k: np.asarray(v)[:4] for k, v in res.history.items()},
+                              frames=res.frames[:4])  # stopped during the inflation: still moving
+    moving = replay_result(design, cut)
+    assert not moving.settled and not moving.converged
+    assert moving.reason.endswith("so not converged") and "not at rest (" in moving.reason
+    held = replay_result(design, res)
+    assert held.settled and held.reason.endswith("open loop on this design: at rest")

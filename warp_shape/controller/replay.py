@@ -151,11 +151,14 @@ def replay_result(design: Design, result, *, device: str = "cpu") -> ControlResu
     obs = last[0]
     x, sampled = obs.positions[0].copy(), obs.sampled[0].copy()
     settled = bool(obs.max_speed[0] < result.settings.settle_speed)
+    rest = "at rest" if settled else (f"not at rest ({obs.max_speed[0] * 1e3:.2f} mm/s >= "
+                                      f"{result.settings.settle_speed * 1e3:g} mm/s), so not converged")
     return dataclasses.replace(
         result, achieved=design.rest.copy_with(x), sampled_target=design.rest.copy_with(sampled),
         objective=float(obs.objective[0]), pcc=float(obs.pcc[0]), mare=float(obs.mare[0]), mpre=float(obs.mpre[0]),
         volume_error=float((obs.volume[0] - obs.target_volume[0]) / obs.target_volume[0]),
         ipam_forces=obs.ipam_forces[0].copy(), jammed=obs.jammed[0].copy().astype(bool),
         converged=bool(result.converged and settled), settled=settled, max_speed=float(obs.max_speed[0]),
-        reason=f"{result.reason}; the sequence replayed open loop on this design", history=history.columns(0),
+        reason=f"as controlled: {result.reason}; its sequence replayed open loop on this design: {rest}",
+        history=history.columns(0),
         frames=history.frame_stack(0), design=design)
