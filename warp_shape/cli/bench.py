@@ -272,7 +272,9 @@ def run(args) -> int:
         for name in names:
             results: dict = {}
             _announce(name, args)
+            start = time.perf_counter()
             _run_one(name, args, sim_bench, results, membrane_bench)
+            print(f"bench {name}: done in {time.perf_counter() - start:.0f} s", file=sys.stderr, flush=True)
             if name in results:
                 written.append(write_json(staged.path / f"bench_{name}.json", {name: results[name], "meta": meta}))
         if written:
