@@ -40,7 +40,7 @@ not changed: the lab schedule is the simulated sequence, retimed. The columns of
 
 **Retiming** (``ValveTiming``, defaults 5 mL/s, 100 kPa/s, 50 Hz). Each interval between two
 control steps is stretched so that the chamber air changes by at most ``max_flow_ml_s`` mL per
-second (a syringe pump's flow) and no pressure column (IPAMs and chamber) by more than
+second (a syringe pump's flow) and no IPAM pressure column by more than
 ``max_slew_kpa_s`` kPa per second (a proportional valve's slew); intervals that change slowly keep
 their simulated length. Each limit is planned to ``PLAN_MARGIN`` below its value, so the CSV's
 printed numbers stay within it. With ``rate_hz`` every interval is then rounded up to whole grid
