@@ -255,3 +255,23 @@ def test_ipam_labels_keep_apart_where_the_ipams_cross():
     assert min(gaps) > 20.0, gaps  # mm (measured 47.9)
     for (a, b), p in zip(ends, spots):  # each on its own line
         assert np.linalg.norm(np.cross(b - a, p - a)) < 1e-9
+
+
+def test_control_figure_draws_the_chamber_pressure_the_valve_file_gives(small_design):
+    """Panel (f) draws the chamber pressure at rest under each row's controls, the valve CSV's, in
+    black (never the simulated transient's dip alone), the transient thin grey beside it; and a line
+    drawn over an identical one is thinner, so both show."""
+    from warp_shape.io.figures import build_control_figure, stacked_widths
+    from warp_shape.io.valve import quasi_static_pressure
+
+    res = small_design.results[1]
+    fig = build_control_figure(res)
+    f = next(ax for ax in fig.axes if ax.get_title().startswith("(f)"))
+    lines = {ln.get_label(): ln for ln in f.get_lines()}
+    np.testing.assert_allclose(lines["at rest (as the valve CSV)"].get_ydata(), quasi_static_pressure(res)[0] / 1e3)
+    np.testing.assert_allclose(lines["simulated transient"].get_ydata(), np.asarray(res.history["pressure_pa"]) / 1e3)
+    widths = stacked_widths(4, 1.3)
+    assert all(a > b for a, b in zip(widths, widths[1:]))
+    c = next(ax for ax in fig.axes if ax.get_title().startswith("(c)"))
+    solid = [ln.get_linewidth() for ln in c.get_lines() if ln.get_label().startswith("cell ")]
+    assert len(solid) == small_design.design.n_cells and solid == sorted(solid, reverse=True)

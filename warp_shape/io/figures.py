@@ -4,8 +4,9 @@
   against the lab's time of the valve CSV and the USD animation (``io.valve.row_times``; the
   simulated time on a top axis): (a) volume vs target volume, (b) IPAM lengths (solid) vs targets
   (dashed), (c) cell curvatures (solid) vs targets (dashed) with jam times marked, (d) PCC, (e) IPAM
-  gauge pressure commands (kPa), (f) chamber gauge pressure (kPa, simulated) and air (mL at
-  atmospheric pressure). Passive IPAMs (not used for this target, held neutral) are grey dashed and
+  gauge pressure commands (kPa), (f) chamber gauge pressure (kPa: at rest under each row's
+  controls, as the valve CSV, the simulated transient grey) and air (mL at atmospheric pressure);
+  lines drawn over others thinner, so identical ones both show. Passive IPAMs (not used for this target, held neutral) are grey dashed and
   labelled so; the initial inflation is a grey band, named in panel (a).
 - ``pcc_by_round_figure(design_result_or_array, target_names, path)``: the objective, MARE and PCC
   per target against the number of IPAMs placed (Figs. 9 and 13b).
@@ -30,10 +31,10 @@ import numpy as np
 from ..controller.shard import run_jobs
 from ..material import GAS_CONSTANT
 from .atomic import atomic_write
-from .valve import ValveTiming, row_times
+from .valve import ValveTiming, quasi_static_pressure, row_times
 
 __all__ = ["build_control_figure", "control_figure", "pcc_by_round_figure", "write_figures", "line_colors", "svg_path",
-           "signed_radial_error", "fit_colour_limit", "build_by_round_figure", "label_spots", "build_fit_figure", "build_rest_figure", "write_shape_figures"]
+           "signed_radial_error", "fit_colour_limit", "build_by_round_figure", "label_spots", "stacked_widths", "build_fit_figure", "build_rest_figure", "write_shape_figures"]
 
 DPI = 120
 
@@ -103,7 +104,8 @@ def _simulated_axis(ax, lab: np.ndarray, sim: np.ndarray) -> None:
     ticks = [float(t) for t in ax.get_xticks() if lab[0] - 1e-9 <= t <= lab[-1] + 1e-9]
     top = ax.secondary_xaxis("top")
     top.set_xticks(ticks, [f"{np.interp(t, lab, sim):.3f}" for t in ticks])
-    top.set_xlabel("simulated time (s) at these lab times", fontsize=8)
+    top.set_xlabel("simulated time (s) at these lab times (not to scale: the pump stretches the inflation)",
+                   fontsize=8)
     top.tick_params(labelsize=7)
 
 
@@ -155,13 +157,13 @@ def _passive(result) -> set:
 def _panel_lengths(ax, t, h, passive: set) -> None:
     """IPAM lengths (solid) and targets (dashed); passive IPAMs grey dashed, without a target."""
     lengths = _columns(h, "ipam", "_length_m")
-    colors = line_colors(len(lengths))
+    colors, widths = line_colors(len(lengths)), stacked_widths(len(lengths), 1.5)
     for i, col in enumerate(lengths):
         if i in passive:
             ax.plot(t, np.asarray(h[col]) * 1e3, color=PASSIVE_COLOR, ls="--", lw=1.2,
                     label=f"IPAM {i} (passive, held neutral)")
         else:
-            _plot_with_target(ax, t, h[col], h[f"ipam{i}_target_length_m"], colors[i], f"IPAM {i}", 1.8)
+            _plot_with_target(ax, t, h[col], h[f"ipam{i}_target_length_m"], colors[i], f"IPAM {i}", widths[i])
     ax.set_ylabel("length (mm)")
     ax.set_title("(b) IPAM lengths (solid) and targets (dashed)")
     if lengths:
@@ -186,9 +188,9 @@ def _panel_curvatures(ax, t, h, result) -> None:
     kappas = _columns(h, "cell", "_kappa_m")
     jam_steps = np.asarray(getattr(result, "jam_steps", np.full(len(kappas), -1)))
     step = np.asarray(h["step"])
-    colors = line_colors(len(kappas))
+    colors, widths = line_colors(len(kappas)), stacked_widths(len(kappas), 1.3)
     for j, col in enumerate(kappas):
-        k = _plot_with_target(ax, t, h[col], h[f"cell{j}_kappa_target_m"], colors[j], f"cell {j}", 1.5)
+        k = _plot_with_target(ax, t, h[col], h[f"cell{j}_kappa_target_m"], colors[j], f"cell {j}", widths[j])
         idx = _jam_row(h, step, jam_steps, j)
         if idx >= 0:
             ax.plot([t[idx]], [k[idx]], marker="v", ms=7, color=colors[j], mec="k", mew=0.6, ls="none")
@@ -204,13 +206,13 @@ def _panel_curvatures(ax, t, h, result) -> None:
 def _panel_pressures(ax, t, h, passive: set) -> None:
     """IPAM gauge pressures in kPa; passive IPAMs grey dashed (their neutral pressure)."""
     cols = _columns(h, "ipam", "_pressure_pa")
-    colors = line_colors(len(cols))
+    colors, widths = line_colors(len(cols)), stacked_widths(len(cols), 1.5)
     for i, col in enumerate(cols):
         p = np.asarray(h[col]) / 1e3
         if i in passive:
             ax.plot(t, p, color=PASSIVE_COLOR, ls="--", lw=1.2, label=f"IPAM {i} (passive, held neutral)")
         else:
-            ax.plot(t, p, color=colors[i], lw=1.8, label=f"IPAM {i}")
+            ax.plot(t, p, color=colors[i], lw=widths[i], label=f"IPAM {i}")
     ax.axhline(0.0, color="0.6", lw=0.5)
     ax.set_ylabel("IPAM pressure (kPa gauge)")
     ax.set_title("(e) IPAM pressure commands")
@@ -218,17 +220,30 @@ def _panel_pressures(ax, t, h, passive: set) -> None:
         _legend(ax, len(cols))
 
 
-def _panel_chamber(ax, t, h, material) -> None:
-    """Chamber gauge pressure (kPa, simulated) and its air as mL at atmospheric pressure (right axis)."""
-    ax.plot(t, np.asarray(h["pressure_pa"]) / 1e3, color="k", lw=1.8, label="chamber pressure")
-    ax.set_ylabel("chamber pressure (kPa gauge, simulated)")
-    ax.set_title("(f) chamber: pressure (simulated) and air dosed")
+def _panel_chamber(ax, t, h, result) -> None:
+    """Chamber gauge pressure (kPa): at rest under each row's controls, as the valve CSV gives it
+    (``io.valve.quasi_static_pressure``), the simulated transient thin grey beside it; its air as mL
+    at atmospheric pressure (right axis)."""
+    material = getattr(getattr(result, "design", None), "material", None)
+    settled, source = quasi_static_pressure(result)
+    ax.plot(t, np.asarray(h["pressure_pa"]) / 1e3, color="0.6", lw=0.8, label="simulated transient")
+    ax.plot(t, settled / 1e3, color="k", lw=1.8, label="at rest (as the valve CSV)" if source == "quasi-static"
+            else "simulated")
+    ax.set_ylabel("chamber pressure (kPa gauge)")
+    ax.set_title("(f) chamber: pressure and air dosed")
+    ax.legend(loc="lower right", fontsize=7)
     if "air_mol" in h:
         temp, p_atm = (material.temperature, material.atmospheric_pressure) if material else (293.15, 101325.0)
         air = ax.twinx()
         air.plot(t, np.asarray(h["air_mol"]) * GAS_CONSTANT * temp / p_atm * 1e6, color="C9", lw=1.2, ls="-.")
         air.set_ylabel(f"air (mL at {p_atm / 1e3:.1f} kPa, {temp:.0f} K)", color="C9")
         air.tick_params(axis="y", colors="C9")
+
+
+def stacked_widths(n: int, width: float) -> list[float]:
+    """Line widths for ``n`` lines drawn in order: each thinner than the one before, so a line drawn
+    over an identical one leaves it showing at both edges."""
+    return [width * (1.0 + 1.2 * (n - 1 - k) / max(n - 1, 1)) for k in range(n)]
 
 
 def _panel_fit(ax, t, h, result) -> None:
@@ -266,7 +281,7 @@ def build_control_figure(result, title: str | None = None, timing=None):
     _panel_fit(d, t, h, result)
     _panel_pressures(e, t, h, passive)
     if "pressure_pa" in h:
-        _panel_chamber(f, t, h, getattr(getattr(result, "design", None), "material", None))
+        _panel_chamber(f, t, h, result)
     for ax in (b, c, d, e, f):
         _shade_inflation(ax, t, phase, name=False)
     for ax in (a, b, c, d, e, f):
