@@ -34,7 +34,9 @@ def test_the_report_judges_each_target_and_names_what_limits_it():
     assert verdict(egg) == "reached" and verdict(pear) == "not reached"
     assert verdict(_result(rest, mpre=(REACHED_MPRE + PARTLY_MPRE) / 2, pcc=0.99)) == "partly"
     assert verdict(_result(rest, mpre=1.0, pcc=0.9)) == "partly"  # a small error of the wrong shape
-    # the egg is reached before any actuator; IPAMs 1-4 raise no target's PCC in their rounds
+    # the egg is reached before any actuator; IPAMs 1-4 raise no target's PCC in their rounds; IPAM 4 is held
+    # neutral for both targets
+    egg.passive_ipams, pear.passive_ipams = np.array([4]), np.array([2, 4])
     pcc = [[0.999, 0.80], [0.999, 0.85]] + [[0.999, 0.85]] * 4
     md = design_markdown(_design_result([[egg, pear]] * 6, pcc))
     achieved = md.split("## Achieved fit")[1].split("\n## ")[0]
@@ -48,8 +50,10 @@ def test_the_report_judges_each_target_and_names_what_limits_it():
     table = md.split("## Final fit")[1].split("\n## ")[0]
     pear_row = next(x for x in table.splitlines() if x.startswith("| pear"))
     assert "| no | not reached |" in pear_row
-    assert idle_actuators(_design_result([[egg, pear]] * 6, pcc)) == [1, 2, 3, 4]
-    assert "**Helps no target**: IPAM 1, 2, 3, 4" in md and "Reached before any actuator (round 0): egg" in md
+    assert idle_actuators(_design_result([[egg, pear]] * 6, pcc)) == [4]
+    assert "**Helps no target**: IPAM 4 (held neutral for every target" in md
+    assert "IPAM 1, 2, 3: their rounds raised no target's PCC" in md and "not measured" in md
+    assert "Reached before any actuator (round 0: the rest shape under inflation alone): egg" in md
 
 
 def test_the_largest_error_is_the_distance_to_the_target_on_each_ray():

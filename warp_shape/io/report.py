@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from ..designer import PLACEMENTS
 
-__all__ = ["design_markdown", "verdict", "largest_error_mm", "idle_actuators", "REACHED_MPRE", "REACHED_PCC",
+__all__ = ["design_markdown", "verdict", "largest_error_mm", "idle_actuators", "flat_rounds", "REACHED_MPRE", "REACHED_PCC",
            "PARTLY_MPRE", "HELPS_PCC", "figures_section", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
 
 
@@ -31,11 +31,17 @@ def _added_table(result) -> list[str]:
         lines.append(f"| {k} | {names[a['target']]} | {a['face_a']} | {a['face_b']} | {a['error']:+.4f} | {gain:+.4f} |")
     idle = idle_actuators(result)
     if idle:
-        lines += ["", f"**Helps no target**: IPAM {', '.join(map(str, idle))} (held neutral for every target, or its "
-                  f"round raised no target's PCC by {HELPS_PCC:g}); a build may leave {'them' if len(idle) > 1 else 'it'} out."]
+        lines += ["", f"**Helps no target**: IPAM {', '.join(map(str, idle))} (held neutral for every target of the "
+                  f"final design); a build may leave {'them' if len(idle) > 1 else 'it'} out."]
+    flat = [k for k in flat_rounds(result) if k not in idle]
+    if flat:
+        lines += ["", f"IPAM {', '.join(map(str, flat))}: {'their rounds' if len(flat) > 1 else 'its round'} raised no "
+                  f"target's PCC by {HELPS_PCC:g}; the final design's controller uses {'them' if len(flat) > 1 else 'it'}, "
+                  f"whether {'they are' if len(flat) > 1 else 'it is'} needed is not measured."]
     reached0 = [names[j] for j in range(len(names)) if result.rounds and verdict(result.rounds[0][j]) == "reached"]
     if reached0:
-        lines += ["", f"Reached before any actuator (round 0): {', '.join(reached0)}."]
+        lines += ["", f"Reached before any actuator (round 0: the rest shape under inflation alone): "
+                  f"{', '.join(reached0)}; the actuators are not needed for {'them' if len(reached0) > 1 else 'it'}."]
     if result.added and len(names) > 1:
         first = result.added[0]["target"]
         others = [j for j in range(len(names)) if j != first]
@@ -100,16 +106,16 @@ def _achieved(result) -> list[str]:
 
 
 def idle_actuators(result) -> list[int]:
-    """IPAMs that help no target: held neutral for every target, or added in a round that raised no
-    target's PCC by ``HELPS_PCC``."""
+    """IPAMs that help no target: held neutral for every target of the final design."""
+    return [k for k in range(result.design.n_ipams)
+            if all(k in {int(i) for i in getattr(r, "passive_ipams", [])} for r in result.results)]
+
+
+def flat_rounds(result) -> list[int]:
+    """IPAMs whose round raised no target's PCC by ``HELPS_PCC`` (the final design's controller may still
+    use them: whether they are needed is not measured)."""
     pcc = result.pcc_by_round
-    idle = []
-    for k in range(result.design.n_ipams):
-        neutral = all(k in {int(i) for i in getattr(r, "passive_ipams", [])} for r in result.results)
-        flat = k + 1 < len(pcc) and float((pcc[k + 1] - pcc[k]).max()) < HELPS_PCC
-        if neutral or flat:
-            idle.append(k)
-    return idle
+    return [k for k in range(min(result.design.n_ipams, len(pcc) - 1)) if float((pcc[k + 1] - pcc[k]).max()) < HELPS_PCC]
 
 
 def _fit_table(result) -> list[str]:
