@@ -756,6 +756,9 @@ def _result(fit: _Fit, s: _State, info: dict, initial: list, faces: dict, noise:
     se, names, notes, corr, loose = _identify(s, fit, scale2)
     noise_mm, model_mm = 1e3 * np.sqrt(noise2), 1e3 * np.sqrt(model2)
     z, flags = _flags(params, s.x, se, noise_mm, model_mm)
+    if not info["converged"]:
+        flags.append(f"the fit stopped at its iteration limit ({info['iterations']}) before converging: the values "
+                     f"are where it stopped, not a minimum")
     maps = _maps(fit, s)
     return CalibrationResult(values=params.values(s.x), stderr=params.per_name(se * np.exp(s.x)),
                              start=params.values(params.x0), design=params.design(fit.design, s.x),
