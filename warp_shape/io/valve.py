@@ -67,7 +67,8 @@ from .atomic import atomic_write, write_json
 
 __all__ = ["DEFAULT_RATE_HZ", "DEFAULT_MAX_SLEW_KPA_S", "DEFAULT_MAX_FLOW_ML_S", "PLAN_MARGIN", "MAX_VALVE_RATE_HZ",
            "MIN_VALVE_SLEW_KPA_S", "MIN_VALVE_FLOW_ML_S", "MAX_VALVE_ROWS", "ValveTiming", "row_times", "peak_rates",
-           "valve_schedule", "valve_csv_text", "valve_sidecar", "write_valve_outputs", "quasi_static_pressure"]
+           "valve_schedule", "valve_csv_text", "valve_sidecar", "write_valve_outputs", "quasi_static_pressure",
+           "SETTLE_WORLDS"]
 
 DEFAULT_RATE_HZ = 50.0
 DEFAULT_MAX_SLEW_KPA_S = 100.0
@@ -129,50 +130,67 @@ def _check_passive(passive) -> None:
         raise DesignError(f"passive IPAM pressure must be 'neutral' or 'zero', got {passive!r}")
 
 
-def _jammed_at_their_frames(sim, history: dict, frames: np.ndarray, n_cell: int) -> None:
-    """Jam every world's cells as the run did: cell j in world k (control step k) where row k shows it
-    jammed, its jam taken at the frame of the control step before the first row showing it (when
-    the run jammed it, ``controller.replay``)."""
+#: control steps settled together (one world each) by ``quasi_static_pressure``: bounds its memory on
+#: large meshes and long sequences
+SETTLE_WORLDS = 64
+
+
+def _jammed_at_their_frames(sim, history: dict, frames: np.ndarray, rows: range, n_cell: int) -> None:
+    """Jam the cells of the worlds of control steps ``rows`` (one world each) as the run did: cell j
+    where the step's row shows it jammed, its jam taken at the frame of the control step before the
+    first row showing it (when the run jammed it, ``controller.replay``)."""
     for j in range(n_cell):
         col = np.asarray(history[f"cell{j}_jammed"]).astype(bool)
-        if not col.any():
+        if not col[rows.start:rows.stop].any():
             continue
         first = int(np.argmax(col))
-        sim.positions = np.broadcast_to(frames[max(first - 1, 0)], frames.shape)
-        for w in np.flatnonzero(col):
-            sim.jam(j, world=int(w))
+        sim.positions = np.broadcast_to(frames[max(first - 1, 0)], (len(rows),) + frames.shape[1:])
+        for w, k in enumerate(rows):
+            if col[k]:
+                sim.jam(j, world=w)
 
 
-def quasi_static_pressure(result, device: str = "cpu") -> tuple[np.ndarray, str]:
+def _settled_pressures(result, frames: np.ndarray, rows: range) -> tuple[np.ndarray, int]:
+    """((len(rows),) Pa, how many did not converge): the control steps ``rows`` settled statically."""
+    h, design = result.history, result.design
+    n_ipam, n_cell = _counts(h)
+    sim = Simulator(design, device="cpu", settings=result.settings.simulation.replace(bending="exact"),
+                    worlds=len(rows))
+    mask_passive(sim, *passive_masks([result] * len(rows), design.n_ipams, design.n_cells))
+    _jammed_at_their_frames(sim, h, frames, rows, n_cell)
+    sim.positions = frames[rows.start:rows.stop]
+    sim.air_moles = np.asarray(h["air_mol"], dtype=np.float64)[rows.start:rows.stop]
+    if n_ipam:
+        sim.ipam_pressures = np.stack([h[f"ipam{i}_pressure_pa"] for i in range(n_ipam)], axis=1)[rows.start:rows.stop]
+    done = sim.settle_static()
+    return (np.atleast_1d(np.asarray(sim.pressure(), dtype=np.float64)),
+            int(np.count_nonzero(~np.asarray(done.converged, dtype=bool))))
+
+
+def quasi_static_pressure(result) -> tuple[np.ndarray, str]:
     """((n_rows,) Pa gauge, source): the chamber's pressure at rest under each control step's
-    controls and jams (module docstring: a static settle of every control step at once, from its
-    frame, passive actuators masked as in the run), source ``"quasi-static"``; a record without
-    frames or design, or one whose settle fails, gives its simulated pressures, source
-    ``"simulated ..."`` saying why."""
+    controls and jams (module docstring: a static settle of the control steps, ``SETTLE_WORLDS`` at
+    a time, each from its frame, passive actuators masked as in the run), source ``"quasi-static"``;
+    a record without frames or design, or one whose settle fails, gives its simulated pressures,
+    source ``"simulated ..."`` saying why."""
     h = result.history
     simulated = np.asarray(h["pressure_pa"], dtype=np.float64)
     design, frames = getattr(result, "design", None), getattr(result, "frames", None)
     settings = getattr(getattr(result, "settings", None), "simulation", None)
     if design is None or frames is None or settings is None or len(frames) != len(simulated):
         return simulated, "simulated (the record holds no frames to settle)"
-    n_ipam, n_cell = _counts(h)
     frames = np.asarray(frames, dtype=np.float64)
-    n = len(frames)
+    parts, late = [], 0
     try:
-        sim = Simulator(design, device=device, settings=settings.replace(bending="exact"), worlds=n)
-        mask_passive(sim, *passive_masks([result] * n, design.n_ipams, design.n_cells))
-        _jammed_at_their_frames(sim, h, frames, n_cell)
-        sim.positions = frames
-        sim.air_moles = np.asarray(h["air_mol"], dtype=np.float64)
-        if n_ipam:
-            sim.ipam_pressures = np.stack([h[f"ipam{i}_pressure_pa"] for i in range(n_ipam)], axis=1)
-        done = sim.settle_static()
+        for start in range(0, len(frames), SETTLE_WORLDS):
+            p, k = _settled_pressures(result, frames, range(start, min(start + SETTLE_WORLDS, len(frames))))
+            parts.append(p)
+            late += k
     except SimulationError as exc:
         return simulated, f"simulated (the static settle failed: {exc})"
-    p = np.atleast_1d(np.asarray(sim.pressure(), dtype=np.float64))
+    p = np.concatenate(parts)
     if not np.all(np.isfinite(p)):
         return simulated, "simulated (the static settle gave non-finite pressures)"
-    late = int(np.count_nonzero(~np.asarray(done.converged, dtype=bool)))
     return p, "quasi-static" + (f" ({late} control steps not fully settled)" if late else "")
 
 
