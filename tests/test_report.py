@@ -86,3 +86,12 @@ def test_a_replayed_sequence_says_it_is_not_at_rest_where_it_is_not():
     assert moving.reason.endswith("so not converged") and "not at rest (" in moving.reason
     held = replay_result(design, res)
     assert held.settled and held.reason.endswith("open loop on this design: at rest")
+
+
+def test_the_final_fit_table_stays_narrow():
+    """The final-fit table's lines stay under 100 characters (a report read in a terminal)."""
+    rest = cube_fig6_design(subdivisions=2).rest
+    r = _result(rest, mpre=12.5, pcc=0.9, scale=1.3)
+    md = design_markdown(_design_result([[r, r]] * 6, [[0.9, 0.9]] * 6))
+    table = [x for x in md.split("## Final fit")[1].split("\n## ")[0].splitlines() if x.startswith("|")]
+    assert len(table) == 4 and max(len(x) for x in table) < 100, max(table, key=len)

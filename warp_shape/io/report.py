@@ -122,7 +122,7 @@ def _fit_table(result) -> list[str]:
     lines = ["## Final fit (measured at the end of each sequence; \"at rest\": every vertex slower than 1 mm/s)", "",
              "Objective: area-weighted RMS of the radial error scaled by the target's size, (R - r) / V_t^(1/3); "
              "0 is a perfect fit.", "",
-             "| target | objective | PCC | MARE (mm) | MPRE (%) | max (mm) | volume error (%) | at rest | verdict |", "|---|---|---|---|---|---|---|---|---|"]
+             "| target | objective | PCC | MARE (mm) | MPRE (%) | max (mm) | vol. error (%) | at rest | verdict |", "|---|---|---|---|---|---|---|---|---|"]
     for n, r in zip(result.target_names, result.results):
         lines.append(f"| {n} | {r.objective:.4f} | {r.pcc:.4f} | {r.mare * 1e3:.3f} | {r.mpre:.2f} | "
                      f"{largest_error_mm(r):.2f} | {100 * r.volume_error:.3f} | "
