@@ -118,6 +118,7 @@ def test_out_is_checked_before_any_work(tmp_path, monkeypatch, capsys):
         assert f"--out {a_file} is a file, not a folder" in err, command
     err = error_of(capsys, ["design", "--out", str(a_file / "sub")])
     assert "is a file, not a folder" in err
+    monkeypatch.delenv("WARP_CACHE_PATH", raising=False)  # its own check writes a probe file first
     ro = tmp_path / "ro"
     ro.mkdir()
     ro.chmod(0o555)

@@ -233,7 +233,7 @@ class MembraneFamily(ForceFamily):
         k_ax, k_tr, d = spring_operator_terms(xT, host["pair_a"], host["pair_b"], k, host["pair_rest"])
         return host["pair_a"], host["pair_b"], k_ax, k_tr, d
 
-    def diagonal_stiffness(self, model, state, diag, launch):
+    def diagonal_stiffness(self, model, state, diag, launch, control=None):
         dev = model.actuators[self.name]
         launch(km.add_vertex_diagonal_kernel, diag.shape, [dev["vertex_stiffness"], diag])
 
