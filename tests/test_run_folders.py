@@ -263,7 +263,8 @@ def test_sigkill_at_ten_points_leaves_one_whole_set(tmp_path):
     points = sorted({*(round(1 + j * (swap - 2) / 6) for j in range(7)), swap, swap + 1, swap + 3})
     assert len(points) == 10 and points[-1] < len(events)
     for k in points:
-        shutil.rmtree(tmp_path / "out.partial", ignore_errors=True)  # the same events in every run
+        shutil.rmtree(tmp_path / "out.partial", ignore_errors=True)  # the same events in every run: no staging
+        (tmp_path / ".out.lock").unlink(missing_ok=True)  # folder or lock of the last killed run to clear first
         rc = run_killed_at(k, log, [*new_args, "--out", str(out)])
         assert rc == -signal.SIGKILL, (k, rc)
         report = assert_whole_set(out)
@@ -474,8 +475,8 @@ def _kill_cases(lab: Path):
     """(command, first run's flags, the next run's flags): each pair writes two different sets."""
     scene = str(lab / "design.usda")
     cal = ["calibrate", str(lab / "manifest.json"), "--design", scene, "--wrt", "youngs_modulus"]
-    return {"export": (["export", scene, "--what", "molds", "usd", "--units", "cm"],
-                       ["export", scene, "--what", "molds", "usd", "--units", "mm"]),
+    return {"export": (["export", scene, "--what", "molds", "usd", "--mold-units", "cm"],
+                       ["export", scene, "--what", "molds", "usd", "--mold-units", "mm"]),
             "control": (["control", scene, "--max-steps", "3"], ["control", scene, "--max-steps", "4"]),
             "calibrate": (cal, cal)}
 
@@ -596,7 +597,7 @@ def test_calibrate_and_bench_refuse_the_users_files_before_any_work(tmp_path, mo
         out = tmp_path / name.replace(".", "_")
         out.mkdir()
         (out / name).write_text("my notes")
-        err = one_line_error(capsys, 2, ["calibrate", str(manifest), "--out", str(out)])
+        err = one_line_error(capsys, 2, ["calibrate", str(manifest), "--design", "cube_fig6", "--out", str(out)])
         assert f"holds files no run wrote ({name})" in err and (out / name).read_text() == "my notes"
     bench = tmp_path / "bench"
     bench.mkdir()
