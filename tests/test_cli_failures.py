@@ -353,7 +353,7 @@ def test_calibrate_checks_its_out_folder_before_the_fit(tmp_path, monkeypatch, c
     monkeypatch.setattr(cal_cli, "calibrate", lambda *a, **k: pytest.fail("the fit started"))
     (tmp_path / "m.json").write_text('{"observations": []}')
     (tmp_path / "file").write_text("x")
-    err = one_line(capsys, 2, ["calibrate", str(tmp_path / "m.json"), "--out", str(tmp_path / "file" / "sub")])
+    err = one_line(capsys, 2, ["calibrate", str(tmp_path / "m.json"), "--design", "cube_fig6", "--out", str(tmp_path / "file" / "sub")])
     assert "is a file, not a folder" in err
 
 
