@@ -100,10 +100,6 @@ class Model:
     def has_bending(self) -> bool:
         return self.bending_stiffness > 0.0
 
-    @property
-    def has_ipams(self) -> bool:
-        return self.n_ipams > 0
-
     def state(self, worlds: int = 1, jam_from: State | None = None) -> State:
         """A new ``State`` of ``worlds`` worlds at rest (rest positions, zero velocities, nothing
         jammed); with ``jam_from`` it shares that state's jam fields (the same arrays) instead."""
