@@ -250,12 +250,16 @@ def build_edges_kernel(
     stretch_modulus: wp.array(dtype=Any),  # (1,) E t, N/m
     bending_stiffness: wp.array(dtype=Any),  # (1,) k_t, N m/rad
     wing_scale: wp.array2d(dtype=Any),  # (E, 2) multiplier of E t of face a (wing v2) and face b (wing v3)
+    plate: wp.array(dtype=Any),  # (1,) D, N m: a hyperelastic membrane's plate stiffness
+    hyperelastic: int,  # 1: the triangles carry the stretching (k_e = 0) and k_t = 3 D |e|^2 / A_e
     # State in:
     rest_in: wp.array(dtype=Any),  # (V,) rest positions, m
     # Out:
     edge_out: wp.array3d(dtype=Any),  # (4, 1, E) rest length, rest angle, stretch and bending stiffness
 ):
-    """Each edge's rest length and angle, stretch stiffness E t (s_a A_a + s_b A_b) / L^2 and k_t at rest."""
+    """Each edge's rest length and angle, stretch stiffness E t (s_a A_a + s_b A_b) / L^2 and k_t at rest
+    (model.host_model's, with a hyperelastic membrane: no stretch stiffness and the plate's hinge
+    weighting of model.hinge_bend_stiffness)."""
     e = wp.tid()
     h = hinges[e]
     x0 = rest_in[h[0]]
@@ -264,12 +268,15 @@ def build_edges_kernel(
     x3 = rest_in[h[3]]
     length = wp.length(x1 - x0)
     half = type(length)(0.5)
-    area = half * (wing_scale[e, 0] * wp.length(wp.cross(x1 - x0, x2 - x0))
-                   + wing_scale[e, 1] * wp.length(wp.cross(x0 - x1, x3 - x1)))
+    area_a = half * wp.length(wp.cross(x1 - x0, x2 - x0))
+    area_b = half * wp.length(wp.cross(x0 - x1, x3 - x1))
+    area = wing_scale[e, 0] * area_a + wing_scale[e, 1] * area_b
+    hyper = hyperelastic != 0
     edge_out[0, 0, e] = length
     edge_out[1, 0, e] = dihedral_angle(x0, x1, x2, x3)
-    edge_out[2, 0, e] = stretch_modulus[0] * area / (length * length)
-    edge_out[3, 0, e] = bending_stiffness[0]
+    edge_out[2, 0, e] = wp.where(hyper, type(length)(0.0), stretch_modulus[0] * area / (length * length))
+    edge_out[3, 0, e] = wp.where(hyper, type(length)(3.0) * plate[0] * length * length / (area_a + area_b),
+                                 bending_stiffness[0])
 
 
 @wp.kernel(module=MODULE)

@@ -187,3 +187,72 @@ def jam_membrane_kernel(
     jam_out[4, w, i] = area
     jam_out[5, w, i] = jam_factor * rest[i, 4] / area
     jammed_out[w, i] = 1
+
+
+@wp.kernel
+def membrane_moduli_kernel(
+    # Model:
+    face_scale: wp.array(dtype=Any),  # (F,) multiplier of each triangle's moduli (Design.stretch_scale)
+    shear_modulus: wp.array(dtype=Any),  # (1,) mu, Pa
+    yeoh_c2: wp.array(dtype=Any),  # (1,) C2, Pa
+    yeoh_c3: wp.array(dtype=Any),  # (1,) C3, Pa
+    thickness: wp.array(dtype=Any),  # (1,) t, m
+    # Out:
+    moduli_out: wp.array2d(dtype=Any),  # (F, 3) t C1, t C2, t C3 in N/m
+):
+    """Each triangle's moduli from the law's constants (C1 = mu / 2), as the host model derives them."""
+    i = wp.tid()
+    t = thickness[0]
+    s = face_scale[i]
+    moduli_out[i, 0] = t * (type(t)(0.5) * shear_modulus[0]) * s
+    moduli_out[i, 1] = t * yeoh_c2[0] * s
+    moduli_out[i, 2] = t * yeoh_c3[0] * s
+
+
+@wp.kernel
+def membrane_plate_kernel(
+    # Model:
+    shear_modulus: wp.array(dtype=Any),  # (1,) mu, Pa
+    thickness: wp.array(dtype=Any),  # (1,) t, m
+    factor: Any,  # 3 / (12 (1 - nu^2)): D = factor mu t^3 (E = 3 mu)
+    # Out:
+    plate_out: wp.array(dtype=Any),  # (1,) the plate stiffness D, N m
+):
+    """The plate bending stiffness D = E t^3 / 12 (1 - nu^2) with E = 3 mu (Material.plate_stiffness)."""
+    t = thickness[0]
+    plate_out[0] = factor * shear_modulus[0] * t * t * t
+
+
+@wp.kernel
+def jam_membrane_grad_kernel(
+    # Model:
+    faces: wp.array(dtype=wp.vec3i),  # (F,) vertex indices
+    jam_now: wp.array(dtype=wp.int32),  # (F,) 1 for the triangles that jam at this event
+    jam_factor: Any,  # moduli multiplier of a jammed triangle
+    rest: wp.array2d(dtype=Any),  # (F, 5) rest frames and areas
+    # State in:
+    x_in: wp.array2d(dtype=Any),  # (1, V) the positions the cells jam at, m
+    jam_in: wp.array3d(dtype=Any),  # (6, 1, F) the jam fields before the event
+    jammed_in: wp.array2d(dtype=wp.int32),  # (1, F)
+    # Out:
+    jam_out: wp.array3d(dtype=Any),  # (6, 1, F) after it
+    jammed_out: wp.array2d(dtype=wp.int32),  # (1, F)
+):
+    """A jam event of the differentiable replay (one world): the jamming triangles take their current
+    shape as rest shape and the multiplier jam_factor A0 / A (as ``jam_membrane_kernel``), writing fresh
+    output arrays so that Warp's adjoint reaches the positions and the rest areas; the others keep theirs."""
+    i = wp.tid()
+    if jam_now[i] == 0:
+        for r in range(6):
+            jam_out[r, 0, i] = jam_in[r, 0, i]
+        jammed_out[0, i] = jammed_in[0, i]
+        return
+    face = faces[i]
+    d00, d01, d10, d11, area = rest_frame(x_in[0, face[0]], x_in[0, face[1]], x_in[0, face[2]])
+    jam_out[0, 0, i] = d00
+    jam_out[1, 0, i] = d01
+    jam_out[2, 0, i] = d10
+    jam_out[3, 0, i] = d11
+    jam_out[4, 0, i] = area
+    jam_out[5, 0, i] = jam_factor * rest[i, 4] / area
+    jammed_out[0, i] = 1

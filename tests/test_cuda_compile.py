@@ -109,6 +109,10 @@ def _drive(recorder: OverloadRecorder) -> None:
                     for fam in sim.model.families:  # what the differentiable replay launches to build them
                         if fam.name != "ipam":
                             fam.build(sim.model, wp.array(design.rest.vertices, dtype=sim.model.vec3), wp.launch)
+                        if fam.jams:  # and its jam event in the replay, on one world's fields
+                            fields = [fam.jam_fields(sim.model, 1) for _ in range(2)]
+                            fam.jam_event(sim.model, *fields, wp.zeros(fam.count(design), dtype=wp.int32),
+                                          sim.state.x[0:1], wp.launch)
 
 
 #: the differentiable replay's kernels are checked in float64, the precision of its checks and of the

@@ -1,6 +1,8 @@
 """The hyperelastic membrane (SPEC section 15, docs/membrane.md): the law, its force family, the thin
 sphere and the meshes."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import warp as wp
@@ -232,7 +234,7 @@ def test_the_force_kernels_adjoint_matches_central_differences_of_the_float64_fo
     from warp_shape.kernels import membrane as km
     from warp_shape.physics.membrane import MEMBRANE
 
-    assert MEMBRANE.differentiable and set(MEMBRANE.parameters) == {"moduli"}
+    assert MEMBRANE.differentiable and set(MEMBRANE.parameters) == {"shear_modulus", "yeoh_c2", "yeoh_c3", "thickness"}
     d, h = _law(**YEOH)
     rest0, x0 = d.rest.vertices, _deformed(d)
     r = np.random.default_rng(5).normal(size=x0.shape)
@@ -276,14 +278,6 @@ def test_the_force_kernels_adjoint_matches_central_differences_of_the_float64_fo
         minus[i, k] -= eps
         fd = (value(moduli=plus) - value(moduli=minus)) / (2 * eps)
         assert gmod[i, k] == pytest.approx(fd, rel=1e-6, abs=1e-12)
-
-
-def test_gradients_refuse_a_hyperelastic_design_before_any_work():
-    from warp_shape.gradients.api import gradient_parameters
-
-    with pytest.raises(DesignError, match="does not follow Material.membrane = 'neo_hookean'"):
-        gradient_parameters(ws.Design(ws.icosphere(1, 0.02), ws.Material(membrane="neo_hookean")))
-    assert "youngs_modulus" in gradient_parameters(ws.Design(ws.icosphere(1, 0.02), ws.Material()))
 
 
 def test_the_commands_take_the_membrane_law(tmp_path):
@@ -330,6 +324,65 @@ def test_in_compression_the_sheet_pushes_back_as_a_solid_and_does_not_wrinkle():
     assert np.all(s[:, 0] > 0.89) and np.all(s[:, 1] < 1.21)  # within the stretches applied
 
 
-def test_design_refuses_codesign_with_a_hyperelastic_membrane_before_any_work():
-    with pytest.raises(DesignError, match="codesign='off'"):
-        ws.design(ws.icosphere(2, 0.04), [ws.target("oval")], 2, material=ws.Material(membrane="neo_hookean"))
+@pytest.mark.parametrize("kw", [dict(membrane="neo_hookean"), YEOH], ids=["neo_hookean", "yeoh"])
+def test_hyperelastic_gradients_match_central_differences_through_a_jam(kw):
+    """Issue 52, must-show 3: the replay builds what the simulator builds for the law (no edge-spring
+    stiffness, the plate's hinge k_t), carries the triangles' jam fields and runs their jam events, so
+    d objective / d (mu, C2, thickness, rest positions) through a sequence whose cells jam the membrane's
+    triangles matches central differences of its forward (float64, rtol 1e-4)."""
+    from warp_shape.gradients import DifferentiableReplay
+    from warp_shape.gradients.api import gradient_parameters
+    from warp_shape.objectives.radial import fit_objective_and_gradient
+    from warp_shape.scenarios import cube_fig6_design
+    from conftest import with_pressure_max
+
+    base = with_pressure_max(cube_fig6_design(subdivisions=1), 100e3)
+    design = base.replace(material=dataclasses.replace(base.material, **kw))
+    keys = ("membrane_shear_modulus", "membrane_yeoh_c2", "membrane_thickness")
+    assert set(keys) <= set(gradient_parameters(design))  # ws.gradient takes them (it refused the law before)
+    target = ws.target("cube").centered()
+    result = ws.control(design, target, settings=ws.ControlSettings(method="paper", max_steps=12))
+    replay = DifferentiableReplay(design, result, precision="float64")
+    plan = replay.forward()
+    assert plan.jam_steps and all(now["membrane"].any() for now in plan.family_jam_now)  # triangles jam...
+    assert plan.jam_steps[0] < plan.n_steps - 10  # ...and the replay runs on after it
+    np.testing.assert_allclose(replay.positions(), plan.final, rtol=0, atol=1e-12)
+    sampler = ws.RadialSampler(target)
+
+    def objective(x):
+        return fit_objective_and_gradient(x, sampler, 0, design.rest.faces, target.volume())
+
+    j, dj = objective(plan.final)
+    g = replay.backward(dj, j).values
+    host = host_model(design)
+    edge = replay.edge0.numpy()[:, 0]
+    assert np.all(edge[2] == 0) and g["youngs_modulus"] == 0.0 and g["bending_stiffness"] == 0.0
+    np.testing.assert_allclose(edge[3], host.bend_stiffness, rtol=1e-12)
+    mat = design.material
+    for key, value in zip(keys, (mat.mu, mat.yeoh_c2, mat.thickness)):
+        eps = 1e-4 * value if value else 10.0
+        up, down = (objective(replay.positions(families={key: value + s * eps}))[0] for s in (1, -1))
+        fd = (up - down) / (2 * eps)
+        assert abs(fd) > 1e-9 * abs(j) / (value or 1.0) and g[key] == pytest.approx(fd, rel=1e-4), key
+    # a vertex of a triangle jammed at the first event, and the most sensitive vertex
+    grad, x0 = g["rest_positions"], design.rest.vertices
+    jammed = design.rest.faces[np.flatnonzero(plan.family_jam_now[0]["membrane"])[0], 0]
+    for v, c in ((jammed, 0), (int(np.argmax(np.abs(grad).sum(axis=1))), 2)):
+        xs = [x0.copy(), x0.copy()]
+        xs[0][v, c] += 1e-6
+        xs[1][v, c] -= 1e-6
+        fd = (objective(replay.positions(rest=xs[0]))[0] - objective(replay.positions(rest=xs[1]))[0]) / 2e-6
+        assert grad[v, c] == pytest.approx(fd, rel=1e-4, abs=1e-4 * np.abs(grad).max())
+
+
+def test_codesign_of_a_hyperelastic_design_runs_and_lowers_the_objective():
+    """Co-design takes its gradients through the replay, which follows the law: accepted (it was refused
+    before) and it lowers the replayed objective."""
+    from generated_shapes import shape
+
+    out = ws.design(ws.icosphere(2, 0.04), [shape("egg", subdivisions=2)], actuators=2, refine_rounds=0, workers=1,
+                    control_settings=ws.ControlSettings(method="paper"), material=ws.Material(membrane="neo_hookean"),
+                    codesign_steps=1, codesign_rounds=1)
+    rec = out.codesign
+    assert out.design.material.membrane == "neo_hookean" and rec["mode"] == "rest+ipams" and rec["kept"], rec["reason"]
+    assert out.results[0].objective < 0.9 * rec["before"][0]

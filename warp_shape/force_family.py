@@ -63,8 +63,10 @@ class ForceFamily:
     # ``energy`` then takes them as ``jam=`` and its ``stiffness_rows`` / ``operator_terms`` the edges' jam
     # flags as ``jammed=``
     jams = False
+    jam_flags = "jammed"  # the jam field (W, n) int32 that is 1 where an element is jammed
     differentiable = False
     parameters: dict = {}
+    scalar_parameters: tuple = ()  # names of ``parameters`` that are one value (1,) for every element
     rigid_invariant = True  # False: its forces hold the membrane in space (an anchor, an indenter, a held plug)
 
     # ------------------------------------------------------------------ host and device
@@ -125,6 +127,14 @@ class ForceFamily:
     def jam(self, model, state, cell: int, world_mask, launch) -> None:
         """Jam the family's elements in cell ``cell`` in the worlds where world_mask (W,) int32 is 1 (an
         element already jammed is left as it is); only for a family with ``jams``."""
+
+    def jam_event(self, model, fields_in: dict, fields_out: dict, now, x, launch) -> None:
+        """The differentiable replay's jam event, for a family with ``jams`` and ``differentiable``: launches
+        (backward-enabled, writing fresh arrays) that set one world's jam fields ``fields_out`` to
+        ``fields_in`` ({name: array}, as ``jam_fields`` of one world), the elements where ``now`` (n,) int32 is
+        1 jammed at positions ``x`` (1, V) as ``jam`` jams them; the replay runs their adjoints back to
+        the positions and the family's arrays."""
+        raise NotImplementedError(f"the force family {self.name!r} jams but has no jam_event for the replay")
 
     def diagonal_stiffness(self, model, state, diag, launch, control=None) -> None:
         """The static settle's preconditioner part: add each vertex's share of the elements' stiffness

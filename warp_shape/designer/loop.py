@@ -120,10 +120,6 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
     if overrides:
         settings = settings.replace(**overrides)
     control_settings = settings_or_default(control_settings, ControlSettings, "control_settings")
-    if material is not None and material.hyperelastic and settings.codesign != "off":
-        raise DesignError(f"co-design takes its gradients through the differentiable replay, which does not follow "
-                          f"Material.membrane = {material.membrane!r} yet; design with codesign='off' (--codesign off) "
-                          f"or membrane='springs'")
     targets, names = check_targets(targets, target_names)
     sampler = RadialSampler(targets, device=device, names=target_labels(targets, names))  # rejects non-star shapes
     check_target_units(base, targets, names, what="base mesh")

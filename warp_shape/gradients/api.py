@@ -16,14 +16,15 @@ from ..sampling import RadialSampler
 from .families import check_adjoints, family_parameters
 from .replay import DifferentiableReplay
 
-__all__ = ["gradient", "replay_gradient", "Gradient", "GRADIENT_PARAMETERS", "gradient_parameters",
-           "check_membrane_law"]
+__all__ = ["gradient", "replay_gradient", "Gradient", "GRADIENT_PARAMETERS", "gradient_parameters"]
 
 #: the parameters ``gradient`` differentiates by, with their units (d objective / d parameter is in 1 / unit)
 GRADIENT_PARAMETERS = {
     "rest_positions": "m, (V, 3): the rest shape's vertices",
-    "youngs_modulus": "Pa: the silicone's Young's modulus (thickness held)",
-    "bending_stiffness": "N m/rad: the hinge bending stiffness k_t",
+    "youngs_modulus": "Pa: the silicone's Young's modulus in the edge springs (thickness held; 0 with a "
+                      "hyperelastic membrane, whose constants are membrane_shear_modulus, ...)",
+    "bending_stiffness": "N m/rad: the paper's hinge bending stiffness k_t (0 with a hyperelastic membrane, whose "
+                         "hinges follow membrane_shear_modulus and membrane_thickness)",
     "ipam_stiffness": "N/m, (n_ipam,): each IPAM's stiffness k",
     "ipam_area": "m^2, (n_ipam,): each IPAM's area A",
     "air": "mol, (rows,): the chamber air of each history row (in force up to that row)",
@@ -47,21 +48,10 @@ class Gradient:
     segment: int = 0  # output steps between the adjoint's checkpoints
 
 
-def check_membrane_law(design: Design) -> None:
-    """Refuse, before any work, the gradient of a design with a hyperelastic membrane: the replay still
-    builds its edge springs from the stretch modulus and its hinges from the paper's bending_stiffness,
-    and does not replay the triangles' jam (the membrane family's own kernels and adjoint are ready)."""
-    if design.material.hyperelastic:
-        raise DesignError(f"gradient: the differentiable replay does not follow Material.membrane = "
-                          f"{design.material.membrane!r} yet (its edge springs, hinges and jams are the paper's); take "
-                          f"gradients of the design with membrane='springs'")
-
-
 def gradient_parameters(design: Design) -> dict:
     """{name: unit} of every parameter ``gradient`` can differentiate ``design``'s replay by:
     ``GRADIENT_PARAMETERS``, then each of its other force families' parameters and controls
     (``<family>_<array>``, ``<family>_controls``); a family without an adjoint is refused by name."""
-    check_membrane_law(design)
     fams = model_families(design)
     count = {f.name: f.count(design) for f in fams}.get
     check_adjoints(fams, count)
@@ -123,7 +113,6 @@ def replay_gradient(design: Design, result: ControlResult, target: TriMesh, name
     """``gradient``'s work on checked arguments (``names`` of ``GRADIENT_PARAMETERS``); ``plan``: the
     forward replay's plan where it was made already (``replay.plan_replay`` of this design and result
     in this precision, e.g. by the replay that accepted a co-design step), so only the adjoint runs."""
-    check_membrane_law(design)
     target = target.centered()
     replay = DifferentiableReplay(design, result, precision=precision, device=device, segment=segment)
     plan = replay.forward(plan)

@@ -70,7 +70,8 @@ class ReplayFamilies:
             return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device, requires_grad=grad)
 
         self.model = SimpleNamespace(host=host, device=device, precision=precision, scalar=scalar, vec3=vec3,
-                                     n_vertices=len(host.rest_vertices), faces=faces, differentiable=True,
+                                     n_vertices=len(host.rest_vertices), n_faces=len(host.faces), faces=faces,
+                                     differentiable=True,
                                      actuators={f.name: f.device_arrays(host.actuators[f.name], arr)
                                                 for f in self.families})
         self.base = {f.name: {p: self.model.actuators[f.name][p].numpy().copy() for p in f.parameters}
@@ -95,10 +96,37 @@ class ReplayFamilies:
         for fam in self.families:
             fam.build(self.model, rest, launch)
 
-    def forces(self, controls: SimpleNamespace, xv: wp.array, fg: wp.array, launch) -> None:
-        """Every family's forces at the point xv (2, 1, V) into fg[0] (the simulator's launches)."""
+    def forces(self, controls: SimpleNamespace, xv: wp.array, fg: wp.array, launch, state=None) -> None:
+        """Every family's forces at the point xv (2, 1, V) into fg[0] (the simulator's launches); ``state``:
+        the jam fields in force (``jam_state``), or None (nothing jammed)."""
         for fam in self.families:
-            fam.eval_forces(self.model, None, controls, xv[0], xv[1], fg[0], launch)
+            fam.eval_forces(self.model, state, controls, xv[0], xv[1], fg[0], launch)
+
+    @property
+    def jamming(self) -> tuple:
+        """The replayed families whose elements jam."""
+        return tuple(f for f in self.families if f.jams)
+
+    def jam_fields(self) -> dict:
+        """{family: {field: array}} one world's jam fields of every family that jams, nothing jammed, the
+        floating-point ones with gradients."""
+        out = {}
+        for fam in self.jamming:
+            fields = fam.jam_fields(self.model, 1)
+            out[fam.name] = {k: wp.zeros(a.shape, dtype=a.dtype, device=self.device,
+                                         requires_grad=wp.types.type_is_float(a.dtype)) for k, a in fields.items()}
+        return out
+
+    @staticmethod
+    def jam_state(fields: dict) -> SimpleNamespace:
+        """What a family's ``eval_forces`` reads of a state in the replay: one world's jam fields."""
+        return SimpleNamespace(worlds=1, family_jam=fields)
+
+    def jam(self, fields_in: dict, fields_out: dict, now: dict, x: wp.array, launch) -> None:
+        """Every jamming family's jam event (``ForceFamily.jam_event``): fields_in into fields_out
+        ({family: {field: array}}), the elements where now[family] (n,) int32 is 1 jammed at x (1, V)."""
+        for fam in self.jamming:
+            fam.jam_event(self.model, fields_in[fam.name], fields_out[fam.name], now[fam.name], x, launch)
 
     def grad_arrays(self) -> list:
         """The family arrays that carry gradients (to zero before an adjoint)."""
@@ -118,6 +146,7 @@ class ReplayFamilies:
         out = {}
         for fam in self.families:
             n = self.count(fam)
-            out.update({f"{fam.name}_{p}": self.model.actuators[fam.name][p].grad.numpy().astype(np.float64)[:n]
-                        for p in fam.parameters})
+            for p in fam.parameters:
+                g = self.model.actuators[fam.name][p].grad.numpy().astype(np.float64)
+                out[f"{fam.name}_{p}"] = float(g[0]) if p in fam.scalar_parameters else g[:n]
         return out

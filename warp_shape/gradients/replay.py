@@ -62,6 +62,9 @@ class ReplayPlan:
     segment: int
     precision: str = "float64"
     family_controls: dict = field(default_factory=dict)  # {family: (R, n)} the other actuator families' controls
+    # J + 1 x {family: {field: array}}: the jam fields (world 0) of each jam phase of every family that jams
+    family_jams: list = field(default_factory=list)
+    family_jam_now: list = field(default_factory=list)  # J x {family: (n,) int32}: its elements jammed at each event
 
     @property
     def n_steps(self) -> int:
@@ -101,6 +104,7 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
     h, sub, row = np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     checkpoints, jam_steps, jam_edges, jam_states = {}, [], [], []
     edges = [sim.state.edge.numpy()[:, 0].astype(np.float64)]
+    family_jams, family_jam_now = [_family_jam_of(sim)], []
     marks = np.unique(steps)
     for a, b in zip(marks[:-1], marks[1:]):
         k = min(int(np.searchsorted(steps, b)), len(steps) - 1)
@@ -113,6 +117,9 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
             jam_steps.append(int(a))
             jam_edges.append(np.flatnonzero(sim.state.jammed.numpy()[0].astype(bool) & ~before))
             edges.append(sim.state.edge.numpy()[:, 0].astype(np.float64))
+            family_jams.append(_family_jam_of(sim))
+            family_jam_now.append({name: (fields[_jam_flags(sim, name)] & ~family_jams[-2][name][_jam_flags(sim, name)]
+                                          ).reshape(-1).astype(np.int32) for name, fields in family_jams[-1].items()})
         sim.air_moles = float(air[k])
         if design.n_ipams:
             sim.ipam_pressures = pressures[k]
@@ -128,7 +135,18 @@ def plan_replay(design: Design, result, *, precision: str = "float64", device: s
                       enabled=(~pi[0]).astype(np.int32), jam_steps=jam_steps, jam_edges=jam_edges,
                       checkpoints=checkpoints, edges=edges, jam_states=jam_states,
                       final=np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3), segment=seg,
-                      precision=precision, family_controls=fam_controls)
+                      precision=precision, family_controls=fam_controls, family_jams=family_jams,
+                      family_jam_now=family_jam_now)
+
+
+def _family_jam_of(sim) -> dict:
+    """{family: {field: array}} world 0's jam fields of every family that jams (world axis kept, of size 1)."""
+    return {name: {k: a.numpy()[..., 0:1, :].copy() for k, a in fields.items()}
+            for name, fields in sim.state.family_jam.items()}
+
+
+def _jam_flags(sim, name: str) -> str:
+    return next(f.jam_flags for f in sim.model.families if f.name == name)
 
 
 def _state_of(sim) -> np.ndarray:
@@ -184,7 +202,13 @@ class Lane:
     step_h: wp.array
     work: StepBuffers
     controls: SimpleNamespace  # the actuator families' controls: values / enabled {family: (1, n)}
+    jam: dict = field(default_factory=dict)  # {family: {field: array}}: the jam fields in force (one world)
     loaded: list = field(default_factory=lambda: [None, None, None])
+
+    @property
+    def state(self) -> SimpleNamespace:
+        """What the families' forces read of a state: the jam fields in force."""
+        return ReplayFamilies.jam_state(self.jam)
 
 
 @dataclass
@@ -261,6 +285,12 @@ class DifferentiableReplay:
         self.jam_now = wp.zeros(E, dtype=wp.int32, device=self.device)
         self.edge_before, self.edge_after = sc((4, 1, E)), sc((4, 1, E))
         self.xv_jam = vec((2, 1, V))
+        self.fam_before, self.fam_after = self.fam.jam_fields(), self.fam.jam_fields()
+        self.fam_now = {f.name: wp.zeros(self.host.count(f.name), dtype=wp.int32, device=self.device)
+                        for f in self.fam.jamming}
+        # a hyperelastic membrane's plate stiffness, which its family derives (the hinges' k_t follows it)
+        membrane = self.fam.model.actuators.get("membrane", {})
+        self.plate = membrane.get("plate", self._arr(np.zeros(1), grad=False))
 
     def _buffers(self, xv_in: wp.array, xv_out: wp.array) -> StepBuffers:
         V, vec, stages = len(self.host.rest_vertices), self._vec, self._stages
@@ -275,7 +305,7 @@ class DifferentiableReplay:
         return Lane(edge=wp.zeros((4, 1, E), dtype=self.scalar, device=self.device, requires_grad=True),
                     air=wp.zeros(1, dtype=wp.float64, device=self.device, requires_grad=True),
                     step_h=wp.zeros(1, dtype=self.scalar, device=self.device), work=self._work_buffers(),
-                    controls=self.fam.controls())
+                    controls=self.fam.controls(), jam=self.fam.jam_fields())
 
     @property
     def lane(self) -> Lane:
@@ -314,12 +344,12 @@ class DifferentiableReplay:
         """The model arrays from the parameters (recorded on the build tape)."""
         h, V, E = self.host, len(self.host.rest_vertices), len(self.host.hinges)
         self.mass.zero_()
+        self.fam.build(self.rest, launch)
         launch(ka.build_edges_kernel, E, [self.hinges, self.stretch_modulus, self.bending_stiffness, self.wing_scale,
-                                          self.rest, self.edge0])
+                                          self.plate, int(self.design.material.hyperelastic), self.rest, self.edge0])
         launch(ka.build_mass_kernel, len(h.faces), [self.faces, self.scalar(self.design.material.areal_density),
                                                     self.rest, self.mass])
         launch(ka.invert_kernel, V, [self.mass, self.inv_mass])
-        self.fam.build(self.rest, launch)
         launch(ka.start_state_kernel, V, [self.rest, self.xv0])
 
     def _forces(self, xv, fg, volume, stage: int, lane: Lane, tape: Tape, launch) -> None:
@@ -327,7 +357,7 @@ class DifferentiableReplay:
         launch(ka.start_forces_kernel, V, [self.scalar(m.viscous_damping), xv, fg, volume])
         launch(ka.hinge_grad_kernel, E, [self.hinges, self.owns, self.scalar(m.spring_damping), self.paper_bending,
                                          1, E, lane.edge, xv, 0, fg, volume, tape.angles, tape.slot, stage])
-        self.fam.forces(lane.controls, xv, fg, launch)  # the simulator's launches of the other families
+        self.fam.forces(lane.controls, xv, fg, launch, lane.state)  # the simulator's launches of the other families
 
     def _step(self, b: StepBuffers, launch, lane: Lane | None = None, tape: Tape | None = None) -> None:
         """One internal step (h: the lane's ``step_h``) from b.xv_in into b.xv_out, the hinges' angles
@@ -357,7 +387,7 @@ class DifferentiableReplay:
         step = self._record(lambda launch: self._step(self.single, launch))
         hinge = [hinge_adjoint_launch(dim, inputs) for kernel, dim, inputs in step if kernel is ka.hinge_grad_kernel]
         return (self._record(self._build) + step + self._tape_launches(store=True) + self._tape_launches(store=False)
-                + hinge[:1] + [self._jam_launch()])
+                + hinge[:1] + self._jam_launches())
 
     def _tape_launches(self, store: bool, lane: Lane | None = None, tape: Tape | None = None) -> list:
         """Store the lane's work buffers' intermediates in the tape's slot in hand and move to the next,
@@ -508,21 +538,28 @@ class DifferentiableReplay:
         return int(np.searchsorted(self.plan.jam_steps, k, side="right"))
 
     def _load_edges(self, phase: int, lane: Lane) -> None:
+        """The edge fields and the families' jam fields of jam phase ``phase`` into ``lane``."""
         if lane.loaded[0] != phase:
             self._set(lane.edge, self.plan.edges[phase].reshape(4, 1, -1))
+            _set_fields(lane.jam, self.plan.family_jams[phase])
             lane.loaded[0] = phase
 
-    def _jam_launch(self):
+    def _jam_launches(self) -> list:
+        """A jam event's launches: the edges', then every jamming family's (``ForceFamily.jam_event``)."""
         E = len(self.host.hinges)
         m = self.design.material
-        return (ka.jam_grad_kernel, E, [self.hinges, self.jam_now, self.scalar(m.jam_stretch_factor),
-                                        self.scalar(m.jam_bend_factor), self.xv_jam, self.edge_before,
-                                        self.edge_after])
+        edges = (ka.jam_grad_kernel, E, [self.hinges, self.jam_now, self.scalar(m.jam_stretch_factor),
+                                         self.scalar(m.jam_bend_factor), self.xv_jam, self.edge_before,
+                                         self.edge_after])
+        return [edges] + self._record(lambda launch: self.fam.jam(self.fam_before, self.fam_after, self.fam_now,
+                                                                  self.xv_jam[0], launch))
 
     def _jam_mask(self, event: int) -> None:
         mask = np.zeros(len(self.host.hinges), dtype=np.int32)
         mask[self.plan.jam_edges[event]] = 1
         self.jam_now.assign(mask)
+        for name, now in self.fam_now.items():
+            now.assign(self.plan.family_jam_now[event][name])
 
     def _jam_adjoint(self, event: int, lam: wp.array) -> None:
         """Back through jam event ``event``: lane 0's edge.grad (the adjoint of the edges after it)
@@ -531,14 +568,18 @@ class DifferentiableReplay:
         self._jam_mask(event)
         self._set(self.edge_before, p.edges[event].reshape(4, 1, -1))
         self._set(self.xv_jam, p.jam_states[event].reshape(2, 1, -1, 3))
-        launch = [self._jam_launch()]
+        _set_fields(self.fam_before, p.family_jams[event])
+        launch = self._jam_launches()
         self._run(launch)
         wp.copy(self.edge_after.grad, lane.edge.grad)
+        _copy_fields(self.fam_after, lane.jam, grad=True)
         self.edge_before.grad.zero_()
+        _zero_field_grads(self.fam_before)
         self.xv_jam.grad.zero_()
         self._run(launch, adjoint=True)
         _add(lam, self.xv_jam.grad)
         wp.copy(lane.edge.grad, self.edge_before.grad)
+        _copy_fields(lane.jam, self.fam_before, grad=True)
         self._load_edges(event, lane)
 
     def _zero_grads(self) -> None:
@@ -546,6 +587,8 @@ class DifferentiableReplay:
         for a in (self.rest, self.stretch_modulus, self.bending_stiffness, self.edge0, self.mass, self.inv_mass,
                   self.xv0, lane.edge, lane.air, *lane.controls.values.values(), *self.fam.grad_arrays()):
             a.grad.zero_()
+        for fields in (lane.jam, self.fam_before, self.fam_after):
+            _zero_field_grads(fields)
 
     def _pipelined(self, threads: int | None, segments: int) -> bool:
         """Whether the backward recomputes the next segment on a second thread while it steps back
@@ -661,14 +704,17 @@ class DifferentiableReplay:
         b = self.single
         wp.copy(b.xv_out, self.xv0)
         wp.copy(lane.edge, self.edge0)
+        _set_fields(lane.jam, p.family_jams[0])
         events = {s: j for j, s in enumerate(p.jam_steps)}
         for k in range(p.n_steps):
             if k in events:
                 self._jam_mask(events[k])
                 wp.copy(self.xv_jam, b.xv_out)
                 wp.copy(self.edge_before, lane.edge)
-                self._run([self._jam_launch()])
+                _copy_fields(self.fam_before, lane.jam)
+                self._run(self._jam_launches())
                 wp.copy(lane.edge, self.edge_after)
+                _copy_fields(lane.jam, self.fam_after)
             row = int(p.row[k])
             lane.air.assign(np.array([rows_air[row]]))
             self._set_controls(lane, row, rows_f)
@@ -716,6 +762,30 @@ class _Worker(threading.Thread):
         super().join(timeout)
         if self.error is not None:
             raise self.error
+
+
+def _set_fields(fields: dict, values: dict) -> None:
+    """{family: {field: array}} set from host copies of the same layout."""
+    for name, arrays in fields.items():
+        for k, a in arrays.items():
+            a.assign(np.asarray(values[name][k]).astype(a.numpy().dtype).reshape(a.shape))
+
+
+def _copy_fields(dst: dict, src: dict, grad: bool = False) -> None:
+    """dst's jam fields = src's (their adjoints where ``grad``: the floating-point fields only)."""
+    for name, arrays in dst.items():
+        for k, a in arrays.items():
+            if not grad:
+                wp.copy(a, src[name][k])
+            elif a.grad is not None:
+                wp.copy(a.grad, src[name][k].grad)
+
+
+def _zero_field_grads(fields: dict) -> None:
+    for arrays in fields.values():
+        for a in arrays.values():
+            if a.grad is not None:
+                a.grad.zero_()
 
 
 def _add(dst: wp.array, src: wp.array) -> None:

@@ -16,6 +16,7 @@ import warp as wp
 from warp_shape.kernels import membrane as km
 
 from ..force_family import FORCE_FAMILIES, ForceFamily
+from ..material import PLATE_POISSON
 from .springs import spring_operator_terms, spring_rows_np
 
 __all__ = ["MembraneFamily", "MEMBRANE", "rest_frames_np", "membrane_invariants_np", "membrane_energy_np",
@@ -140,9 +141,13 @@ class MembraneFamily(ForceFamily):
     owner = "Material (membrane, shear_modulus, yeoh_c2, yeoh_c3, thickness)"
     jams = True
     # the force kernel's adjoint is Warp's, checked against central differences of the float64 law
-    # (tests/test_membrane.py); the rest frames are derived from the rest positions on the tape (build)
+    # (tests/test_membrane.py); the moduli, the plate stiffness and the rest frames are derived from the
+    # law's constants and the rest positions on the tape (build)
     differentiable = True
-    parameters = {"moduli": "N/m (t C1, t C2, t C3 per triangle)"}
+    parameters = {"shear_modulus": "Pa: the sheet's shear modulus mu (C1 = mu / 2)",
+                  "yeoh_c2": "Pa: the Yeoh law's C2", "yeoh_c3": "Pa: the Yeoh law's C3",
+                  "thickness": "m: the sheet's thickness (its moduli and plate bending; the mass held)"}
+    scalar_parameters = ("shear_modulus", "yeoh_c2", "yeoh_c3", "thickness")
 
     def count(self, design) -> int:
         return design.rest.n_faces if design.material.hyperelastic else 0
@@ -159,7 +164,10 @@ class MembraneFamily(ForceFamily):
                     face_edges=mesh.topology.face_edges.astype(np.int64),
                     cell_faces=np.concatenate(cells) if cells else np.zeros(0, dtype=np.int64),
                     cell_offsets=np.cumsum([0] + [len(c) for c in cells]).astype(np.int64),
-                    jam_factor=np.array([mat.jam_stretch_factor]))
+                    jam_factor=np.array([mat.jam_stretch_factor]), face_scale=scale,
+                    shear_modulus=np.array([mat.mu]), yeoh_c2=np.array([mat.yeoh_c2]),
+                    yeoh_c3=np.array([mat.yeoh_c3]), thickness=np.array([mat.thickness]),
+                    plate=np.array([mat.plate_stiffness]))
         k, V = self._equivalent(host), mesh.n_vertices
         host["vertex_stiffness"] = np.bincount(a, k, V) + np.bincount(b, k, V)  # the settle's preconditioner part
         return host
@@ -168,7 +176,9 @@ class MembraneFamily(ForceFamily):
         return dict(faces=arr(host["faces"].astype(np.int32), wp.vec3i), rest=arr(host["rest"]), moduli=arr(host["moduli"]),
                     vertex_stiffness=arr(host["vertex_stiffness"]),
                     cell_faces=arr(host["cell_faces"].astype(np.int32), wp.int32),
-                    no_jam=arr(np.zeros((6, 1, 1))), no_jammed=arr(np.zeros((1, 1), dtype=np.int32), wp.int32))
+                    no_jam=arr(np.zeros((6, 1, 1))), no_jammed=arr(np.zeros((1, 1), dtype=np.int32), wp.int32),
+                    **{k: arr(host[k]) for k in ("face_scale", "shear_modulus", "yeoh_c2", "yeoh_c3", "thickness",
+                                                 "plate")})
 
     def jam_fields(self, model, worlds):
         F, dev = model.n_faces, model.device
@@ -184,8 +194,21 @@ class MembraneFamily(ForceFamily):
                     state.x, fields["jam"], fields["jammed"]])
 
     def build(self, model, rest, launch):
+        """The moduli and the plate stiffness (``plate``, the hinges' bending: ``model.hinge_bend_stiffness``)
+        from the law's constants, the rest frames from the rest positions."""
         dev = model.actuators[self.name]
-        launch(km.membrane_rest_kernel, dev["faces"].shape[0], [dev["faces"], rest, dev["rest"]])
+        n = dev["faces"].shape[0]
+        launch(km.membrane_moduli_kernel, n, [dev["face_scale"], dev["shear_modulus"], dev["yeoh_c2"], dev["yeoh_c3"],
+                                              dev["thickness"], dev["moduli"]])
+        launch(km.membrane_plate_kernel, 1, [dev["shear_modulus"], dev["thickness"],
+                                             model.scalar(3.0 / (12.0 * (1.0 - PLATE_POISSON ** 2))), dev["plate"]])
+        launch(km.membrane_rest_kernel, n, [dev["faces"], rest, dev["rest"]])
+
+    def jam_event(self, model, fields_in, fields_out, now, x, launch):
+        dev, host = model.actuators[self.name], model.host.actuators[self.name]
+        launch(km.jam_membrane_grad_kernel, dev["faces"].shape[0],
+               [dev["faces"], now, model.scalar(float(host["jam_factor"][0])), dev["rest"], x, fields_in["jam"],
+                fields_in["jammed"], fields_out["jam"], fields_out["jammed"]])
 
     def eval_forces(self, model, state, control, x, v, f, launch):
         if not model.host.count(self.name):
