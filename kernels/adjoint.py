@@ -450,8 +450,9 @@ def rk4_combine_kernel(
     a3 = acceleration(fg_3, volume_3, air_in, gas_rt, p_atm, inv_mass[i], i)
     two = type(h)(2.0)
     sixth = h / type(h)(6.0)
-    dx = xv_start[1, 0, i] + (xv_1[1, 0, i] + xv_2[1, 0, i]) * two + xv_3[1, 0, i]
-    dv = a_0[0, i] + (a_1[0, i] + a_2[0, i]) * two + a3
+    # the slopes summed in the order of kernels/integrate.rk4_stage_fused (so the two round alike)
+    dx = xv_start[1, 0, i] + xv_1[1, 0, i] * two + xv_2[1, 0, i] * two + xv_3[1, 0, i]
+    dv = a_0[0, i] + a_1[0, i] * two + a_2[0, i] * two + a3
     xv_out[0, 0, i] = xv_start[0, 0, i] + dx * sixth
     xv_out[1, 0, i] = xv_start[1, 0, i] + dv * sixth
 
@@ -475,7 +476,10 @@ def semi_implicit_grad_kernel(
     """Semi-implicit Euler as kernels/integrate.integrate_semi_implicit_fused."""
     i = wp.tid()
     h = step_in[0]
-    v_new = xv_in[1, 0, i] + acceleration(fg_in, volume_in, air_in, gas_rt, p_atm, inv_mass[i], i) * h
+    # (f + p dV/dx) (h / m): the order of kernels/integrate.integrate_semi_implicit_fused
+    g = fg_in[1, 0, i]
+    p = gauge_pressure(air_in[0], volume_in[0, 0], gas_rt, p_atm)
+    v_new = xv_in[1, 0, i] + (fg_in[0, 0, i] + g * type(g[0])(p)) * (h * inv_mass[i])
     xv_out[1, 0, i] = v_new
     xv_out[0, 0, i] = xv_in[0, 0, i] + v_new * h
 

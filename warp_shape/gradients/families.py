@@ -76,6 +76,19 @@ class ReplayFamilies:
                                                 for f in self.families})
         self.base = {f.name: {p: self.model.actuators[f.name][p].numpy().copy() for p in f.parameters}
                      for f in self.families}
+        # every floating-point array as the simulator's model holds it (its build derives some within rounding)
+        self.made = {(f.name, k): a.numpy().copy() for f in self.families
+                     for k, a in self.model.actuators[f.name].items() if a.grad is not None}
+
+    @property
+    def parameter_names(self) -> set:
+        """The gradient names (``<family>_<array>``) of the replayed families' parameters."""
+        return {f"{f.name}_{p}" for f in self.families for p in f.parameters}
+
+    def restore_arrays(self) -> None:
+        """Every floating-point array back to its value as made from the host model (the simulator's)."""
+        for (name, k), value in self.made.items():
+            self.model.actuators[name][k].assign(value)
 
     @property
     def controlled(self) -> tuple:

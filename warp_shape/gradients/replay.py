@@ -352,6 +352,16 @@ class DifferentiableReplay:
         launch(ka.invert_kernel, V, [self.mass, self.inv_mass])
         launch(ka.start_state_kernel, V, [self.rest, self.xv0])
 
+    def _simulator_arrays(self) -> None:
+        """The built model arrays replaced by the simulator's own (the host model's, in this precision), which
+        the build gives within rounding at the design's parameters: the forward then rounds as the
+        simulator does, bit for bit, and the build's adjoint (which reads its inputs, not these) is unchanged."""
+        h = self.host
+        self._set(self.edge0, np.stack([h.rest_length, h.rest_angle, h.edge_stiffness, h.bend_stiffness]))
+        self._set(self.mass, h.mass)
+        self._set(self.inv_mass, (1.0 / h.mass).astype(self.np_dtype))
+        self.fam.restore_arrays()
+
     def _forces(self, xv, fg, volume, stage: int, lane: Lane, tape: Tape, launch) -> None:
         m, V, E = self.design.material, len(self.host.rest_vertices), len(self.host.hinges)
         launch(ka.start_forces_kernel, V, [self.scalar(m.viscous_damping), xv, fg, volume])
@@ -612,6 +622,7 @@ class DifferentiableReplay:
         p = self.plan
         build = self._record(self._build)
         self._run(build)
+        self._simulator_arrays()
         self._zero_grads()
         lam = wp.zeros((2, 1, len(self.host.rest_vertices)), dtype=self.vec3, device=self.device)
         lam_np = np.zeros((2, 1, len(self.host.rest_vertices), 3))
@@ -699,6 +710,9 @@ class DifferentiableReplay:
         rows_f = self._control_rows(given)
         rows_air = p.air if air is None else np.asarray(air, dtype=np.float64)
         self._run(self._record(self._build))
+        if not (given.keys() & self.fam.parameter_names or any(v is not None for v in (rest, stretch_modulus,
+                                                                                       bending_stiffness))):
+            self._simulator_arrays()
         self.tapes[0].slot.zero_()
         lane = self.lane
         b = self.single
