@@ -375,6 +375,27 @@ def test_hyperelastic_gradients_match_central_differences_through_a_jam(kw):
         assert grad[v, c] == pytest.approx(fd, rel=1e-4, abs=1e-4 * np.abs(grad).max())
 
 
+def test_the_equilibrium_gradient_reads_the_triangles_jam():
+    """The model-based controller's equilibrium gradient composes the triangles with their jam fields:
+    its force at a point after a jam is the simulator's (it was the unjammed sheet's before)."""
+    from warp_shape.gradients.equilibrium import EquilibriumGradient
+
+    d = ws.Design(ws.icosphere(1, 0.02), ws.Material(membrane="neo_hookean"))
+    d.add_cell([0, 1, 2, 3, 4])
+    sim = ws.Simulator(d, precision="float64")
+    sim.positions = _deformed(d, scale=1.1)
+    sim.jam(0)
+    sim.positions = _deformed(d, seed=2, scale=1.2)  # strained away from the shape the cell froze at
+    st = sim.state
+    jam = {k: {n: a.numpy()[..., 0:1, :] for n, a in f.items()} for k, f in st.family_jam.items()}
+    assert jam["membrane"]["jammed"].sum() == 5
+    eg = EquilibriumGradient(host_model(d), d.material)
+    eg.load(np.asarray(sim.positions).reshape(-1, 3), st.edge.numpy()[:, 0], float(sim.air_moles), [],
+            family_jam=jam)
+    f = np.asarray(sim.forces()).reshape(-1, 3)
+    np.testing.assert_allclose(eg.force(), f, rtol=0, atol=1e-9 * np.abs(f).max())
+
+
 def test_codesign_of_a_hyperelastic_design_runs_and_lowers_the_objective():
     """Co-design takes its gradients through the replay, which follows the law: accepted (it was refused
     before) and it lowers the replayed objective."""

@@ -202,7 +202,8 @@ def _adjoint_gradient(explorer: Explorer, wd: _World, target: int) -> np.ndarray
     air, p = wd.controls(wd.u)
     _, dj_dx = fit_objective_and_gradient(x, explorer.sampler, int(target), host.faces,
                                           float(explorer.target_volume[target]))
-    eg.load(x, edge, air, p, ~explorer.passive[target] if host.n_ipams else None)
+    jam = {k: {n: a.numpy()[..., ref.world:ref.world + 1, :] for n, a in f.items()} for k, f in ref.state.family_jam.items()}
+    eg.load(x, edge, air, p, ~explorer.passive[target] if host.n_ipams else None, family_jam=jam)
     cg = eg.control_gradient(dj_dx, tolerance=ADJOINT_TOLERANCE, guess=wd.mu_adjoint)
     explorer.adjoint_iterations += cg.iterations
     if not cg.converged:

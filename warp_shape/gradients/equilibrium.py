@@ -54,7 +54,9 @@ class EquilibriumGradient:
 
     ``load(x, edge, air, pressures, enabled, controls)`` sets the point (positions (V, 3) m, at rest; edge
     fields (4, E) as a simulator state holds them, jams applied; air mol; gauge pressures (n,) Pa; enabled
-    (n,) bool; other actuator families' controls {family: (n,)}, their rest controls where not given); ``force()`` is the net force there, ``stiffness_product(v)`` K v, ``control_gradient(dj_dx)``
+    (n,) bool; other actuator families' controls {family: (n,)}, their rest controls where not given; the
+    jamming families' fields ``family_jam`` {family: {field: array}} of the point's world, world axis of size 1
+    kept, nothing jammed where not given); ``force()`` is the net force there, ``stiffness_product(v)`` K v, ``control_gradient(dj_dx)``
     the gradient of an objective with derivative ``dj_dx`` (V, 3) with respect to the air and the
     pressures."""
 
@@ -76,6 +78,7 @@ class EquilibriumGradient:
         faces = wp.array(host.faces.astype(np.int32), dtype=wp.vec3i, device=self.device)
         self.fam = ReplayFamilies(host, faces, wp.float64, wp.vec3d, np.float64, self.device, "float64")
         self.controls = self.fam.controls()
+        self.jam = self.fam.jam_fields()  # the jamming families' fields at the point (one world)
         self.rigid_free = all(f.rigid_invariant for f in host.families)
         self.air = 0.0
         self._launches: list = []
@@ -83,7 +86,8 @@ class EquilibriumGradient:
         self._diag = None
 
     # ------------------------------------------------------------------ the point
-    def load(self, x, edge, air: float, pressures, enabled=None, controls: dict | None = None) -> None:
+    def load(self, x, edge, air: float, pressures, enabled=None, controls: dict | None = None,
+             family_jam: dict | None = None) -> None:
         x = np.asarray(x, dtype=np.float64).reshape(self.V, 3)
         edge = np.asarray(edge, dtype=np.float64).reshape(4, self.E)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(edge)) and np.isfinite(air) and air > 0):
@@ -101,9 +105,19 @@ class EquilibriumGradient:
             if fam.name != "ipam":
                 given = (controls or {}).get(fam.name, fam.rest_controls(self.host.actuators[fam.name]))
                 self.controls.values[fam.name].assign(np.asarray(given, dtype=np.float64).reshape(1, -1))
+        self._load_jam(family_jam or {})
         self._forward()
         self._rigid = _rigid_basis(x)
         self._diag = self._stiffness_diagonal(edge)
+
+    def _load_jam(self, family_jam: dict) -> None:
+        """The jamming families' fields at the point: family_jam {family: {field: array}} one world's (the
+        world axis of size 1 kept, as ``State.family_jam`` holds them), nothing jammed where not given."""
+        for name, fields in self.jam.items():
+            for k, a in fields.items():
+                given = family_jam.get(name, {}).get(k)
+                a.assign(np.zeros(a.shape, dtype=a.numpy().dtype) if given is None
+                         else np.asarray(given).astype(a.numpy().dtype).reshape(a.shape))
 
     def _forward(self) -> None:
         """One force evaluation at the point: forces without pressure and dV/dx (fg), the volume."""
@@ -113,7 +127,8 @@ class EquilibriumGradient:
             (ka.start_forces_kernel, self.V, [self.viscous_damping, self.xv, self.fg, self.volume]),
             (ka.hinge_grad_kernel, self.E, [self.hinges, self.owns, self.spring_damping, 0, 1, self.E, self.edge,
                                             self.xv, 0, self.fg, self.volume, self.angles, self.slot, 0])]
-        self.fam.forces(self.controls, self.xv, self.fg, lambda k, dim, inputs: self._launches.append((k, dim, inputs)))
+        self.fam.forces(self.controls, self.xv, self.fg, lambda k, dim, inputs: self._launches.append((k, dim, inputs)),
+                        self.fam.jam_state(self.jam))
         for kernel, dim, inputs in self._launches:
             wp.launch(kernel, dim, inputs, device=self.device, record_tape=False)
         fg = self.fg.numpy()
