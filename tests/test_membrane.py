@@ -401,7 +401,7 @@ def test_codesign_of_a_hyperelastic_design_runs_and_lowers_the_objective():
     before) and it lowers the replayed objective."""
     from generated_shapes import shape
 
-    out = ws.design(ws.icosphere(2, 0.04), [shape("egg", subdivisions=2)], actuators=2, refine_rounds=0, workers=1,
+    out = ws.design(ws.icosphere(2, 0.04), [shape("egg", subdivisions=2)], actuators=1, refine_rounds=0, workers=1,
                     control_settings=ws.ControlSettings(method="paper"), material=ws.Material(membrane="neo_hookean"),
                     codesign_steps=1, codesign_rounds=1)
     rec = out.codesign
