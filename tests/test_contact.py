@@ -100,9 +100,10 @@ def test_the_contact_kernels_adjoints_match_central_differences():
         tape = wp.Tape()
         with tape:
             ind = dev["indenter"]
-            wp.launch(kc.indenter_force_kernel, (1, len(x0)), [ind["kind"], ind["axis"], ind["origin"], ind["radius"],
-                                                               ind["stiffness"], 0, sim.control.values["indenter"],
-                                                               sim.control.enabled["indenter"], x, f])
+            args = [ind["kind"], ind["axis"], ind["origin"], ind["radius"], ind["stiffness"], 0,
+                    sim.control.values["indenter"], sim.control.enabled["indenter"], x, f]
+            wp.launch(kc.indenter_force_kernel, (1, len(x0)), args)  # the plate, on vertices
+            wp.launch(kc.indenter_face_force_kernel, (1, len(ind["faces"])), [ind["faces"], *args])  # the sphere
             hold = dev["hold"]
             wp.launch(kc.hold_force_kernel, (1, len(host["hold"]["vertex"])),
                       [hold["vertex"], hold["point"], hold["stiffness"], x, f])

@@ -50,11 +50,12 @@ def test_a_press_does_work_equal_to_the_stored_energy_and_unloads_along_its_load
 def test_a_plate_carries_the_gauge_pressure_over_its_contact_area():
     """A pure membrane (no bending) pressed 10 mm by a plate: F = p A_c. Locally exact: every contact vertex
     whose neighbours all touch carries p times its share of the surface (the membrane's tension lies in the
-    plate). In total, A_c lies between the faces wholly in contact and the touching vertices' shares
-    (``contact_area``): the vertices of the contact's rim carry a third to 95 % of their share."""
+    plate). In total within 5 %, with A_c the faces in contact weighted by their touching fraction, the
+    contact line placed where the membrane, leaving tangentially, meets the plate (``contact_area``;
+    measured 0.968 on 642 vertices, 0.974 on 2562); the touching vertices' whole shares would give 0.75."""
     sim = inflated(3, bending_stiffness=0.0)
-    setup, depths = feel.press_setup(sim, 0, (0, 0, 1), "plate", 0.008, [0.005, 0.01])
-    rows = feel.press_path(setup, depths)
+    setup, depths = feel.press_setup(sim, 0, (0, 0, 1), "plate", 0.008, [0.01])
+    row = feel.press_path(setup, depths)[0]
     press = setup.sim
     x = press.positions.reshape(-1, 3)
     force = -press.forces("indenter")[:, 2]
@@ -68,26 +69,22 @@ def test_a_plate_carries_the_gauge_pressure_over_its_contact_area():
     assert inner.sum() >= 7
     np.testing.assert_allclose(force[inner], share[inner], rtol=1e-3)
     assert np.all(force[touch & free_neighbour] < share[touch & free_neighbour])  # the rim: pulled off by the membrane
-    faces = sim.design.rest.faces
-    for row in rows:
-        xs, f, p = row["positions"][0], row["force"][0], row["pressure"][0]
-        a = 0.5 * np.cross(xs[faces[:, 1]] - xs[faces[:, 0]], xs[faces[:, 2]] - xs[faces[:, 0]])[:, 2]
-        wholly = a[(xs[:, 2] >= xs[:, 2].max() - 1e-9)[faces].all(axis=1)].sum()
-        assert wholly < f / p < row["contact_area"][0]
-    assert rows[1]["force"][0] > 2 * rows[0]["force"][0]
+    f, p, a = row["force"][0], row["pressure"][0], row["contact_area"][0]
+    assert f == pytest.approx(p * a, rel=0.05)
+    assert f < 0.8 * p * share[touch].sum() / press.pressure()  # the lumped shares: far off
 
 
 def test_no_indenter_passes_through_the_membrane():
-    """15 mm deep: a fingertip on a 642-vertex sphere and a plate pressing 10 N; no vertex 0.05 mm inside
-    either; faces sag into the fingertip between its vertices (contact acts on vertices) by a quarter of its
-    radius at most (measured 1.6 mm: the sagitta of the stretched 8-9 mm faces), far from passing through."""
+    """15 mm deep: a fingertip on a 642-vertex sphere and a plate pressing 10 N; no point of the surface
+    (any point of any face, not only the vertices) 0.05 mm inside either: the fingertip acts on the faces
+    (with contact on the vertices only, the faces sagged 1.6 mm into it between them)."""
     sim = inflated(3, air=2.0)
     p = ws.press(sim, (0.3, 0.2, 1.0), [0.015])
-    assert p.force[-1] > 0.5 and np.all(p.penetration < 5e-5)
-    assert p.surface_penetration[-1] < 0.25 * 0.008
+    assert p.force[-1] > 0.5 and np.all(p.surface_penetration < 5e-5) and np.all(p.penetration < 5e-5)
+    assert p.contact_area[-1] > 1e-4  # wrapped around the fingertip (its projected cap: 2e-4 m^2)
     sim = inflated(2, air=1.4, youngs_modulus=1e6)  # a stiff membrane at about 10 kPa
     p = ws.press(sim, (0.3, 0.2, 1.0), [0.015], indenter="plate")
-    assert p.force[-1] > 10.0 and np.all(p.penetration < 5e-5)
+    assert p.force[-1] > 10.0 and np.all(p.surface_penetration < 5e-5)
     assert np.all(np.isfinite(p.positions))
 
 
@@ -123,8 +120,6 @@ def test_a_press_that_cannot_be_done_is_refused_before_any_work():
         ws.press(sim, (0, 0, 1), [0.001], indenter="finger")
     with pytest.raises(DesignError, match="depths must be finite"):
         ws.press(sim, (0, 0, 1), [-0.001], radius=0.016)
-    with pytest.raises(DesignError, match="too coarse for a fingertip"):
-        ws.press(sim, (0, 0, 1), [0.001], radius=0.008)  # 162 vertices: 12 mm edges
     with pytest.raises(DesignError, match="plug_angle is the held cap"):
         ws.press(sim, (0, 0, 1), [0.001], radius=0.016, plug_angle=120)
     with pytest.raises(DesignError, match="Simulator or a control result"):

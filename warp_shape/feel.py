@@ -20,7 +20,8 @@ from .controller.replay import replay_simulator
 from .controller.result import ControlResult
 from .errors import DesignError, SimulationError
 from .physics.contact import (DEFAULT_CONTACT_STIFFNESS, DEFAULT_RADIUS, KINDS, add_hold, add_indenter,
-                              indenter_forces_np, penetration_np, set_indenter_stiffness)
+                              closest_weights_np, face_contact_np, indenter_force_one,
+                              set_indenter_stiffness, surface_penetration_np)
 from .simulator import Simulator
 
 __all__ = ["Press", "press", "stiffness_map", "FeelMap", "feel_map", "pressable_directions", "press_setup",
@@ -40,22 +41,22 @@ HOLD_STIFFNESS_FACTOR = 1.0e3
 SOFT_CONTACT = 0.05
 #: a press's settle leaving a larger residual vertex force than this (N) is an error
 RESIDUAL_LIMIT = 1.0e-4
-#: a fingertip must be this many times the largest face's circumradius (its stretch under a press)
-FACE_MARGIN = 1.25
 #: fresh starts of a settle left above ``RESIDUAL_LIMIT`` before a press gives up
 RESTARTS = 12
-#: a vertex deeper than this (m) inside an indenter counts as touching it (contact area)
+#: a vertex deeper than this (m) inside a plate counts as touching it (contact area)
 CONTACT_DEPTH = 1.0e-9
+#: bisection steps placing a fingertip's first touch of the surface
+TOUCH_BISECTIONS = 60
 
 
 @dataclass
 class Press:
     """A press: per depth (n,) the ``depth`` (m from first touch), ``force`` (N, along the press),
-    ``stiffness`` (N/m, dF/d depth), gauge ``pressure`` (Pa), ``contact_area`` (m^2, the projected
-    area of the touching vertices' shares of the surface), ``penetration`` (m, the deepest vertex inside
-    the indenter), ``surface_penetration`` (m, the deepest face centroid or edge midpoint inside it: contact
-    acts on vertices, so a face may sag into a fingertip by up to its sagitta, and a fingertip pressed
-    between vertices shows here), ``stored_energy`` (J: springs, bending, gas free energy, actuators, contact and hold)
+    ``stiffness`` (N/m, dF/d depth), gauge ``pressure`` (Pa), ``contact_area`` (m^2, projected on the
+    direction: the faces in contact weighted by their touching fraction, the contact line placed on each
+    edge leaving the contact where the membrane, departing tangentially, meets the indenter:
+    ``contact_area``), ``penetration`` (m, the deepest vertex inside the indenter), ``surface_penetration``
+    (m, the deepest point of any face inside it), ``stored_energy`` (J: springs, bending, gas free energy, actuators, contact and hold)
     and ``positions`` (n, V, 3) m; ``point`` (3,) the surface point pressed, ``direction`` (3,),
     ``held`` the plug's vertices."""
 
@@ -106,18 +107,27 @@ def surface_point(x: np.ndarray, faces: np.ndarray, origin: np.ndarray, u: np.nd
     return origin + t[f] * u, f
 
 
-def first_touch(x: np.ndarray, point: np.ndarray, u: np.ndarray, kind: str, radius: float) -> np.ndarray:
+def first_touch(x: np.ndarray, faces: np.ndarray, point: np.ndarray, u: np.ndarray, kind: str,
+                radius: float) -> np.ndarray:
     """The indenter's reference point at depth 0: where, coming from outside along -u through ``point``,
-    it first touches a vertex of x (the sphere's centre, or a point of the plate's plane)."""
+    it first touches the surface x (faces) (the sphere's centre, or a point of the plate's plane)."""
     w = x - point
     a = w @ u
     if kind == "plate":
         return point + float(a.max()) * u
-    b2 = np.einsum("vi,vi->v", w, w) - a * a
-    near = b2 < radius * radius
-    if not near.any():
-        return point + (float(a.max()) + radius) * u
-    return point + float(np.max(a[near] + np.sqrt(radius * radius - b2[near]))) * u
+    tri = [x[faces[:, k]] for k in range(3)]
+
+    def inside(t):  # whether the sphere centred at point + t u reaches into a face
+        c = point + t * u
+        b = closest_weights_np(c[None], *tri)
+        q = b[:, 0:1] * tri[0] + b[:, 1:2] * tri[1] + b[:, 2:3] * tri[2]
+        return float(np.min(np.linalg.norm(q - c, axis=1))) < radius
+
+    lo, hi = 0.0, float(a.max()) + radius  # centred on the point, the sphere reaches its face; at hi, no face
+    for _ in range(TOUCH_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if inside(mid) else (lo, mid)
+    return point + hi * u
 
 
 # ---------------------------------------------------------------------- the press simulator
@@ -239,21 +249,6 @@ def check_plug_angle(angle) -> float:
     return float(angle)
 
 
-def check_mesh_fineness(x: np.ndarray, faces: np.ndarray, indenter: str, radius: float) -> None:
-    """A fingertip touches vertices only: it must not fit through a face. Refuses a sphere whose radius is
-    below ``FACE_MARGIN`` times the largest circumradius of the faces of x (m; the margin leaves room for
-    the faces' stretch under the press) with a one-line error naming both."""
-    if indenter != "sphere":
-        return
-    a, b, c = (np.linalg.norm(x[faces[:, (k + 1) % 3]] - x[faces[:, k]], axis=1) for k in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]]), axis=1)
-    need = FACE_MARGIN * float(np.max(a * b * c / np.maximum(4 * area, 1e-300)))
-    if need > radius:
-        raise DesignError(f"the mesh is too coarse for a fingertip of radius {radius * 1e3:.3g} mm: it could slip "
-                          f"through its largest faces (a radius of at least {need * 1e3:.3g} mm holds); use a finer "
-                          "rest mesh (more subdivisions) or a larger radius")
-
-
 def press_setup(src: Simulator, world: int, directions, indenter: str, radius: float, depths,
                 stiffness: float = DEFAULT_CONTACT_STIFFNESS, plug_angle: float | None = None) -> PressSetup:
     """Check the press (directions, depths, indenter) on ``src``'s world ``world``, settle it (controls
@@ -271,7 +266,6 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     x = np.asarray(src.state.x.numpy()[world], dtype=np.float64)
     reach = 1.5 * radius if indenter == "sphere" else 0.0
     check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces, angle), reach)[1])  # before any work
-    check_mesh_fineness(x, faces, indenter, radius)
     settled = settled_copy(src, world)
     x = settled.positions.reshape(-1, 3)
     held = plug_vertices(x, faces, angle)
@@ -279,7 +273,7 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     depths = check_depths(depths, limits)
     design = src.design.replace()
     for w, (d, p) in enumerate(zip(u, points)):
-        add_indenter(design, indenter, d, first_touch(x, p, d, indenter, radius), radius, stiffness, world=w)
+        add_indenter(design, indenter, d, first_touch(x, faces, p, d, indenter, radius), radius, stiffness, world=w)
     add_hold(design, held, x[held], HOLD_STIFFNESS_FACTOR * float(np.max(src.model.host.edge_stiffness)))
     sim = Simulator(design, device=src.device, settings=settled.settings, worlds=len(u))
     copy_world_state(settled, 0, sim)
@@ -298,28 +292,91 @@ def vertex_areas(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return out
 
 
+def vertex_gaps(host: dict, j: int, x: np.ndarray, depth: float):
+    """(gap (V,), gradient (V, 3)): each vertex's distance outside indenter j at ``depth`` (m; < 0 inside)
+    and the gap's gradient (the indenter's outward normal there)."""
+    c = host["origin"][j] - depth * host["axis"][j]
+    if host["kind"][j] == KINDS["plate"]:
+        return (c - x) @ host["axis"][j], np.broadcast_to(-host["axis"][j], x.shape)
+    d = x - c
+    r = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+    return r - host["radius"][j], d / r[:, None]
+
+
+def touching_vertices(host: dict, j: int, x: np.ndarray, faces: np.ndarray, depth: float, gap: np.ndarray):
+    """(V,) bool: the vertices in contact with indenter j. On a plate: deeper than ``CONTACT_DEPTH``. On a
+    sphere (it acts on faces, whose chords sag into it): those of a face reaching into it lying within
+    the sagitta L^2 / 8R of their longest edge of its surface."""
+    if host["kind"][j] == KINDS["plate"]:
+        return gap < -CONTACT_DEPTH
+    pen = face_contact_np(host, j, x[None], np.array([depth]))[2][0]
+    near = np.zeros(len(x), dtype=bool)
+    near[faces[pen > 0].reshape(-1)] = True
+    longest = np.zeros(len(x))
+    for k in range(3):
+        edge = np.linalg.norm(x[faces[:, (k + 1) % 3]] - x[faces[:, k]], axis=1)
+        np.maximum.at(longest, faces[:, k], edge)
+        np.maximum.at(longest, faces[:, (k + 1) % 3], edge)
+    return near & (gap <= longest ** 2 / (8 * host["radius"][j]))
+
+
+def contact_area(host: dict, j: int, x: np.ndarray, faces: np.ndarray, depth: float, u: np.ndarray) -> float:
+    """The contact area of indenter j at ``depth`` on the surface x (V, 3), m^2, projected on u: the faces
+    in contact weighted by their touching fraction. A face whose vertices all touch counts whole; on a face
+    with free vertices, each edge from a touching vertex a to a free one b (length L) is cut where the
+    membrane, leaving the indenter tangentially, meets it: the gap grows as kappa (s - s0)^2 / 2 beyond the
+    contact line s0, so with b's gap g and the slope sigma of the gap over b's free faces (their secant,
+    kappa (L - s0 + L / 2)), L - s0 = g / sigma + sqrt((g / sigma)^2 + L g / sigma). The cut face keeps
+    1 - (1 - t1)(1 - t2) (two touching vertices) or t1 t2 (one) of its area (t = s0 / L)."""
+    gap, grad = vertex_gaps(host, j, x, depth)
+    touch = touching_vertices(host, j, x, faces, depth, gap)
+    fa = 0.5 * np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]])
+    t_face = touch[faces]
+    free_faces = ~t_face.any(axis=1)
+    normal = np.zeros_like(x)
+    for k in range(3):
+        np.add.at(normal, faces[free_faces, k], fa[free_faces])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+
+    def cut(a, b):  # (m,) the touching fraction t of edges a (touching) -> b (free)
+        e = x[b] - x[a]
+        length = np.linalg.norm(e, axis=1)
+        n = normal[b]
+        et = e - np.einsum("mi,mi->m", e, n)[:, None] * n
+        et /= np.maximum(np.linalg.norm(et, axis=1, keepdims=True), 1e-300)
+        slope = np.einsum("mi,mi->m", grad[b] - np.einsum("mi,mi->m", grad[b], n)[:, None] * n, et)
+        q = np.where(slope > 0, np.maximum(gap[b], 0.0) / np.where(slope > 0, slope, 1.0), np.inf)
+        return np.clip(1.0 - (q + np.sqrt(q * q + length * q)) / np.maximum(length, 1e-300), 0.0, 1.0)
+
+    frac = t_face.all(axis=1).astype(np.float64)
+    count = t_face.sum(axis=1)
+    for k in range(3):  # rotate each face so that its odd vertex (the free one of two touching, the touching
+        a0, a1, a2 = faces[:, k], faces[:, (k + 1) % 3], faces[:, (k + 2) % 3]  # one of two free) comes first
+        two = (count == 2) & ~touch[a0]
+        frac[two] = 1.0 - (1.0 - cut(a1[two], a0[two])) * (1.0 - cut(a2[two], a0[two]))
+        one = (count == 1) & touch[a0]
+        frac[one] = cut(a0[one], a1[one]) * cut(a0[one], a2[one])
+    return float(np.sum(frac * (fa @ u)))
+
+
 def measure(setup: PressSetup) -> dict:
     """Force, pressure, contact area, penetration and stored energy of every world's press now."""
     sim = setup.sim
     host = sim.model.host.actuators["indenter"]
     W = sim.worlds
     x = sim.state.x.numpy().astype(np.float64)
-    depth = sim.control.values["indenter"].numpy()[:, :W]
-    own = np.arange(W)
-    force = indenter_forces_np(host, x, depth, np.eye(W, dtype=bool))[own, own]  # (W, V, 3)
-    pen = penetration_np(host, x, depth)[own, own]  # (W, V)
-    u = setup.directions
-    touching = pen > CONTACT_DEPTH
-    area = np.einsum("wvi,wi->wv", vertex_areas(x, sim.design.rest.faces), u)
+    depth = np.diag(sim.control.values["indenter"].numpy()[:, :W])
+    faces, u = sim.design.rest.faces, setup.directions
+    out = {k: np.zeros(W) for k in ("force", "contact_area", "penetration", "surface_penetration")}
+    for w in range(W):
+        out["force"][w] = -float(np.sum(indenter_force_one(host, w, x[w], depth[w]) @ u[w]))
+        out["penetration"][w] = max(-float(np.min(vertex_gaps(host, w, x[w], depth[w])[0])), 0.0)
+        out["surface_penetration"][w] = max(float(surface_penetration_np(host, w, x[w:w + 1], depth[w:w + 1])[0]), 0.0)
+        out["contact_area"][w] = contact_area(host, w, x[w], faces, depth[w], u[w])
     energy = sim.energy()
     stored = sum(np.atleast_1d(v) for k, v in energy.items() if k not in ("kinetic", "total"))
-    faces, edges = sim.design.rest.faces, sim.design.rest.edges
-    samples = np.concatenate([x[:, faces].mean(axis=2), 0.5 * (x[:, edges[:, 0]] + x[:, edges[:, 1]])], axis=1)
-    surface = penetration_np(host, samples, depth)[own, own]  # face centroids and edge midpoints
-    return dict(force=-np.einsum("wvi,wi->w", force, u), pressure=np.atleast_1d(sim.pressure()),
-                surface_penetration=surface.max(axis=1),
-                contact_area=np.where(touching, area, 0.0).sum(axis=1), penetration=np.maximum(pen.max(axis=1), 0.0),
-                stored_energy=np.asarray(stored, dtype=np.float64), positions=x)
+    return dict(out, pressure=np.atleast_1d(sim.pressure()), stored_energy=np.asarray(stored, dtype=np.float64),
+                positions=x)
 
 
 def set_depth(setup: PressSetup, depth: np.ndarray) -> None:
@@ -327,14 +384,14 @@ def set_depth(setup: PressSetup, depth: np.ndarray) -> None:
     (the settle's start)."""
     sim = setup.sim
     W = sim.worlds
-    sim.set_actuator_controls("indenter", np.diag(np.asarray(depth, dtype=np.float64)))
+    depth = np.asarray(depth, dtype=np.float64)
+    sim.set_actuator_controls("indenter", np.diag(depth))
     host = sim.model.host.actuators["indenter"]
-    x = sim.positions.reshape(W, -1, 3)
-    own = np.arange(W)
-    d = np.diag(np.asarray(depth, dtype=np.float64))
-    pen = np.maximum(penetration_np(host, x, d)[own, own], 0.0)  # (W, V)
-    push = indenter_forces_np(host, x, d, np.eye(W, dtype=bool))[own, own] / host["stiffness"][:, None, None]
-    sim.positions = x + push * np.where(pen > 0, 1.0, 0.0)[..., None]
+    x = sim.positions.reshape(W, -1, 3).copy()
+    for w in range(W):
+        gap, normal = vertex_gaps(host, w, x[w], depth[w])
+        x[w] -= np.minimum(gap, 0.0)[:, None] * normal
+    sim.positions = x
 
 
 def settle_at(setup: PressSetup, depth: np.ndarray) -> None:

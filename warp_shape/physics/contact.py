@@ -23,6 +23,7 @@ from ..force_family import ACTUATOR_FAMILIES, FORCE_FAMILIES, ActuatorFamily, Fo
 
 __all__ = ["Indenter", "Hold", "IndenterFamily", "HoldFamily", "INDENTER", "HOLD", "add_indenter", "add_hold",
            "KINDS", "DEFAULT_CONTACT_STIFFNESS", "DEFAULT_RADIUS", "indenter_centres", "penetration_np",
+           "closest_weights_np", "face_contact_np", "surface_penetration_np", "indenter_force_one",
            "indenter_forces_np", "indenter_energy_np", "set_indenter_stiffness"]
 
 #: indenter kinds, by name -> kernel code
@@ -96,6 +97,53 @@ def set_indenter_stiffness(model, stiffness) -> None:
 
 
 # ---------------------------------------------------------------------- host law (float64)
+def closest_weights_np(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(..., 3) barycentric weights of the point of each triangle abc (..., 3) closest to p (..., 3)."""
+    dot = lambda u, v: np.einsum("...i,...i->...", u, v)  # noqa: E731
+    ab, ac = b - a, c - a
+    d1, d2 = dot(ab, p - a), dot(ac, p - a)
+    d3, d4 = dot(ab, p - b), dot(ac, p - b)
+    d5, d6 = dot(ab, p - c), dot(ac, p - c)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+
+    def safe(n, d):
+        return n / np.where(d == 0, 1.0, d)
+
+    s = va + vb + vc
+    out = np.stack([safe(va, s), safe(vb, s), safe(vc, s)], axis=-1)  # inside the face
+    t_bc = safe(d4 - d3, (d4 - d3) + (d5 - d6))
+    t_ac, t_ab = safe(d2, d2 - d6), safe(d1, d1 - d3)
+    o, z = np.ones_like(d1), np.zeros_like(d1)
+    regions = [  # the first that holds wins (as in the kernel)
+        (d1 <= 0) & (d2 <= 0), (d3 >= 0) & (d4 <= d3), (d6 >= 0) & (d5 <= d6),
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0), (vb <= 0) & (d2 >= 0) & (d6 <= 0),
+        (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)]
+    values = [(o, z, z), (z, o, z), (z, z, o), (1 - t_ab, t_ab, z), (1 - t_ac, z, t_ac), (z, 1 - t_bc, t_bc)]
+    for cond, val in zip(regions[::-1], values[::-1]):
+        out = np.where(cond[..., None], np.stack(val, axis=-1), out)
+    return out
+
+
+def face_contact_np(host: dict, j: int, x: np.ndarray, depth: np.ndarray):
+    """(weights (W, F, 3), points (W, F, 3), penetration (W, F)): every face's point of x (W, V, 3) closest
+    to sphere j's centre at depths (W,) m, and how deep it lies inside (m; <= 0 outside); for a plate, its
+    faces' deepest vertex."""
+    faces = host["faces"]
+    c = host["origin"][j][None, None, :] - np.asarray(depth, dtype=np.float64).reshape(-1, 1, 1) * host["axis"][j]
+    a, b, cc = (x[:, faces[:, k]] for k in range(3))  # (W, F, 3)
+    wts = closest_weights_np(c, a, b, cc)
+    q = wts[..., 0:1] * a + wts[..., 1:2] * b + wts[..., 2:3] * cc
+    if host["kind"][j] == KINDS["sphere"]:
+        return wts, q, host["radius"][j] - np.linalg.norm(q - c, axis=-1)
+    return wts, q, np.einsum("wvi,i->wv", x - c, host["axis"][j])[:, faces].max(axis=-1)
+
+
+def surface_penetration_np(host: dict, j: int, x: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """(W,) the deepest point of the surface of x (W, V, 3) (any point of any face) inside indenter j at
+    depths (W,), m."""
+    return face_contact_np(host, j, x, depth)[2].max(axis=-1)
+
+
 def indenter_centres(host: dict, depth: np.ndarray) -> np.ndarray:
     """(W, n, 3) each indenter's centre / plane point at depths (W, n) m."""
     return host["origin"][None] - np.asarray(depth, dtype=np.float64)[..., None] * host["axis"][None]
@@ -111,23 +159,41 @@ def penetration_np(host: dict, x: np.ndarray, depth: np.ndarray) -> np.ndarray:
 
 
 def indenter_forces_np(host: dict, x: np.ndarray, depth: np.ndarray, enabled: np.ndarray) -> np.ndarray:
-    """(W, n, V, 3) each enabled indenter's force on every vertex, N."""
-    c = indenter_centres(host, depth)
-    d = x[:, None, :, :] - c[:, :, None, :]
-    r = np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-300)
-    pen = np.maximum(penetration_np(host, x, depth), 0.0)[..., None] * np.asarray(enabled, bool)[:, :, None, None]
-    k = host["stiffness"][None, :, None, None]
-    sphere = d / r
-    plate = -np.broadcast_to(host["axis"][None, :, None, :], d.shape)
-    direction = np.where((host["kind"] == KINDS["sphere"])[None, :, None, None], sphere, plate)
-    return k * pen * direction
+    """(W, n, V, 3) each enabled indenter's force on every vertex, N (a sphere's on the faces, shared by
+    their vertices; a plate's on the vertices)."""
+    W, V = x.shape[:2]
+    out = np.zeros((W, len(host["kind"]), V, 3))
+    for j, w in zip(*np.nonzero(np.asarray(enabled, bool).T)):
+        out[w, j] = indenter_force_one(host, j, x[w], float(depth[w, j]))
+    return out
+
+
+def indenter_force_one(host: dict, j: int, x: np.ndarray, depth: float) -> np.ndarray:
+    """(V, 3) indenter j's force at depth m on the vertices x (V, 3), N."""
+    k = host["stiffness"][j]
+    if host["kind"][j] == KINDS["plate"]:
+        pen = np.maximum(penetration_np(host, x[None], np.full((1, len(host["kind"])), depth))[0, j], 0.0)
+        return -k * pen[:, None] * host["axis"][j]
+    wts, q, pen = (a[0] for a in face_contact_np(host, j, x[None], np.array([depth])))
+    d = q - (host["origin"][j] - depth * host["axis"][j])
+    push = k * np.maximum(pen, 0.0)[:, None] * d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-300)
+    out = np.zeros_like(x)
+    for m in range(3):
+        np.add.at(out, host["faces"][:, m], push * wts[:, m:m + 1])
+    return out
 
 
 def indenter_energy_np(host: dict, x: np.ndarray, depth: np.ndarray, enabled: np.ndarray) -> np.ndarray:
-    """(W,) penalty energy sum k pen^2 / 2 over enabled indenters and penetrating vertices, J."""
-    pen = np.maximum(penetration_np(host, x, depth), 0.0)
-    e = 0.5 * host["stiffness"][None, :, None] * pen ** 2 * np.asarray(enabled, bool)[:, :, None]
-    return e.sum(axis=(1, 2))
+    """(W,) penalty energy sum k pen^2 / 2 over enabled indenters and their penetrating faces (a sphere)
+    or vertices (a plate), J."""
+    out = np.zeros(x.shape[0])
+    for j, w in zip(*np.nonzero(np.asarray(enabled, bool).T)):
+        if host["kind"][j] == KINDS["plate"]:
+            pen = penetration_np(host, x[w:w + 1], np.asarray(depth, dtype=np.float64)[w:w + 1])[0, j]
+        else:
+            pen = face_contact_np(host, j, x[w:w + 1], np.array([depth[w, j]]))[2][0]
+        out[w] += 0.5 * host["stiffness"][j] * float(np.sum(np.maximum(pen, 0.0) ** 2))
+    return out
 
 
 class IndenterFamily(ActuatorFamily):
@@ -150,12 +216,14 @@ class IndenterFamily(ActuatorFamily):
                     origin=np.array([e.origin for e in els], dtype=np.float64).reshape(-1, 3),
                     radius=np.array([e.radius for e in els], dtype=np.float64),
                     stiffness=np.array([e.stiffness for e in els], dtype=np.float64),
-                    world=np.array([e.world for e in els], dtype=np.int64))
+                    world=np.array([e.world for e in els], dtype=np.int64),
+                    faces=design.rest.faces.astype(np.int64))
 
     def device_arrays(self, host, arr) -> dict:
         vec = wp.types.vector(3, arr(np.zeros(1)).dtype)
         return dict(kind=arr(host["kind"].astype(np.int32), wp.int32), axis=arr(host["axis"], vec),
-                    origin=arr(host["origin"], vec), radius=arr(host["radius"]), stiffness=arr(host["stiffness"]))
+                    origin=arr(host["origin"], vec), radius=arr(host["radius"]), stiffness=arr(host["stiffness"]),
+                    faces=arr(host["faces"].astype(np.int32), wp.vec3i))
 
     def eval_forces(self, model, state, control, x, v, f, launch):
         n = model.host.count(self.name)
@@ -164,18 +232,22 @@ class IndenterFamily(ActuatorFamily):
         dev = model.actuators[self.name]
         world = model.host.actuators[self.name]["world"]
         own = int(n == x.shape[0] and np.array_equal(world, np.arange(n)))
-        launch(kc.indenter_force_kernel, (x.shape[0], x.shape[1]),
-               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], own,
-                control.values[self.name], control.enabled[self.name], x, f])
+        kinds = model.host.actuators[self.name]["kind"]
+        args = [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], own,
+                control.values[self.name], control.enabled[self.name], x, f]
+        if np.any(kinds == KINDS["plate"]):
+            launch(kc.indenter_force_kernel, (x.shape[0], x.shape[1]), args)
+        if np.any(kinds == KINDS["sphere"]):
+            launch(kc.indenter_face_force_kernel, (x.shape[0], dev["faces"].shape[0]), [dev["faces"], *args])
 
     def diagonal_stiffness(self, model, state, diag, launch, control=None):
         if control is None:  # where the indenters are is unknown: nothing added
             return
         dev = model.actuators[self.name]
-        launch(kc.indenter_diagonal_kernel, (state.x.shape[0], state.x.shape[1]),
-               [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"],
-                model.scalar(PRECONDITION_MARGIN), control.values[self.name], control.enabled[self.name], state.x,
-                diag])
+        args = [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"],
+                model.scalar(PRECONDITION_MARGIN), control.values[self.name], control.enabled[self.name], state.x, diag]
+        launch(kc.indenter_diagonal_kernel, (state.x.shape[0], state.x.shape[1]), args)
+        launch(kc.indenter_face_diagonal_kernel, (state.x.shape[0], dev["faces"].shape[0]), [dev["faces"], *args])
 
     def energy(self, host, x, controls, enabled):
         return indenter_energy_np(host, x, controls, enabled)
