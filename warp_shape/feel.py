@@ -43,6 +43,8 @@ SOFT_CONTACT = 0.05
 RESIDUAL_LIMIT = 1.0e-4
 #: fresh starts of a settle left above ``RESIDUAL_LIMIT`` before a press gives up
 RESTARTS = 12
+#: the contact penalty must be at least this many times the membrane's stiffness per edge
+PENALTY_MARGIN = 100.0
 #: a vertex deeper than this (m) inside a plate counts as touching it (contact area)
 CONTACT_DEPTH = 1.0e-9
 #: bisection steps placing a fingertip's first touch of the surface
@@ -249,6 +251,31 @@ def check_plug_angle(angle) -> float:
     return float(angle)
 
 
+def membrane_stiffness(src: Simulator) -> float:
+    """The membrane's largest stiffness per vertex or edge, N/m: its edge springs', or with a hyperelastic
+    membrane (whose edge springs carry no elastic force) its triangles' equivalent edge springs (their sum
+    at a vertex over its six edges)."""
+    host = src.model.host
+    k = float(np.max(host.edge_stiffness, initial=0.0))
+    membrane = host.actuators.get("membrane") or {}
+    return max(k, float(np.max(membrane.get("vertex_stiffness", 0.0), initial=0.0)) / 6.0)
+
+
+def check_contact_stiffness(src: Simulator, world: int, stiffness: float) -> None:
+    """Refuses, with a one-line error, a contact penalty ``stiffness`` (N/m) less than ``PENALTY_MARGIN``
+    times the membrane's stiffness (``membrane_stiffness``, times the jam factor where a cell of world
+    ``world`` is jammed): the penalty would no longer be the stiff one, its penetration no longer small."""
+    k = membrane_stiffness(src)
+    if np.any(np.asarray(src.state.cell_jammed)[world]):
+        k *= src.design.material.jam_stretch_factor
+    if not (np.isfinite(stiffness) and stiffness > 0):
+        raise DesignError(f"the contact stiffness must be a finite number > 0 N/m, got {stiffness!r}")
+    if stiffness < PENALTY_MARGIN * k:
+        raise DesignError(f"the membrane is too stiff for the contact's penalty: up to {k:.3g} N/m per edge (jammed "
+                          f"cells included) against {stiffness:.3g} N/m; press with stiffness >= "
+                          f"{PENALTY_MARGIN * k:.3g} N/m (and expect shorter settles) or a softer membrane")
+
+
 def press_setup(src: Simulator, world: int, directions, indenter: str, radius: float, depths,
                 stiffness: float = DEFAULT_CONTACT_STIFFNESS, plug_angle: float | None = None) -> PressSetup:
     """Check the press (directions, depths, indenter) on ``src``'s world ``world``, settle it (controls
@@ -266,6 +293,7 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     x = np.asarray(src.state.x.numpy()[world], dtype=np.float64)
     reach = 1.5 * radius if indenter == "sphere" else 0.0
     check_depths(depths, press_geometry(x, faces, u, plug_vertices(x, faces, angle), reach)[1])  # before any work
+    check_contact_stiffness(src, world, stiffness)
     settled = settled_copy(src, world)
     x = settled.positions.reshape(-1, 3)
     held = plug_vertices(x, faces, angle)
@@ -274,7 +302,7 @@ def press_setup(src: Simulator, world: int, directions, indenter: str, radius: f
     design = src.design.replace()
     for w, (d, p) in enumerate(zip(u, points)):
         add_indenter(design, indenter, d, first_touch(x, faces, p, d, indenter, radius), radius, stiffness, world=w)
-    add_hold(design, held, x[held], HOLD_STIFFNESS_FACTOR * float(np.max(src.model.host.edge_stiffness)))
+    add_hold(design, held, x[held], HOLD_STIFFNESS_FACTOR * membrane_stiffness(src))
     sim = Simulator(design, device=src.device, settings=settled.settings, worlds=len(u))
     copy_world_state(settled, 0, sim)
     sim.set_actuator_mask("indenter", np.eye(len(u), dtype=bool))
