@@ -1,6 +1,7 @@
 """Contact with rigid frictionless indenters and the held plug (warp_shape/physics/contact.py): their
-forces are minus the gradients of their energies (float64 central differences), the settle presses a
-membrane to a depth, and a held membrane keeps its plug where it was."""
+forces are minus the gradients of their energies (float64 central differences; a sphere's on the faces,
+at their closest points at a vertex, on an edge and inside a face), their kernels' adjoints match central
+differences, the settle presses a membrane to a depth, and a held membrane keeps its plug where it was."""
 
 from __future__ import annotations
 
@@ -25,6 +26,14 @@ def contact_design():
     add_indenter(design, "sphere", (0, 0, 1), x[top] + [0.0, 0.0, 0.008], 0.008, stiffness=1e4)
     add_indenter(design, "plate", (0, 0, -1), x[bottom], stiffness=1e4)
     add_hold(design, [bottom], [x[bottom] + [0.001, 0.0, 0.0]], stiffness=500.0)
+    # two more spheres over a face's centroid and an edge's midpoint: the faces' closest points inside a
+    # face and on an edge (the top's are the top vertex)
+    faces, edges = design.rest.faces, design.rest.edges
+    f = int(np.argmax(x[faces].mean(axis=1)[:, 0]))  # the face furthest along +x
+    e = int(np.argmax(x[edges].mean(axis=1)[:, 1]))  # the edge furthest along +y
+    for p in (x[faces[f]].mean(axis=0), x[edges[e]].mean(axis=0)):
+        n = p / np.linalg.norm(p)
+        add_indenter(design, "sphere", n, p + 0.008 * n, 0.008, stiffness=1e4)
     return design, top, bottom
 
 
@@ -32,7 +41,7 @@ def contact_design():
 def test_contact_forces_are_minus_the_gradients_of_their_energies(family):
     design, top, bottom = contact_design()
     sim = ws.Simulator(design, precision="float64")
-    sim.set_actuator_controls("indenter", [0.002, 0.001])  # the sphere 2 mm in, the plate 1 mm
+    sim.set_actuator_controls("indenter", [0.002, 0.001, 0.002, 0.002])  # the spheres 2 mm in, the plate 1 mm
     rng = np.random.default_rng(3)
     x0 = design.rest.vertices + 2e-4 * rng.standard_normal(design.rest.vertices.shape)
     sim.positions = x0
@@ -40,6 +49,8 @@ def test_contact_forces_are_minus_the_gradients_of_their_energies(family):
     touched = np.flatnonzero(np.abs(force).sum(axis=1))
     # both indenters push (their vertices), the hold pulls its vertex
     assert set(touched.tolist()) >= ({top, bottom} if family == "indenter" else {bottom})
+    if family == "indenter":  # the spheres over a face and an edge push on its three and its two vertices
+        assert len(touched) == 2 + 3 + 2
     assert sim.energy()[family] > 0
     h = 1e-7
     for v in touched:
@@ -54,7 +65,7 @@ def test_contact_forces_are_minus_the_gradients_of_their_energies(family):
     if family == "indenter":  # the sphere pushes its vertex down, the plate its vertex up
         assert force[top, 2] < -10.0 and force[bottom, 2] > 5.0
         sim.positions = x0
-        sim.set_actuator_mask("indenter", [False, False])  # masked out: no force, no energy
+        sim.set_actuator_mask("indenter", [False] * 4)  # masked out: no force, no energy
         assert np.all(sim.forces("indenter") == 0) and sim.energy()["indenter"] == 0
 
 
@@ -86,7 +97,7 @@ def test_the_contact_kernels_adjoints_match_central_differences():
 
     design, top, bottom = contact_design()
     sim = ws.Simulator(design, precision="float64")
-    sim.set_actuator_controls("indenter", [0.002, 0.001])
+    sim.set_actuator_controls("indenter", [0.002, 0.001, 0.002, 0.002])
     dev, host = sim.model.actuators, sim.model.host.actuators
     rng = np.random.default_rng(5)
     x0 = design.rest.vertices + 2e-4 * rng.standard_normal(design.rest.vertices.shape)
@@ -115,8 +126,10 @@ def test_the_contact_kernels_adjoints_match_central_differences():
 
     g = f_dot_r(x0, grad=True)
     assert np.abs(g[top]).max() > 1.0 and np.abs(g[bottom]).max() > 1.0
+    pressed = np.flatnonzero(np.abs(sim.forces("indenter")).sum(axis=1))  # the vertices of the face and edge too
+    assert len(pressed) == 7
     h = 1e-8
-    for v in (top, bottom):
+    for v in pressed:
         for c in range(3):
             xp, xm = x0.copy(), x0.copy()
             xp[v, c] += h

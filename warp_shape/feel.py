@@ -355,7 +355,9 @@ def contact_area(host: dict, j: int, x: np.ndarray, faces: np.ndarray, depth: fl
     membrane, leaving the indenter tangentially, meets it: the gap grows as kappa (s - s0)^2 / 2 beyond the
     contact line s0, so with b's gap g and the slope sigma of the gap over b's free faces (their secant,
     kappa (L - s0 + L / 2)), L - s0 = g / sigma + sqrt((g / sigma)^2 + L g / sigma). The cut face keeps
-    1 - (1 - t1)(1 - t2) (two touching vertices) or t1 t2 (one) of its area (t = s0 / L)."""
+    1 - (1 - t1)(1 - t2) (two touching vertices) or t1 t2 (one) of its area (t = s0 / L). A face reaching
+    into a sphere counts whole (a fingertip rests on few faces where the edges are not well below the
+    contact's radius sqrt(2 R depth): its contact area is then the mesh's, an upper estimate)."""
     gap, grad = vertex_gaps(host, j, x, depth)
     touch = touching_vertices(host, j, x, faces, depth, gap)
     fa = 0.5 * np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]])
@@ -384,6 +386,8 @@ def contact_area(host: dict, j: int, x: np.ndarray, faces: np.ndarray, depth: fl
         frac[two] = 1.0 - (1.0 - cut(a1[two], a0[two])) * (1.0 - cut(a2[two], a0[two]))
         one = (count == 1) & touch[a0]
         frac[one] = cut(a0[one], a1[one]) * cut(a0[one], a2[one])
+    if host["kind"][j] == KINDS["sphere"]:  # a face it reaches into counts whole (the mesh's resolution)
+        frac = np.maximum(frac, face_contact_np(host, j, x[None], np.array([depth]))[2][0] > 0)
     return float(np.sum(frac * (fa @ u)))
 
 
