@@ -232,13 +232,10 @@ class IndenterFamily(ActuatorFamily):
         dev = model.actuators[self.name]
         world = model.host.actuators[self.name]["world"]
         own = int(n == x.shape[0] and np.array_equal(world, np.arange(n)))
-        kinds = model.host.actuators[self.name]["kind"]
         args = [dev["kind"], dev["axis"], dev["origin"], dev["radius"], dev["stiffness"], own,
                 control.values[self.name], control.enabled[self.name], x, f]
-        if np.any(kinds == KINDS["plate"]):
-            launch(kc.indenter_force_kernel, (x.shape[0], x.shape[1]), args)
-        if np.any(kinds == KINDS["sphere"]):
-            launch(kc.indenter_face_force_kernel, (x.shape[0], dev["faces"].shape[0]), [dev["faces"], *args])
+        launch(kc.indenter_force_kernel, (x.shape[0], x.shape[1]), args)  # the plates, on the vertices
+        launch(kc.indenter_face_force_kernel, (x.shape[0], dev["faces"].shape[0]), [dev["faces"], *args])  # spheres
 
     def diagonal_stiffness(self, model, state, diag, launch, control=None):
         if control is None:  # where the indenters are is unknown: nothing added
