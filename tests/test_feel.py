@@ -75,12 +75,13 @@ def test_a_plate_carries_the_gauge_pressure_over_its_contact_area():
 
 
 def test_no_indenter_passes_through_the_membrane():
-    """15 mm deep: a fingertip on a 642-vertex sphere and a plate pressing 10 N; no point of the surface
-    (any point of any face, not only the vertices) 0.05 mm inside either: the fingertip acts on the faces
-    (with contact on the vertices only, the faces sagged 1.6 mm into it between them)."""
-    sim = inflated(3, air=2.0)
+    """15 mm deep: an 8 mm fingertip on a 162-vertex sphere (12 mm edges: with contact on the vertices only
+    it slipped between them, and on 642 vertices the faces sagged 1.6 mm into it) and a plate pressing
+    10 N; no point of the surface (any point of any face) 0.05 mm inside either: the fingertip acts on the
+    faces (measured 2e-6 m)."""
+    sim = inflated(2, air=2.0)
     p = ws.press(sim, (0.3, 0.2, 1.0), [0.015])
-    assert p.force[-1] > 0.5 and np.all(p.surface_penetration < 5e-5) and np.all(p.penetration < 5e-5)
+    assert p.force[-1] > 1.0 and np.all(p.surface_penetration < 5e-5) and np.all(p.penetration < 5e-5)
     sim = inflated(2, air=1.4, youngs_modulus=1e6)  # a stiff membrane at about 10 kPa
     p = ws.press(sim, (0.3, 0.2, 1.0), [0.015], indenter="plate")
     assert p.force[-1] > 10.0 and np.all(p.surface_penetration < 5e-5)

@@ -250,9 +250,10 @@ class IndenterFamily(ActuatorFamily):
         return indenter_energy_np(host, x, controls, enabled)
 
     def stiffness_rows(self, stiff, damp, host, inv_m, inv_sqrt):
-        # a vertex may touch every indenter: its row gains their stiffness (the step with an indenter is
-        # as short as the penalty asks)
-        stiff += float(np.sum(host["stiffness"])) * inv_m[None, :]
+        # a vertex may touch every indenter, a sphere through each of its faces (k b^2 per face, b <= 1): its
+        # row gains their stiffness times its faces (the step with an indenter is as short as the penalty asks)
+        faces_at = np.maximum(np.bincount(host["faces"].reshape(-1), minlength=inv_m.shape[-1]), 1)
+        stiff += float(np.sum(host["stiffness"])) * (faces_at * inv_m)[None, :]
 
     def storable_values(self, host):
         return {"stiffness": host["stiffness"], "radius": host["radius"]}
