@@ -136,10 +136,11 @@ def test_a_stiffness_map_presses_each_direction_in_its_own_world():
 
 
 def test_jamming_stiffens_the_fig6_device_and_a_press_before_the_jam_leaves_a_dent():
-    """The Fig. 6 device (642 vertices): the cell at the top IPAM's end jammed against free, and the path:
-    jam, press 3 mm, release (back to the jammed shape) against press 3 mm, jam, release (the jam keeps
-    the dent)."""
-    design = cube_fig6_design(3)
+    """The Fig. 6 device (162 vertices: the fingertip acts on the faces, narrower than them or not): the cell
+    at the top IPAM's end jammed against free, and the path: jam, press 3 mm, release (back to the jammed
+    shape) against press 3 mm, jam, release (the jam keeps the dent). Measured: 1.67x at 3 mm, a 0.35 mm
+    dent (642 vertices: 1.33x, 0.49 mm; docs/feel.md)."""
+    design = cube_fig6_design(2)
     top = int(design.face_cell()[design.ipams[4].face_a])
     assert top >= 0
     sim = ws.Simulator(design, precision="float64")
@@ -150,10 +151,10 @@ def test_jamming_stiffens_the_fig6_device_and_a_press_before_the_jam_leaves_a_de
     jammed_sim.settle_static()
     jammed_sim.jam(top)
     jammed = ws.press(jammed_sim, (0, 0, 1), [0.003, 0.0])  # jam, press, release
-    assert jammed.stiffness[0] > 1.25 * free.stiffness[0]  # the jammed cell is stiffer under the finger (1.33x)
+    assert jammed.stiffness[0] > 1.5 * free.stiffness[0]  # the jammed cell is stiffer under the finger (1.67x)
     assert free.jammed[-1][top] and not free.jammed[0][top]  # jammed after the first depth, kept
     rise = jammed.positions[-1][:, 2].max() - free.positions[-1][:, 2].max()
-    assert rise > 1e-4  # the press before the jam left a dent (0.2 mm) that the release keeps
+    assert rise > 2e-4  # the press before the jam left a dent (0.35 mm) that the release keeps
     assert free.force[-1] == pytest.approx(0.0, abs=1e-6)  # released: the dent no longer touches the finger
 
 
