@@ -13,6 +13,7 @@ import numpy as np
 
 from .design import DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_STIFFNESS
 from .errors import DesignError, SimulationError, StabilityError
+from .force_family import ForceFamily
 from .material import GAS_CONSTANT, Material
 from .model import HostModel, Model
 from .physics.bending import bending_rows_np, hinge_gradients_np
@@ -273,6 +274,20 @@ def gershgorin_rows(model: Model, edge_jammed: np.ndarray, air: np.ndarray, x: n
     return stiff, press, gas_eig, damp
 
 
+def outside_operator_rows(model: Model, edge_jammed: np.ndarray) -> np.ndarray:
+    """(W, V) Gershgorin rows of the families the elastic operator does not hold (no ``operator_terms``:
+    contact penalties, holds): the Lanczos bound does not see them, so they are added to it (Weyl)."""
+    h = model.host
+    inv_m = 1.0 / h.mass
+    stiff = np.zeros((edge_jammed.shape[0], model.n_vertices))
+    damp = np.zeros_like(stiff)
+    for fam in model.families:
+        if type(fam).operator_terms is ForceFamily.operator_terms:
+            jam = {"jammed": np.asarray(edge_jammed, dtype=bool)} if fam.jams else {}
+            fam.stiffness_rows(stiff, damp, h.actuators[fam.name], inv_m, np.sqrt(inv_m), **jam)
+    return stiff
+
+
 def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: np.ndarray, x: np.ndarray,
                        rest_length: np.ndarray | None = None, refine: bool = True,
                        elastic_bound: np.ndarray | None = None, rows=None, pressure=None) -> np.ndarray:
@@ -283,7 +298,8 @@ def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: n
     rank-one gas compressibility term; with ``refine`` the elastic part (springs, hinges, IPAMs) is
     instead bounded by ``elastic_omega2_bound`` (a short Lanczos run with a safety factor; pass
     ``elastic_bound`` (W,) to reuse one; ``rows`` and ``pressure`` as ``gershgorin_rows`` takes them),
-    never above its Gershgorin bound, and the pressure terms
+    never above its Gershgorin bound, plus the rows of the families outside that operator (contact,
+    holds: ``outside_operator_rows``), and the pressure terms
     are added to it (Weyl: lambda_max(A + B) <= lambda_max(A) + lambda_max(B)). The fastest damping
     rate gamma is bounded by Gershgorin. Returns stability_constant / (omega + gamma). edge_jammed: (W, E) bool;
     air: (W,) mol; x: (W, V, 3) positions; rest_length: (W, E) current spring rest lengths.
@@ -293,7 +309,8 @@ def stable_dt_estimate(model: Model, solver_cls, edge_jammed: np.ndarray, air: n
     if refine:
         if elastic_bound is None:
             elastic_bound = elastic_omega2_bound(model, edge_jammed, x, rest_length)
-        elastic = np.minimum(elastic_bound, stiff.max(axis=1))
+        elastic = np.minimum(elastic_bound + outside_operator_rows(model, edge_jammed).max(axis=1),
+                             stiff.max(axis=1))
         omega2 = np.minimum(omega2, elastic + press.max(axis=1) + gas_eig)
     omega = np.sqrt(omega2)
     gamma = damp.max(axis=1)
