@@ -98,8 +98,8 @@ class Problem(Sequence):
         build checks that every target is star-shaped."""
         key = (self.token, self.device)
         if key not in SAMPLERS:
-            SAMPLERS[key] = RadialSampler(list(self.all_targets), device=self.device, check=not self.record["star_checked"],
-                                          names=list(self.labels))
+            SAMPLERS[key] = RadialSampler(list(self.all_targets), device=self.device,
+                                          check=not self.record["star_checked"], names=list(self.labels))
             while len(SAMPLERS) > _KEEP:
                 SAMPLERS.popitem(last=False)
         self.record["star_checked"] = True
@@ -127,7 +127,8 @@ class Problem(Sequence):
 
 
 def centred_targets_as_given(targets, job: str) -> list[TriMesh]:
-    """``targets`` (one mesh or a list of them, already centred) as a list, checked as ``centred_targets`` checks them."""
+    """``targets`` (one mesh or a list of them, already centred) as a list, checked as ``centred_targets``
+    checks them."""
     meshes = list(targets) if not isinstance(targets, TriMesh) else [targets]
     if not meshes:
         raise DesignError(f"{job} needs at least one target shape")

@@ -28,7 +28,7 @@ shared state and its control rounds), ``loop`` (design), ``result`` (DesignResul
 
 from .initialize import copy_design, initial_rest_shape
 from .loop import design
-from .placement import PLACEMENTS, PaperPlacement, Placement, PlacementContext, paper_placement, register_placement
+from .placement import PLACEMENTS, Decision, PaperPlacement, Placement, PlacementContext, paper_placement, register_placement
 from .per_target import PerTargetPlacement, refine_passive
 from .greedy import GreedyPlacement, greedy_placement
 from .result import DesignResult
@@ -38,5 +38,5 @@ from .settings import DesignSettings
 
 __all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "passive_to_settings",
            "passive_from_settings", "PlacementContext", "paper_placement", "PLACEMENTS", "PassiveSets",
-           "greedy_placement", "refine_passive", "Placement", "PaperPlacement", "PerTargetPlacement", "GreedyPlacement",
+           "greedy_placement", "refine_passive", "Placement", "Decision", "PaperPlacement", "PerTargetPlacement", "GreedyPlacement",
            "register_placement", "DesignRun"]
