@@ -1,5 +1,5 @@
-"""One design run's shared state: ``DesignRun``, what the design loop and the placement strategies
-act on."""
+"""One design run's shared state: ``DesignRun``, what the placement strategies read and the design
+loop changes (applying the placements' decisions, ``designer.loop.apply_decision``)."""
 
 from __future__ import annotations
 
