@@ -8,8 +8,7 @@ import numpy as np
 
 import warp_shape as ws
 from warp_shape.controller import Controls, LawStep, PaperLaw
-from warp_shape.designer.placement import (add_actuator_set, free_faces, other_end, rest_directions,
-                                           scaled_errors)
+from warp_shape.designer.placement import Decision, free_faces, other_end, rest_directions, scaled_errors
 
 
 class AirOnlyLaw(PaperLaw):
@@ -34,8 +33,7 @@ class LowestFacePlacement(ws.Placement):
         free = free_faces(run.current)
         a = int(np.flatnonzero(free)[0])
         b = other_end(errors[0], free, rest_directions(run.ctx), a, run.settings.min_angle_deg, i + 1)
-        add_actuator_set(run.current, a, b, run.ctx)
-        return dict(round=i, target=0, face_a=a, face_b=b, error=float(errors[0, a]))
+        return Decision(ends=(a, b), record=dict(round=i, target=0, face_a=a, face_b=b, error=float(errors[0, a])))
 
 
 ws.register_law(AirOnlyLaw, replace=True)

@@ -162,9 +162,7 @@ class RadialSampler:
         if check:
             for t, m, nm in zip(targets, self._meshes, self.names):
                 check_star_shaped(t, device=self.device, name=nm, _wp_mesh_obj=m)
-        self.max_t = 4.0 * max(_reach(t) for t in targets)
-        self._ids_host = np.array([m.id for m in self._meshes], dtype=np.uint64)
-        self._failures = wp.zeros(1, dtype=wp.int32, device=self.device)
+        self._reaches = [_reach(t) for t in targets]
         # float64 face planes, to refine float32 hits on the host
         self._planes = []
         for t in targets:
@@ -172,9 +170,32 @@ class RadialSampler:
                          t.vertices[t.faces[:, 2]] - t.vertices[t.faces[:, 0]])
             n /= np.linalg.norm(n, axis=1, keepdims=True)
             self._planes.append((n, np.einsum("ij,ij->i", n, t.vertices[t.faces[:, 0]])))
+        self._index_targets()
+
+    def _index_targets(self) -> None:
+        """The per-target tables every query reads, from ``_meshes``, ``_reaches`` and ``_planes``."""
+        self.max_t = 4.0 * max(self._reaches)
+        self._ids_host = np.array([m.id for m in self._meshes], dtype=np.uint64)
+        self._failures = wp.zeros(1, dtype=wp.int32, device=self.device)
         self._plane_offsets = np.cumsum([0] + [len(n) for n, _ in self._planes[:-1]])  # first row of each target
         self._all_normals = np.concatenate([n for n, _ in self._planes])
         self._all_offsets = np.concatenate([o for _, o in self._planes])
+
+    def subset(self, indices, names: Sequence[str] | None = None) -> "RadialSampler":
+        """A sampler of targets ``indices`` (in that order, repeats allowed) of this one, sharing its BVHs
+        and planes: nothing is built or checked again, and it samples each target exactly as a
+        ``RadialSampler`` of those targets alone would (the same BVHs, planes and ray length)."""
+        idx = [int(i) for i in indices]
+        if not idx or min(idx) < 0 or max(idx) >= self.n_targets:
+            raise ShapeError(f"a subset indexes the sampler's {self.n_targets} target(s), got {idx}")
+        out = object.__new__(RadialSampler)
+        out.n_targets, out.device = len(idx), self.device
+        out.names = list(names) if names is not None else [self.names[i] for i in idx]
+        out._meshes = [self._meshes[i] for i in idx]
+        out._reaches = [self._reaches[i] for i in idx]
+        out._planes = [self._planes[i] for i in idx]
+        out._index_targets()
+        return out
 
     def mesh_ids(self, world_targets=None) -> wp.array:
         """(W,) uint64 BVH ids on the device: world w samples target ``world_targets[w]``."""

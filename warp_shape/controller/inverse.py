@@ -31,6 +31,7 @@ from ..model import HostModel, host_model
 from ..sampling import RadialSampler
 from .explore import Explorer
 from .plans import parse_plans, plan_starts, plan_trajectory
+from .problem import as_problem
 from .refine import STOP_LIMIT, Refined, refine, uses_adjoint
 from .result import ControlResult, ScreenResult
 from .settings import ControlSettings
@@ -198,11 +199,12 @@ def _log(recorder, prefix: str, design: Design, results: list, names, settings, 
     recorder.end_run(results)
 
 
-def _prepare(design: Design, settings: ControlSettings, device: str, warm: list):
+def _prepare(design: Design, settings: ControlSettings, device: str, warm: list, targets=None):
     """The run's context, its jam plans (``settings.inverse_plans``; no ``overinflate`` where no cell can
-    jam) and its scratch explorer."""
+    jam) and its scratch explorer; ``targets``: the warm start's targets (a ``Problem``, whose sampler
+    is used; None: the warm results' targets)."""
     plans = parse_plans(settings.inverse_plans)
-    sampler = RadialSampler([r.target for r in warm], device=device)
+    sampler = as_problem([r.target for r in warm] if targets is None else targets, device=device, centre=False).sampler
     probe = _Run(design, settings, device, sampler, None, None, None)
     host = host_model(design)
     pi, pc = passive_masks(warm, host.n_ipams, host.n_cells)
@@ -223,7 +225,7 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
     of ``control_many`` (the recorder logs the final sequences once they are chosen)."""
     t0 = time.perf_counter()
     warm = warm_start
-    ctx, plans, names, ex = _prepare(design, settings, device, warm)
+    ctx, plans, names, ex = _prepare(design, settings, device, warm, targets)
     starts = plan_starts(plans, ctx, warm, ex, warm_simulator)
     refined, world_steps = _refine_all(ctx, ex, starts, warm)
     results = _finish_and_choose(ctx, starts, names, refined, warm)
@@ -240,13 +242,14 @@ def control_inverse(design: Design, targets, *, device: str, settings: ControlSe
 
 
 def predict_inverse(design: Design, *, device: str, settings: ControlSettings, warm_start: list,
-                    warm_simulator=None) -> list[ScreenResult]:
+                    warm_simulator=None, targets=None) -> list[ScreenResult]:
     """The fit the model-based controller predicts for every target of ``warm_start`` (steps 1-4 of
     the module docstring, no trajectory run): per target the plan whose refined controls fit best in
     the scratch batch and that fit, or the warm start's where it is not better (as ``control_inverse``
-    falls back). A screen's estimate, not a control sequence (``ScreenResult``)."""
+    falls back). A screen's estimate, not a control sequence (``ScreenResult``); ``targets``: the warm
+    start's (``control_inverse``'s)."""
     warm = warm_start
-    ctx, plans, names, ex = _prepare(design, settings, device, warm)
+    ctx, plans, names, ex = _prepare(design, settings, device, warm, targets)
     starts = plan_starts(plans, ctx, warm, ex, warm_simulator)
     refined, _ = _refine_all(ctx, ex, starts, warm)
     pred = np.array([r.objective for r in refined])  # (P, W)

@@ -12,12 +12,11 @@ from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..model import HostModel
-from ..sampling import RadialSampler
 from ..settings import SimulationSettings
-from .checks import check_targets_against_rest
 from .history import History
 from .laws import Controls, PaperLaw, hold_neutral
 from .observe import Observation, Observer
+from .problem import as_problem
 from .result import ControlResult
 from .settings import ControlSettings
 from .worlds import mask_passive
@@ -231,8 +230,9 @@ def run_law(design: Design, targets: list[TriMesh], law, *, device: str, setting
     world where ``controller.replay.replay_simulator`` of the results puts it, bit for bit)."""
     W = len(targets)
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
-    sampler = RadialSampler(targets, device=device, names=names)  # checks star-shape, naming the directions
-    check_targets_against_rest(design.rest, targets, sampler, names, max_stretch=settings.max_stretch)
+    problem = as_problem(targets, names, device=device, centre=False)
+    sampler = problem.sampler  # built (and star-shapes checked) once per problem
+    problem.check_rest(design.rest, settings.max_stretch)  # once per rest shape in the problem's run
     sim = _simulator(design, settings.simulation, device, W)
     host = sim.model.host
     passive_i = _passive_mask(passive_ipams, W, host.n_ipams, "passive_ipams")  # (W, n_ipam)

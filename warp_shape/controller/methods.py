@@ -15,10 +15,10 @@ from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..settings import settings_or_default
-from ..targets import centred_targets
 from .inverse import control_inverse, predict_inverse
 from .laws import PaperLaw
 from .loop import run_law
+from .problem import as_problem
 from .result import ControlResult, ScreenResult
 from .settings import CONTROL_METHODS, LAWS, ControlSettings
 from .shard import control_sharded, run_method, shard_modules, worker_pool
@@ -54,6 +54,7 @@ class InverseMethod:
 
     def run(self, design, targets, *, settings, device, progress=None, passive_ipams=(), passive_cells=(),
             target_names=None, **kwargs) -> list[ControlResult]:
+        targets = as_problem(targets, target_names, device=device, centre=False)  # one sampler for both stages
         warm, sim = self._warm(design, targets, settings, device, progress, passive_ipams, passive_cells, target_names)
         return control_inverse(design, targets, device=device, settings=settings, progress=progress,
                                passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=target_names,
@@ -62,8 +63,10 @@ class InverseMethod:
     def screen(self, design, targets, *, settings, device, progress=None, passive_ipams=(), passive_cells=(),
                target_names=None) -> list[ScreenResult]:
         """The fit ``run`` would reach, predicted without the plans' trajectories (``predict_inverse``)."""
+        targets = as_problem(targets, target_names, device=device, centre=False)  # one sampler for both stages
         warm, sim = self._warm(design, targets, settings, device, progress, passive_ipams, passive_cells, target_names)
-        return predict_inverse(design, device=device, settings=settings, warm_start=warm, warm_simulator=sim)
+        return predict_inverse(design, device=device, settings=settings, warm_start=warm, warm_simulator=sim,
+                               targets=targets)
 
 
 def register_control_method(method, *, replace: bool = False):
@@ -128,7 +131,7 @@ def _many(design, targets, *, device, settings, recorder, progress, passive_ipam
           recorder_prefix, method, overrides, screen: bool) -> list:
     if not isinstance(design, Design):
         raise DesignError(f"control needs a ws.Design, got {type(design).__name__}")
-    targets = centred_targets(targets, "control")
+    targets = as_problem(targets, target_names, device=device)  # centred once; a run's problem as it is
     settings = settings_or_default(settings, ControlSettings, "settings")
     if method is not None:
         overrides["method"] = method

@@ -38,7 +38,9 @@ import warp as wp
 
 from ..force_family import ACTUATOR_FAMILIES, FORCE_FAMILIES
 from ..errors import DesignError, WarpShapeError
+from ..mesh import TriMesh
 from ..registry import load_plugins
+from .problem import Problem
 from .result import screened
 from .settings import CONTROL_METHODS, LAWS
 
@@ -432,7 +434,7 @@ def run_method(method: str, design, targets, *, screen: bool = False, recorder=N
 def control_job(method: str, design, target, settings, device, passive_ipams, passive_cells, name, screen=False, *,
                 progress=None):
     """One target's control run (a worker's job): ``run_method`` on one world."""
-    return run_method(method, design, [target], screen=screen, settings=settings, device=device, progress=progress,
+    return run_method(method, design, [target] if isinstance(target, TriMesh) else target, screen=screen, settings=settings, device=device, progress=progress,
                       passive_ipams=passive_ipams, passive_cells=passive_cells, target_names=[name])[0]
 
 
@@ -444,7 +446,8 @@ def control_sharded(pool: WorkerPool, design, targets: list, *, settings, device
     W = len(targets)
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
     pi, pc = _per_world(passive_ipams, W), _per_world(passive_cells, W)
-    jobs = [(settings.method, design, targets[w], settings, device, pi[w], pc[w], names[w], screen) for w in range(W)]
+    one = targets.take if isinstance(targets, Problem) else (lambda w: targets[w[0]])
+    jobs = [(settings.method, design, one([w]), settings, device, pi[w], pc[w], names[w], screen) for w in range(W)]
     steps, done = np.zeros(W, dtype=np.int64), np.zeros(W, dtype=bool)
 
     total = [settings.max_steps + settings.max_settle_steps]

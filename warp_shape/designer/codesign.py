@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..controller import ControlSettings, control_many
+from ..controller.problem import as_problem, take
 from ..controller.replay import replay_result
 from ..controller.shard import available_cores, run_jobs
 from ..design import Design
@@ -29,7 +30,6 @@ from ..gradients.api import replay_gradient
 from ..gradients.replay import plan_replay
 from ..mesh import TriMesh
 from ..objectives.radial import fit_objective_and_gradient
-from ..sampling import RadialSampler
 from .settings import CODESIGN_MODES
 
 __all__ = ["CODESIGN_MODES", "CodesignSettings", "CodesignProblem", "codesign", "radial_modes", "min_norm_direction",
@@ -237,9 +237,11 @@ def _gradient_job(design: Design, result, target, wrt, device: str, plan=None, *
 
 
 def _objective_job(design: Design, result, target, device: str, *, progress=None):
+    # ``target``: a centred mesh or the run's problem of that one target (whose sampler a worker builds once)
     plan = plan_replay(design, result, precision=PRECISION, device=device)
-    sampler = RadialSampler(target, device=device)
-    return float(fit_objective_and_gradient(plan.final, sampler, 0, design.rest.faces, target.volume())[0]), plan
+    problem = as_problem(target, device=device, centre=False)
+    return float(fit_objective_and_gradient(plan.final, problem.sampler, 0, design.rest.faces,
+                                            problem.volumes[0])[0]), plan
 
 
 def _round_end_job(design: Design, result, target, device: str, held: bool, *, progress=None):
@@ -258,15 +260,15 @@ def round_end(design: Design, new: list, held_results, targets, replays, device:
     new = list(new)
     above = {j for j in range(len(new)) if new[j].objective > objectives[j]}
     order = [j for j in range(len(new)) if j in above or again]
-    out = dict(zip(order, run_jobs(_round_end_job, [(design, held_results[j] if j in above else new[j], targets[j],
-                                                      device, j in above) for j in order])))
+    out = dict(zip(order, run_jobs(_round_end_job, [(design, held_results[j] if j in above else new[j],
+                                                      take(targets, [j]), device, j in above) for j in order])))
     held = [j for j in sorted(above) if out[j].objective < new[j].objective]  # the held sequence fits better
     for j in held:
         new[j] = out[j]
     if not again:
         return new, held, None
     lost = [j for j in sorted(above) if j not in held]  # re-controlled after all: their own start replays
-    out.update(zip(lost, run_jobs(_objective_job, [(design, new[j], targets[j], device) for j in lost])))
+    out.update(zip(lost, run_jobs(_objective_job, [(design, new[j], take(targets, [j]), device) for j in lost])))
     return new, held, _split([(objectives[j], plans[j]) if j in held else out[j] for j in range(len(new))])
 
 
@@ -279,7 +281,7 @@ def replayed(design: Design, results, targets, device: str = "cpu"):
     """((T,) the objective of each result's sequence replayed open loop on ``design`` in ``PRECISION``,
     [T] their replay plans, for the gradients there): one job per target on the run's workers where
     they are running."""
-    return _split(run_jobs(_objective_job, [(design, r, t, device) for r, t in zip(results, targets)]))
+    return _split(run_jobs(_objective_job, [(design, r, take(targets, [j]), device) for j, r in enumerate(results)]))
 
 
 def replayed_objectives(design: Design, results, targets, device: str = "cpu") -> np.ndarray:

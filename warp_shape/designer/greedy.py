@@ -8,10 +8,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..controller import CONTROL_METHODS, control_many
+from ..controller.problem import take
 from ..design import Design
 from .initialize import copy_design
-from .placement import (Placement, PlacementContext, add_actuator_set, candidate_ends, end_angle_deg, free_faces,
-                        register_placement, scaled_errors)
+from .placement import (Decision, Placement, PlacementContext, add_actuator_set, candidate_ends, end_angle_deg,
+                        free_faces, planned_cells, register_placement, scaled_errors)
 from .passive import PassiveSets
 
 __all__ = ["candidate_worlds", "greedy_placement", "GreedyPlacement", "ESCALATED"]
@@ -37,18 +38,18 @@ def _passive(passive_sets: PassiveSets, k: int, j: int, ipams: list, cells: list
 
 
 def greedy_placement(current: Design, results, ctx: PlacementContext, round_index: int, passive_sets: PassiveSets, *,
-                     targets, names, control_settings, device, progress=None, recorder=None) -> dict:
-    """Round ``round_index`` of the greedy placement (module docstring). Adds the kept set to
-    ``current`` and leaves it out of the targets it does not help (``passive_sets``); returns the
-    round's record: every candidate's ends, per-target objectives and score, the one kept (``chosen``,
-    None when the round stopped the design) and the targets that leave it out."""
+                     targets, names, control_settings, device, progress=None, recorder=None) -> tuple[dict, list]:
+    """Round ``round_index`` of the greedy placement (module docstring); ``current`` and ``passive_sets``
+    are left as they are. Returns the round's record: every candidate's ends, per-target objectives and
+    score, the one kept (``chosen``, None when the round stopped the design), the cells it adds
+    (``new_cells``) and the targets that leave it out (``passive_for``, names; ``left_out``, indices)."""
     T = len(results)
     errors, _ = scaled_errors(results, ctx)
     ends = candidate_ends(errors, free_faces(current), ctx, ctx.settings.candidates, round_index + 1)
     union, ipams, cells = candidate_worlds(current, ends, ctx)
     K = len(ends)
     passive = [_passive(passive_sets, k, j, ipams, cells) for k in range(K) for j in range(T)]
-    runs = control_many(union, [targets[j] for _ in range(K) for j in range(T)], device=device,
+    runs = control_many(union, take(targets, [j for _ in range(K) for j in range(T)]), device=device,
                         settings=control_settings, progress=progress, recorder=recorder,
                         passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
                         recorder_prefix=f"design/round_{round_index}_candidates",
@@ -68,17 +69,13 @@ def greedy_placement(current: Design, results, ctx: PlacementContext, round_inde
         record.update(chosen=None, stopped=(
             f"no candidate lowers the summed objective by more than {100 * ctx.settings.min_gain:g} % "
             f"(best {100 * gain[best]:.3g} %): the design stops with {current.n_ipams} IPAMs"))
-        return record
+        return record, []
     j, a, b = ends[best]
-    new_cells = add_actuator_set(current, a, b, ctx)
     left_out = [t for t in range(T) if obj[best, t] >= prev[t]]
-    for t in left_out:
-        passive_sets.ipams[t].add(current.n_ipams - 1)
-        passive_sets.cells[t].update(new_cells)
     record.update(chosen=best, target=j, face_a=a, face_b=b, error=float(errors[j, a]),
-                  error_b=float(errors[j, b]), rest_angle_deg=end_angle_deg(ctx, a, b), new_cells=new_cells,
-                  passive_for=[names[t] for t in left_out])
-    return record
+                  error_b=float(errors[j, b]), rest_angle_deg=end_angle_deg(ctx, a, b),
+                  new_cells=planned_cells(current, a, b, ctx), passive_for=[names[t] for t in left_out])
+    return record, left_out
 
 
 ESCALATED = ("no candidate helped under the paper's law, which can hide what an actuator does (a cube corner "
@@ -95,23 +92,21 @@ class GreedyPlacement(Placement):
     uses_candidates = True
 
     def place(self, run, results, i, round_settings):
-        record = greedy_placement(run.current, results, run.ctx, i, run.passive_sets, targets=run.targets,
-                                  names=run.names, control_settings=round_settings, device=run.device,
-                                  progress=run.round_progress(i), recorder=run.recorder)
-        run.info["rounds"].append(record)
+        record, left_out = greedy_placement(run.current, results, run.ctx, i, run.passive_sets, targets=run.targets,
+                                            names=run.names, control_settings=round_settings, device=run.device,
+                                            progress=run.round_progress(i), recorder=run.recorder)
         if run.recorder is not None:
             run.recorder.log_design_candidates(i, record)
         if record["chosen"] is not None:
-            return record
-        run.designs.pop(), run.rounds.pop()  # nothing helps: this round again, by model-based control or as the last
-        if run.round_control == "law" and CONTROL_METHODS[run.control_settings.method].refines:
-            run.round_control = "quick"
+            decision = Decision(ends=(record["face_a"], record["face_b"]), record=record, passive_for=tuple(left_out),
+                                report=(record,))
+        elif run.round_control == "law" and CONTROL_METHODS[run.control_settings.method].refines:
+            # nothing helps: this round again, by model-based control
             record["escalated"] = ESCALATED
-            run.info["escalated_at"] = i
-        else:
-            run.info["stopped"] = record["stopped"]
-            run.final = True
-        return None
+            decision = Decision(again=True, round_control="quick", info=dict(escalated_at=i), report=(record,))
+        else:  # nothing helps: this round again, as the last
+            decision = Decision(again=True, final=True, info=dict(stopped=record["stopped"]), report=(record,))
+        return decision
 
     @classmethod
     def describe(cls, info):

@@ -9,8 +9,9 @@ import numpy as np
 from ..design import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
-from ..sampling import RadialSampler
-from ..targets import centred_targets, identifier_for, is_identifier
+from ..controller.checks import target_labels
+from ..controller.problem import Problem, as_problem
+from ..targets import identifier_for, is_identifier
 
 __all__ = ["check_request", "check_targets", "initial_rest_shape", "check_cell_room", "copy_design"]
 
@@ -23,13 +24,11 @@ def check_request(base, actuators) -> None:
         raise DesignError(f"actuators must be a whole number >= 1, got {actuators!r}")
 
 
-def check_targets(targets, target_names) -> tuple[list[TriMesh], list[str]]:
-    """The targets centred on their volume centroids, and their names; errors for no target, a
-    non-mesh, a wrong number of names, a duplicate name or the same shape given twice."""
-    targets = centred_targets(targets, "design")
-    names = list(target_names) if target_names is not None else [f"target{j}" for j in range(len(targets))]
-    if len(names) != len(targets):
-        raise DesignError(f"{len(names)} target names for {len(targets)} targets")
+def check_targets(targets, target_names, device: str = "cpu") -> Problem:
+    """The run's problem: the targets centred on their volume centroids, and their names; errors for no
+    target, a non-mesh, a wrong number of names, a duplicate name or the same shape given twice."""
+    problem = Problem(targets, target_names, device=device, job="design")
+    targets, names = problem.targets, problem.names
     if len(set(names)) != len(names):
         raise DesignError(f"duplicate target names {names}; give each target once")
     for n in names:
@@ -37,21 +36,23 @@ def check_targets(targets, target_names) -> tuple[list[TriMesh], list[str]]:
             raise DesignError(f"target name {n!r} is not an identifier (letters, digits, _; not starting with a "
                               f"digit): it becomes a USD prim name of the saved design; use e.g. {identifier_for(n)!r}")
     centred = targets
+    problem.labels = tuple(target_labels(targets, names))
     for a in range(len(centred)):
         for b in range(a):
             ta, tb = centred[a], centred[b]
             if ta.vertices.shape == tb.vertices.shape and np.array_equal(ta.faces, tb.faces) \
                     and np.allclose(ta.vertices, tb.vertices, atol=1e-9):
                 raise DesignError(f"duplicate targets: {names[a]} and {names[b]} are the same shape; give each once")
-    return centred, names
+    return problem
 
 
 def initial_rest_shape(base: TriMesh, targets, volume_scale: float = 0.8, device: str = "cpu") -> TriMesh:
     """Rest shape from the base mesh's directions: mean of volume-normalised sampled target radii,
-    scaled to ``volume_scale`` x the smallest target volume."""
+    scaled to ``volume_scale`` x the smallest target volume. ``targets``: centred meshes or the run's
+    ``Problem`` (its sampler is used)."""
     base = base.centered()
     dirs = base.vertices / np.linalg.norm(base.vertices, axis=1, keepdims=True)
-    sampler = RadialSampler(targets, device=device)
+    sampler = as_problem(targets, device=device, centre=False).sampler
     radii = []
     for j, t in enumerate(targets):
         hits = sampler.sample(dirs * 1e-3, j)

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..controller import ControlSettings, control_many
 from ..controller.shard import worker_pool
-from ..controller.checks import check_target_units, check_targets_against_rest, target_labels
+from ..controller.checks import check_target_units
 from ..design import Design
 from ..errors import DesignError
 from ..material import Material
@@ -16,13 +16,13 @@ from ..sampling import RadialSampler, pcc
 from ..settings import settings_or_default
 from .codesign import CodesignRecord, CodesignSettings, codesign
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
-from .placement import PlacementContext, check_record
+from .placement import Decision, PlacementContext, add_actuator_set, check_record
 from .result import DesignResult
 from .rounds import DesignRun
 from .passive import PassiveSets
 from .settings import DEFAULT_ACTUATORS, PLACEMENTS, DesignSettings, round_control_settings
 
-__all__ = ["design"]
+__all__ = ["design", "apply_decision"]
 
 
 def _start_pcc(rest: TriMesh, sampler: RadialSampler, n_targets: int) -> np.ndarray:
@@ -49,7 +49,12 @@ def control_round(run: DesignRun, i: int, round_settings: ControlSettings, choos
                            progress=run.round_progress(i), passive_ipams=run.passive_sets.passive_ipams(),
                            passive_cells=run.passive_sets.passive_cells(), recorder=run.recorder,
                            recorder_prefix=f"design/round_{i}", target_names=run.names)
-    run.rounds.append(results if choose is None else choose(results))
+    chosen = results if choose is None else choose(results)
+    if isinstance(chosen, Decision):  # the round records the placement's choice of results
+        if chosen.amend:
+            run.added[-1].update(chosen.amend)
+        chosen = chosen.results
+    run.rounds.append(chosen)
     if run.recorder is not None:
         run.recorder.log_design_round(i, np.array([r.pcc for r in run.rounds[-1]]), run.names, run.designs[-1])
     if run.on_round is not None:
@@ -80,8 +85,43 @@ def _codesign(run: DesignRun) -> dict:
     return record.as_dict()
 
 
+def apply_decision(run: DesignRun, decision: Decision) -> dict | None:
+    """Apply a placement's ``decision`` after a round (``designer.placement``): the report entries, how
+    the rounds go on, and the set it adds (an IPAM between ``ends``, a cell around each end, left out
+    of the ``passive_for`` targets' sequences). Returns the set's record, or None: the round again
+    (its design and results are dropped)."""
+    run.info.update(decision.info)
+    run.info["rounds"].extend(decision.report)
+    if decision.round_control is not None:
+        run.round_control = decision.round_control
+    run.final = run.final or decision.final
+    if decision.again:
+        run.designs.pop(), run.rounds.pop()
+        return None
+    new_cells = add_actuator_set(run.current, *decision.ends, run.ctx)
+    for t in decision.passive_for:
+        run.passive_sets.ipams[t].add(run.current.n_ipams - 1)
+        run.passive_sets.cells[t].update(new_cells)
+    return decision.record
+
+
+def _finish(run: DesignRun, placement, i: int) -> None:
+    """The placement's ``finish`` and its decision applied: report entries, the holds, and refined
+    results replacing the last round's (``on_round`` told again)."""
+    decision = placement.finish(run, i)
+    if decision is None:
+        return
+    run.info.update(decision.info)
+    if decision.passive_sets is not None:
+        run.passive_sets = decision.passive_sets
+    if decision.results is not None:
+        run.rounds[-1] = decision.results
+        if run.on_round is not None:
+            run.on_round(i, run.designs[-1], decision.results)
+
+
 def _rounds(run: DesignRun, placement, actuators: int) -> None:
-    """The rounds of Algorithm 1 by ``placement``, then its ``finish``."""
+    """The rounds of Algorithm 1 by ``placement``, each of its decisions applied, then its ``finish``."""
     i = 0
     while True:
         run.final = run.final or i == actuators
@@ -91,12 +131,14 @@ def _rounds(run: DesignRun, placement, actuators: int) -> None:
         results = control_round(run, i, round_settings, choose)
         if run.final:
             break
-        record = placement.place(run, results, i, round_settings)
+        decision = placement.place(run, results, i, round_settings)
+        # a plain record: a set the placement added itself
+        record = apply_decision(run, decision) if isinstance(decision, Decision) else decision
         if record is None:  # the placement asks for this round again (run.final or run.round_control changed)
             continue
         run.added.append(check_record(placement, record))
         i += 1
-    placement.finish(run, i)
+    _finish(run, placement, i)
 
 
 def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device: str = "cpu", target_names=None,
@@ -120,15 +162,15 @@ def design(base: TriMesh, targets, actuators: int = DEFAULT_ACTUATORS, *, device
     if overrides:
         settings = settings.replace(**overrides)
     control_settings = settings_or_default(control_settings, ControlSettings, "control_settings")
-    targets, names = check_targets(targets, target_names)
-    sampler = RadialSampler(targets, device=device, names=target_labels(targets, names))  # rejects non-star shapes
+    problem = check_targets(targets, target_names, device)  # the run's problem, built once and passed down
+    targets, names, sampler = problem.targets, problem.names, problem.sampler  # the sampler rejects non-star shapes
     check_target_units(base, targets, names, what="base mesh")
-    rest = initial_rest_shape(base, targets, settings.volume_scale, device) if settings.initialize else base.centered()
-    check_targets_against_rest(rest, targets, sampler, names, max_stretch=control_settings.max_stretch)
+    rest = initial_rest_shape(base, problem, settings.volume_scale, device) if settings.initialize else base.centered()
+    problem.check_rest(rest, control_settings.max_stretch)
     check_cell_room(rest, actuators, settings.cell_radius)
-    ctx = PlacementContext(sampler=sampler, target_volumes=np.array([t.volume() for t in targets]),
+    ctx = PlacementContext(sampler=sampler, target_volumes=problem.volumes,
                            rest_centroids=rest.face_centroids(), settings=settings, actuators=int(actuators))
-    run = DesignRun(current=Design(rest, material), targets=targets, names=names, ctx=ctx, settings=settings,
+    run = DesignRun(current=Design(rest, material), problem=problem, ctx=ctx, settings=settings,
                     control_settings=control_settings, device=device, progress=progress, recorder=recorder,
                     on_round=on_round, passive_sets=PassiveSets(len(targets)), round_control=settings.round_control,
                     info=_placement_info(settings, names, _start_pcc(rest, sampler, len(targets))))

@@ -24,6 +24,11 @@ class PassiveSets:
         self.ipams: list[set] = [set() for _ in range(n_targets)]
         self.cells: list[set] = [set() for _ in range(n_targets)]
 
+    def copy(self) -> "PassiveSets":
+        out = PassiveSets(0)
+        out.ipams, out.cells = [set(s) for s in self.ipams], [set(s) for s in self.cells]
+        return out
+
     def passive_ipams(self, targets=None) -> list[list[int]]:
         """Sorted IPAM indices left out, per target (of ``targets``, default all)."""
         return [sorted(self.ipams[j]) for j in (range(len(self.ipams)) if targets is None else targets)]

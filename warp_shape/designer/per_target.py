@@ -11,8 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..controller import control_many, screen_many
+from ..controller.problem import take
 from ..design import Design
-from .placement import PaperPlacement, register_placement
+from .placement import Decision, PaperPlacement, register_placement
 from .passive import PassiveSets
 
 __all__ = ["PerTargetPlacement", "PassiveCandidate", "ipam_cells", "refine_passive"]
@@ -87,7 +88,7 @@ def _screen(design: Design, worlds: list, current: list, passive_sets: PassiveSe
     runs = [None] * len(worlds)
     for s, ks in groups.values():
         passive = [_passive(passive_sets, worlds[k][0], worlds[k][1]) for k in ks]
-        out = screen_many(design, [targets[worlds[k][0]] for k in ks], device=device, settings=s, progress=progress,
+        out = screen_many(design, take(targets, [worlds[k][0] for k in ks]), device=device, settings=s, progress=progress,
                           passive_ipams=[p for p, _ in passive], passive_cells=[c for _, c in passive],
                           target_names=[f"{names[worlds[k][0]]}_hold_{worlds[k][1].label()}" for k in ks])
         for k, run in zip(ks, out):
@@ -174,7 +175,7 @@ def refine_passive(design: Design, results: list, passive_sets: PassiveSets, con
             break
         order = sorted(best)
         passive = [_passive(passive_sets, t, best[t][1]) for t in order]
-        checked = control_many(design, [targets[t] for t in order], device=device, settings=control_settings,
+        checked = control_many(design, take(targets, order), device=device, settings=control_settings,
                                progress=progress, passive_ipams=[p for p, _ in passive],
                                passive_cells=[c for _, c in passive], target_names=[names[t] for t in order])
         for t, run, (pi, pc) in zip(order, checked, passive):
@@ -227,27 +228,26 @@ class PerTargetPlacement(PaperPlacement):
                 keep = r_held.objective < r_all.objective
                 construction.ipams[t], construction.cells[t] = (set(pi[t]), set(pc[t])) if keep else (set(), set())
                 out.append(r_held if keep else r_all)
-            run.added[-1]["passive_for"] = [names[t] for t in range(len(run.targets)) if new in construction.ipams[t]]
-            return out
+            held_by = [names[t] for t in range(len(run.targets)) if new in construction.ipams[t]]
+            return Decision(results=out, amend=dict(passive_for=held_by))
         return choose
 
     def finish(self, run, i):
-        """The refinement rounds after the last round; a target's refined result replaces its last-round
-        result (``on_round`` is told again)."""
+        """The refinement rounds after the last round: a decision whose refined results replace the
+        last round's (``on_round`` is told again) with the holds they were controlled with."""
         if run.settings.refine_rounds <= 0 or run.current.n_ipams == 0:
-            return
+            return None
         construction = self.construction or PassiveSets(len(run.targets))
-        info, rounds = run.info, run.rounds
-        info["paper_objective"] = [r.objective for r in rounds[-1]]  # every actuator in use: Algorithm 1's fit
-        refined, info["refinement"], info["refinement_stopped"] = refine_passive(
-            run.current, rounds[-1], run.passive_sets, list(zip(construction.passive_ipams(), construction.passive_cells())),
+        last, holds = run.rounds[-1], run.passive_sets.copy()
+        paper_objective = [r.objective for r in last]  # every actuator in use: Algorithm 1's fit
+        refined, records, stopped = refine_passive(
+            run.current, last, holds, list(zip(construction.passive_ipams(), construction.passive_cells())),
             [a["target"] for a in run.added], targets=run.targets, names=run.names, settings=run.settings,
             control_settings=run.control_settings, device=run.device, progress=run.round_progress(i),
             recorder=run.recorder)
-        if any(a is not b for a, b in zip(refined, rounds[-1])):
-            rounds[-1] = refined
-            if run.on_round is not None:
-                run.on_round(i, run.designs[-1], refined)
+        changed = any(a is not b for a, b in zip(refined, last))
+        return Decision(info=dict(paper_objective=paper_objective, refinement=records, refinement_stopped=stopped),
+                        results=refined if changed else None, passive_sets=holds)
 
     @classmethod
     def describe(cls, info):

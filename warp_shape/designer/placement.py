@@ -1,14 +1,20 @@
 """Actuator placement: placements as strategies, and the paper's rule.
 
 A placement (a class in ``PLACEMENTS``, built once per design run) decides where each round's
-actuator set goes. The design loop (``designer.loop``) calls, for every round ``i``:
+actuator set goes; it reads the run and returns a ``Decision`` (what to add, where, why), which
+the design loop (``designer.loop.apply_decision``) applies: a placement never changes the run. The loop
+calls, for every round ``i``:
 - ``before_round(run, i, round_settings)`` before a round that is not the last: None, or a function of the
-  round's results returning what the round records instead (e.g. the better of two runs per target);
-- ``place(run, results, i, round_settings)`` after a round that is not the last: the record of the set
-  it added to ``run.current`` (a JSON-ready dict with at least ``RECORD_KEYS``: the round, the target
-  it was placed for, its end faces and the scaled error at ``face_a``), or None to run the round
-  again (it may set ``run.final`` or ``run.round_control`` first);
-- ``finish(run, i)`` once after the last round;
+  round's results returning a ``Decision`` whose ``results`` the round records instead (e.g. the better
+  of two runs per target; ``amend``: entries for the record of the set placed last);
+- ``place(run, results, i, round_settings)`` after a round that is not the last: a ``Decision`` whose
+  ``ends`` are the faces of the IPAM to add (cells around both ends) and whose ``record`` says why (a
+  JSON-ready dict with at least ``RECORD_KEYS``: the round, the target it was placed for, its end
+  faces and the scaled error at ``face_a``), or one with ``again`` to run the round again (with
+  ``final`` or ``round_control`` to change how); a plain record dict is read as a set the placement
+  added to ``run.current`` itself;
+- ``finish(run, i)`` once after the last round: None or a ``Decision`` (``results``: the last round's
+  refined results, ``passive_sets``: the per-target holds they were controlled with);
 and the report calls ``describe(info)`` for its sentence on the method. ``summary`` is the one-line
 help of ``--placement``; ``uses_candidates`` says whether ``DesignSettings.candidates`` means
 anything to it. ``run`` is a ``designer.rounds.DesignRun``. Built in: ``PaperPlacement`` (here),
@@ -23,7 +29,7 @@ candidate sets the greedy placement tries.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,12 +39,29 @@ from ..objectives.radial import SCALED_RADIAL
 from ..sampling import RadialSampler
 from .settings import PLACEMENTS, DesignSettings
 
-__all__ = ["PlacementContext", "scaled_errors", "free_faces", "rest_directions", "other_end", "paper_ends",
+__all__ = ["Decision", "planned_cells", "PlacementContext", "scaled_errors", "free_faces", "rest_directions", "other_end", "paper_ends",
            "cell_faces", "add_actuator_set", "paper_placement", "end_angle_deg", "candidate_ends", "PLACEMENTS",
            "Placement", "PaperPlacement", "register_placement", "RECORD_KEYS", "check_record"]
 
 #: what every placement's record of an added set holds (the report and rounds.json read them)
 RECORD_KEYS = ("round", "target", "face_a", "face_b", "error")
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What a placement decided (module docstring); ``designer.loop.apply_decision`` applies it."""
+
+    ends: tuple | None = None  # (face_a, face_b): add an IPAM between them with a cell around each end
+    record: dict | None = None  # why: the record of the set added (``RECORD_KEYS``), appended to run.added
+    passive_for: tuple = ()  # the targets (indices) whose sequences leave the new set out
+    again: bool = False  # nothing placed: run this round again
+    final: bool = False  # the next round is the last
+    round_control: str | None = None  # how the rounds before the last are controlled from now
+    info: dict = field(default_factory=dict)  # entries of the placement report (``run.info``) to set
+    report: tuple = ()  # records appended to ``run.info["rounds"]``
+    results: list | None = None  # what the round records instead of its results
+    amend: dict = field(default_factory=dict)  # entries for the record of the set placed last
+    passive_sets: object = None  # the per-target holds from now (a ``PassiveSets``)
 
 
 @dataclass(frozen=True)
@@ -116,6 +139,19 @@ def cell_faces(taken: np.ndarray, end: int, ctx: PlacementContext) -> np.ndarray
     return np.flatnonzero((np.linalg.norm(c - c[end], axis=1) < ctx.settings.cell_radius) & ~taken)
 
 
+def planned_cells(design: Design, face_a: int, face_b: int, ctx: PlacementContext) -> list[int]:
+    """The indices of the cells ``add_actuator_set(design, face_a, face_b, ctx)`` would add, ``design``
+    left as it is."""
+    taken = design.face_cell() >= 0
+    out = []
+    for end in (face_a, face_b):
+        near = cell_faces(taken, end, ctx)
+        if near.size:
+            out.append(design.n_cells + len(out))
+            taken[near] = True
+    return out
+
+
 def add_actuator_set(design: Design, face_a: int, face_b: int, ctx: PlacementContext,
                      taken: np.ndarray | None = None) -> list[int]:
     """Add an IPAM between ``face_a`` and ``face_b`` and a cell around each end (rest-shape faces within
@@ -134,16 +170,15 @@ def add_actuator_set(design: Design, face_a: int, face_b: int, ctx: PlacementCon
     return new_cells
 
 
-def paper_placement(design: Design, results, ctx: PlacementContext, round_index: int) -> tuple[dict, list[int]]:
+def paper_placement(design: Design, results, ctx: PlacementContext, round_index: int) -> Decision:
     """The paper's placement (Algorithm 1): ends by ``paper_ends`` on the scaled radial errors of the
-    round's results, then ``add_actuator_set``."""
+    round's results, the set to add there (``add_actuator_set``) and its record; ``design`` unchanged."""
     errors, _ = scaled_errors(results, ctx)
     j, a, b = paper_ends(errors, free_faces(design), rest_directions(ctx), ctx.settings.min_angle_deg,
                          round_index + 1, ctx.actuators)
-    new_cells = add_actuator_set(design, a, b, ctx)
     record = dict(round=round_index, target=j, face_a=a, face_b=b, error=float(errors[j, a]),
                   error_b=float(errors[j, b]), rest_angle_deg=end_angle_deg(ctx, a, b))
-    return record, new_cells
+    return Decision(ends=(a, b), record=record)
 
 
 def end_angle_deg(ctx: PlacementContext, a: int, b: int) -> float:
@@ -191,10 +226,10 @@ class Placement:
     def before_round(self, run: DesignRun, i: int, round_settings: ControlSettings):
         return None
 
-    def place(self, run: DesignRun, results: list, i: int, round_settings: ControlSettings) -> dict | None:
+    def place(self, run: DesignRun, results: list, i: int, round_settings: ControlSettings) -> Decision:
         raise NotImplementedError
 
-    def finish(self, run: DesignRun, i: int) -> None:
+    def finish(self, run: DesignRun, i: int) -> Decision | None:
         return None
 
     @classmethod
@@ -209,8 +244,7 @@ class PaperPlacement(Placement):
     summary = "Algorithm 1 as published (every target uses every actuator)"
 
     def place(self, run, results, i, round_settings):
-        record, _ = paper_placement(run.current, results, run.ctx, i)
-        return record
+        return paper_placement(run.current, results, run.ctx, i)
 
     @classmethod
     def describe(cls, info):

@@ -1,11 +1,12 @@
-"""One design run's shared state: ``DesignRun``, what the design loop and the placement strategies
-act on."""
+"""One design run's shared state: ``DesignRun``, what the placement strategies read and the design
+loop changes (applying the placements' decisions, ``designer.loop.apply_decision``)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 from ..controller import ControlSettings
+from ..controller.problem import Problem
 from ..design import Design
 from .placement import PlacementContext
 from .passive import PassiveSets
@@ -19,8 +20,7 @@ class DesignRun:
     """What every part of one design run shares: the problem, the design so far, what was recorded."""
 
     current: Design  # the design being built (actuator sets are added to it in place)
-    targets: list  # centred target meshes
-    names: list[str]
+    problem: Problem  # the run's targets (centred), names, volumes, sampler and checks, built once
     ctx: PlacementContext
     settings: DesignSettings
     control_settings: ControlSettings
@@ -35,6 +35,15 @@ class DesignRun:
     info: dict = field(default_factory=dict)  # the placement report (DesignResult.placement)
     round_control: str = "law"  # how the rounds before the last are controlled (DesignSettings.round_control)
     final: bool = False  # the next round is the last
+
+    @property
+    def targets(self) -> Problem:
+        """The run's problem, read as its sequence of centred target meshes."""
+        return self.problem
+
+    @property
+    def names(self) -> list[str]:
+        return self.problem.names
 
     @property
     def actuators(self) -> int:
