@@ -3,10 +3,10 @@
 
 from .fit import calibrate, scan_residuals
 from .observations import ControlState, ScanObservation, Sequence
-from .parameters import BOUNDS, CALIBRATION_PARAMETERS, DEFAULT_WRT, apply_values
+from .parameters import BOUNDS, CALIBRATION_PARAMETERS, DEFAULT_WRT, HYPERELASTIC_WRT, apply_values, default_wrt
 from .replay import HOLD_S, replay_held
 from .result import CalibrationResult, ScanResidual
 
 __all__ = ["calibrate", "scan_residuals", "ControlState", "ScanObservation", "Sequence", "BOUNDS",
-           "CALIBRATION_PARAMETERS", "DEFAULT_WRT", "apply_values", "HOLD_S", "replay_held", "CalibrationResult",
-           "ScanResidual"]
+           "CALIBRATION_PARAMETERS", "DEFAULT_WRT", "HYPERELASTIC_WRT", "default_wrt", "apply_values", "HOLD_S",
+           "replay_held", "CalibrationResult", "ScanResidual"]

@@ -38,6 +38,7 @@ CALIBRATION_VERSION = 1
 #: the unit of every value in a calibration file
 UNITS = {"youngs_modulus": "Pa", "thickness": "m", "bending_stiffness": "N m/rad", "ipam_stiffness": "N/m",
          "ipam_area": "m^2", "rest_scale": "1", "region_stretch": "1 (multiplier of E t on the region's faces)",
+         "shear_modulus": "Pa", "yeoh_c2": "Pa", "yeoh_c3": "Pa",
          "residual_mm": "mm"}
 
 
@@ -52,7 +53,7 @@ def calibration_data(result: CalibrationResult, design: Design) -> dict:
     """The calibration file's content (a JSON-ready dict, SI units named in ``units``)."""
     return {"format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION, "units": UNITS,
             "design": {"vertices": design.rest.n_vertices, "faces": design.rest.n_faces, "ipams": design.n_ipams,
-                       "cells": design.n_cells},
+                       "cells": design.n_cells, "membrane": design.material.membrane},
             "values": {k: _plain(v) for k, v in result.values.items()},
             "regions": {k: [int(f) for f in v] for k, v in result.regions.items()},
             "stderr": {k: _plain(v) for k, v in result.stderr.items()},
@@ -202,9 +203,16 @@ def apply_calibration(design: Design, calibration) -> Design:
 
 
 def material_values(calibration) -> dict:
-    """The material fields of a calibration (for a new design's material: ``design --calibration``)."""
+    """The material fields of a calibration (for a new design's material: ``design --calibration``); a
+    hyperelastic membrane's constants come with its law (``membrane``, as the calibrated design had it)."""
     values = read_calibration(calibration) if isinstance(calibration, (str, Path)) else dict(calibration)
-    return {k: values[k] for k in ("youngs_modulus", "thickness", "bending_stiffness") if k in values}
+    out = {k: values[k] for k in ("youngs_modulus", "thickness", "bending_stiffness", "shear_modulus", "yeoh_c2",
+                                  "yeoh_c3") if k in values}
+    if any(k in out for k in ("shear_modulus", "yeoh_c2", "yeoh_c3")):
+        law = (values.get("_design") or {}).get("membrane")
+        out["membrane"] = law if law in ("neo_hookean", "yeoh") else "yeoh" if "yeoh_c2" in out or "yeoh_c3" in out \
+            else "neo_hookean"
+    return out
 
 
 def ipam_values(calibration) -> dict:

@@ -17,7 +17,7 @@ from ..design import Design
 from ..errors import DesignError, ShapeError
 from ..scan import ICP_POINTS, IcpConvergenceWarning, closest_points_query, compare_scan, icp
 from .observations import ScanObservation
-from .parameters import DEFAULT_WRT, ParameterSet, check_wrt
+from .parameters import ParameterSet, check_wrt, default_wrt
 from .regions import region_faces
 from .replay import HOLD_S, replay_held
 from .result import CalibrationResult, ScanResidual
@@ -692,10 +692,11 @@ def _checked_observations(design, observations) -> list:
     return obs
 
 
-def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, device: str = "cpu",
+def calibrate(design: Design, observations, wrt=None, *, regions=None, device: str = "cpu",
               max_iterations: int = 20, tolerance: float = 0.5, hold_s: float = HOLD_S,
               seed: int = 0, noise: float | None = None, progress=None) -> CalibrationResult:
-    """Fit ``design``'s parameters ``wrt`` (names of ``CALIBRATION_PARAMETERS``) to the scans of
+    """Fit ``design``'s parameters ``wrt`` (names of ``CALIBRATION_PARAMETERS``; None: ``default_wrt``, the
+    membrane law's) to the scans of
     ``observations`` (``ScanObservation``): each observation's sequence is replayed on the model and held
     ``hold_s`` s until at rest, its scan aligned to it (unknown pose, as ``compare``), and the signed
     point-to-surface residuals minimised by damped Gauss-Newton with a Huber loss, the poses fitted
@@ -716,7 +717,7 @@ def calibrate(design: Design, observations, wrt=DEFAULT_WRT, *, regions=None, de
         raise DesignError("every observation is held out: fit at least one (\"held_out\": false)")
     say = progress or (lambda line: None)
     faces = region_faces(design, regions)
-    wrt = check_wrt(wrt)
+    wrt = check_wrt(default_wrt(design) if wrt is None else wrt)
     if faces and "region_stretch" not in wrt:
         wrt += ("region_stretch",)
     params = ParameterSet(design, wrt, faces)

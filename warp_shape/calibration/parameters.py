@@ -2,7 +2,8 @@
 
 Every parameter is positive and fitted as its logarithm (a step is a relative change), clipped to
 its physical bounds. A fitted value applies to a design as ``apply_values``: the material's Young's
-modulus, thickness and bending stiffness, each IPAM's stiffness and area, and the rest-shape scale
+modulus, thickness and bending stiffness (the springs), shear modulus and Yeoh terms (the hyperelastic
+membranes, docs/membrane.md), each IPAM's stiffness and area, and the rest-shape scale
 (a uniform mold shrinkage or swelling about the rest centroid), and each region's multiplier of E t
 (``region_stretch``, regions of ``calibration.regions``).
 """
@@ -18,22 +19,32 @@ from ..design import Design
 from ..errors import DesignError
 from .regions import face_scale
 
-__all__ = ["CALIBRATION_PARAMETERS", "DEFAULT_WRT", "BOUNDS", "Parameter", "ParameterSet", "apply_values",
-           "check_wrt"]
+__all__ = ["CALIBRATION_PARAMETERS", "DEFAULT_WRT", "HYPERELASTIC_WRT", "BOUNDS", "Parameter", "ParameterSet",
+           "apply_values", "check_wrt", "default_wrt", "check_law"]
 
 #: the parameters ``calibrate`` fits, with their units
 CALIBRATION_PARAMETERS = {
     "youngs_modulus": "Pa: the silicone's Young's modulus E (thickness held: only E t acts on the springs)",
-    "thickness": "m: the load-bearing thickness t (only E t acts: fitted with youngs_modulus it is not separable)",
-    "bending_stiffness": "N m/rad: the hinge bending stiffness k_t",
+    "thickness": "m: the load-bearing thickness t (springs: only E t acts, not separable from E; hyperelastic: "
+                 "the sheet's t mu and the plate bending's t^3 mu, separable only through the bending)",
+    "bending_stiffness": "N m/rad: the hinge bending stiffness k_t (springs only)",
+    "shear_modulus": "Pa: the hyperelastic membrane's shear modulus mu (neo_hookean, yeoh; starts at E / 3 "
+                     "where the design leaves it None)",
+    "yeoh_c2": "Pa: the Yeoh law's C2 (yeoh only; must start > 0)",
+    "yeoh_c3": "Pa: the Yeoh law's C3 (yeoh only; must start > 0)",
     "ipam_stiffness": "N/m, (n_ipam,): each IPAM's stiffness k",
     "ipam_area": "m^2, (n_ipam,): each IPAM's area A",
     "rest_scale": "1: the rest shape's scale about its centroid (mold shrinkage < 1)",
     "region_stretch": "1, (n_regions,): each region's multiplier of E t (calibrate's regions=: plug, "
                       "cell_boundaries, patches:N)",
 }
-#: what ``calibrate`` fits when ``wrt`` is not given
+#: what ``calibrate`` fits when ``wrt`` is not given (the springs; ``default_wrt`` gives each law's)
 DEFAULT_WRT = ("youngs_modulus", "bending_stiffness", "ipam_stiffness", "ipam_area", "rest_scale")
+#: what ``calibrate`` fits on a hyperelastic membrane when ``wrt`` is not given (its bending follows mu and t)
+HYPERELASTIC_WRT = ("shear_modulus", "ipam_stiffness", "ipam_area", "rest_scale")
+#: the parameters only the springs have, and those only the hyperelastic laws (Yeoh: also its terms)
+_SPRINGS_ONLY = ("youngs_modulus", "bending_stiffness")
+_HYPERELASTIC_ONLY = ("shear_modulus", "yeoh_c2", "yeoh_c3")
 #: physical bounds (SI) of every parameter; a fit also stays within a factor ``RELATIVE_BOUND`` of its start
 BOUNDS = {
     "youngs_modulus": (1.0e3, 1.0e8),
@@ -43,6 +54,9 @@ BOUNDS = {
     "ipam_area": (1.0e-8, 1.0e-3),
     "rest_scale": (0.8, 1.25),
     "region_stretch": (0.1, 10.0),
+    "shear_modulus": (3.0e2, 3.0e7),
+    "yeoh_c2": (1.0, 1.0e7),
+    "yeoh_c3": (1.0e-2, 1.0e7),
 }
 RELATIVE_BOUND = 10.0
 _PER_IPAM = ("ipam_stiffness", "ipam_area")
@@ -58,6 +72,34 @@ def check_wrt(wrt) -> tuple:
     if bad:
         raise DesignError(f"calibrate wrt: unknown parameter {bad[0]!r}; choose from {choices}")
     return tuple(dict.fromkeys(names))
+
+
+def default_wrt(design: Design) -> tuple:
+    """What ``calibrate`` fits on ``design`` when not told: ``DEFAULT_WRT`` on springs, ``HYPERELASTIC_WRT``
+    on a hyperelastic membrane; the IPAMs' parameters left out of a design without IPAMs."""
+    names = HYPERELASTIC_WRT if design.material.hyperelastic else DEFAULT_WRT
+    return tuple(n for n in names if design.n_ipams or n not in _PER_IPAM)
+
+
+def check_law(design: Design, names) -> None:
+    """Every name of ``names`` acts on ``design``'s membrane law: a springs parameter on a hyperelastic
+    membrane, a hyperelastic one on springs or a Yeoh term on a neo-Hookean sheet is an error naming the fix."""
+    law = design.material.membrane
+    if design.material.hyperelastic:
+        bad = [n for n in names if n in _SPRINGS_ONLY]
+        if bad:
+            fix = ("fit shear_modulus (mu; E only sets it where shear_modulus is None)" if bad[0] == "youngs_modulus"
+                   else "the plate bending follows shear_modulus and thickness: fit those")
+            raise DesignError(f"calibrate wrt: {bad[0]} does not act on the {law} membrane; {fix}")
+    else:
+        bad = [n for n in names if n in _HYPERELASTIC_ONLY]
+        if bad:
+            raise DesignError(f"calibrate wrt: {bad[0]} is a hyperelastic membrane's parameter and the design's "
+                              f"membrane is springs; fit youngs_modulus, or design with membrane='neo_hookean'/'yeoh'")
+    yeoh = [n for n in names if n in ("yeoh_c2", "yeoh_c3")]
+    if yeoh and law != "yeoh":
+        raise DesignError(f"calibrate wrt: {yeoh[0]} is a Yeoh term and the design's membrane is {law}; "
+                          f"use membrane='yeoh' with a starting {yeoh[0]} > 0")
 
 
 @dataclass(frozen=True)
@@ -85,6 +127,8 @@ def design_value(design: Design, name: str, index: int | None) -> float:
     if name in _PER_IPAM:
         ip = design.ipams[index]
         return ip.stiffness if name == "ipam_stiffness" else ip.area
+    if name == "shear_modulus":
+        return float(design.material.mu)  # None in the design: E / 3, the mu in effect
     return float(getattr(design.material, name))
 
 
@@ -94,6 +138,7 @@ class ParameterSet:
 
     def __init__(self, design: Design, wrt, regions: dict | None = None):
         names = check_wrt(wrt)
+        check_law(design, names)
         self.regions = dict(regions or {})
         if any(n in _PER_IPAM for n in names) and not design.n_ipams:
             raise DesignError("calibrate wrt: the design has no IPAMs; leave ipam_stiffness and ipam_area out")
@@ -167,8 +212,9 @@ def apply_values(design: Design, values: dict, regions: dict | None = None) -> D
     unknown = sorted(set(values) - set(CALIBRATION_PARAMETERS))
     if unknown:
         raise DesignError(f"unknown calibration parameter {unknown[0]!r}; known: {', '.join(CALIBRATION_PARAMETERS)}")
-    mat = replace(design.material, **{k: float(values[k]) for k in ("youngs_modulus", "thickness",
-                                                                      "bending_stiffness") if k in values})
+    check_law(design, tuple(values))
+    mat = replace(design.material, **{k: float(values[k]) for k in ("youngs_modulus", "thickness", "bending_stiffness",
+                                                                      *_HYPERELASTIC_ONLY) if k in values})
     scale = float(values.get("rest_scale", 1.0))
     if not (math.isfinite(scale) and scale > 0):
         raise DesignError(f"rest_scale must be a positive number, got {scale!r}")

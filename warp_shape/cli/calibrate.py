@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..calibration import CALIBRATION_PARAMETERS, DEFAULT_WRT, calibrate
+from ..calibration import CALIBRATION_PARAMETERS, DEFAULT_WRT, HYPERELASTIC_WRT, calibrate
 from ..calibration.files import (bounds_reached, calibration_data, calibration_markdown, read_manifest, write_calibration,
                                  write_residual_figures)
-from ..calibration.parameters import check_wrt
+from ..calibration.parameters import check_law, check_wrt, default_wrt
 from ..io.atomic import StagedFolder, atomic_write
-from .options import (add_common_args, check_device, check_out, check_rerun, commit, open_recorder,
-                      resolve_design_and_targets)
+from .options import (add_common_args, add_membrane_arg, check_device, check_out, check_rerun, commit, open_recorder,
+                      resolve_design_and_targets, with_membrane)
 
 __all__ = ["register", "run", "CALIBRATION_OUTPUTS"]
 
@@ -35,10 +35,12 @@ def register(subparsers) -> None:
     c.add_argument("--design", required=True, help="the design that was built: its design.usda (e.g. out/design.usda) "
                                                    "or a shipped scene name (e.g. cube_fig6)")
     c.add_argument("--wrt", nargs="+", default=None, choices=list(CALIBRATION_PARAMETERS),
-                   help=f"parameters to fit (default: the manifest's \"wrt\", else {' '.join(DEFAULT_WRT)})")
+                   help=f"parameters to fit (default: the manifest's \"wrt\", else {' '.join(DEFAULT_WRT)} on springs, "
+                        f"{' '.join(HYPERELASTIC_WRT)} on a hyperelastic membrane)")
     c.add_argument("--regions", nargs="+", default=None, metavar="REGION",
                    help="parts of the membrane whose E t is fitted on its own (region_stretch): plug, "
                         "cell_boundaries, patches:N (default: the manifest's \"regions\", else none)")
+    add_membrane_arg(c, "the design that was built")
     add_common_args(c, out="out/calibration")
     c.set_defaults(func=run)
 
@@ -74,8 +76,10 @@ def run(args) -> int:
     check_rerun(args, staged, inputs=[args.manifest, args.design])
     out = Path(args.out)
     design, _, _ = resolve_design_and_targets(args.design, None)
+    design = with_membrane(design, args.membrane)
     observations, manifest_wrt, manifest_regions = read_manifest(args.manifest, design)
-    wrt = check_wrt(args.wrt) if args.wrt else (manifest_wrt or DEFAULT_WRT)
+    wrt = check_wrt(args.wrt) if args.wrt else (manifest_wrt or default_wrt(design))
+    check_law(design, wrt)
     with staged.writing():
         result = calibrate(design, observations, wrt=wrt, regions=args.regions or manifest_regions,
                            device=args.device, progress=_progress)  # regions checked before any replay

@@ -1,0 +1,192 @@
+"""The membrane law in use (docs/membrane.md, "Designs and calibration with each law"): problems designed
+with the springs and with the neo-Hookean membrane, and a device simulated with the neo-Hookean law
+calibrated by each law.
+
+    nice -n 10 .venv/bin/python scripts/membrane_laws.py designs [--problems default egg+peanut ...]
+    nice -n 10 .venv/bin/python scripts/membrane_laws.py calibration [--seed 1]
+
+``designs``: each problem designed by ``ws.design`` with ``codesign="off"`` (co-design refuses a
+hyperelastic membrane) once per law, the runs alternating; for each, the wall time, how far the IPAMs'
+ends moved (each IPAM's end faces against the nearest IPAM of the other law's design, on the rest
+shape), the cells kept, and per target the fit (MARE, each against its own law's model) and the IPAM
+pressures. The default problem is the shipped oval_heart scene as ``warp-shape design`` runs it
+(642 vertices); the generated problems (benchmarks/generated_shapes.py) start from a 162-vertex sphere
+with 3 IPAMs.
+
+``calibration``: the 162-vertex Fig. 6 device of tests/test_calibration.py built with the neo-Hookean
+membrane (mu 1.3 x E / 3, each IPAM's k -10..-20 % and A +10..+20 %, rest scale +2 %), scanned at the
+test's four states (0.3 mm noise, 60 % coverage, random pose, chamber pressure read), the first three
+fitted and the fourth held out, calibrated by the springs model (``DEFAULT_WRT``) and by the neo-Hookean
+model (``HYPERELASTIC_WRT``). Prints the tables and writes out/membrane_laws/<part>.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "benchmarks")]
+
+import warp_shape as ws  # noqa: E402
+from warp_shape.calibration import (DEFAULT_WRT, HYPERELASTIC_WRT, ControlState, apply_values,  # noqa: E402
+                                    replay_held)
+from warp_shape.designer import design  # noqa: E402
+from warp_shape.designer.run_settings import RunSettings  # noqa: E402
+from warp_shape.io.atomic import atomic_write  # noqa: E402
+from warp_shape.io.scene_read import load_scene  # noqa: E402
+from warp_shape.model import host_model  # noqa: E402
+from warp_shape.scenarios import cube_fig6_design  # noqa: E402
+
+LAWS = ("springs", "neo_hookean")
+OUT = ROOT / "out" / "membrane_laws"
+
+
+def _material(material, law: str):
+    return replace(material or ws.Material(), membrane=law, yeoh_c2=0.0, yeoh_c3=0.0)
+
+
+def _problem(name: str):
+    """(base, targets, names, settings kwargs) of a problem: "default" or generated names joined by +."""
+    if name == "default":
+        scene = load_scene("oval_heart")
+        run = RunSettings.from_groups(scene.settings)
+        material = scene.design.material if scene.design is not None else None
+        return (scene.base_mesh(), list(scene.targets), list(scene.target_names), material,
+                dict(actuators=run.actuators, settings=run.designer.replace(codesign="off"),
+                     control_settings=run.control))
+    from generated_shapes import shape
+
+    names = name.split("+")
+    return (ws.icosphere(2, 0.035), [shape(n, subdivisions=3) for n in names], names, None,
+            dict(actuators=3, codesign="off"))
+
+
+def _ends(d) -> np.ndarray:
+    """(n_ipam, 2, 3) the rest-shape centroids of each IPAM's end faces."""
+    c = d.rest.face_centroids()
+    return np.array([[c[ip.face_a], c[ip.face_b]] for ip in d.ipams]).reshape(-1, 2, 3)
+
+
+def _ipam_distance(a, b) -> float:
+    """Mean over the IPAMs of ``a`` of the distance (mm, both ends) to the nearest IPAM of ``b``."""
+    ea, eb = _ends(a), _ends(b)
+    if not len(ea) or not len(eb):
+        return float("nan")
+    out = []
+    for e in ea:
+        same = np.linalg.norm(eb - e, axis=2).mean(axis=1)
+        flip = np.linalg.norm(eb[:, ::-1] - e, axis=2).mean(axis=1)
+        out.append(min(same.min(), flip.min()))
+    return 1e3 * float(np.mean(out))
+
+
+def designs(problems) -> dict:
+    rows = []
+    for name in problems:
+        base, targets, names, material, kw = _problem(name)
+        runs = {}
+        for law in LAWS:
+            t0 = time.perf_counter()
+            res = design(base, targets, target_names=names, material=_material(material, law), **kw)
+            runs[law] = (time.perf_counter() - t0, res)
+            print(f"{name} {law}: {runs[law][0]:.0f} s", flush=True)
+        (ts, s), (tn, n) = runs["springs"], runs["neo_hookean"]
+        same = len({(ip.face_a, ip.face_b) for ip in s.design.ipams} & {(ip.face_a, ip.face_b) for ip in n.design.ipams})
+        row = dict(problem=name, vertices=base.n_vertices, seconds=[ts, tn], ipams=[s.design.n_ipams, n.design.n_ipams],
+                   cells=[s.design.n_cells, n.design.n_cells], same_ipams=same,
+                   ipam_end_distance_mm=max(_ipam_distance(s.design, n.design), _ipam_distance(n.design, s.design)),
+                   targets=[])
+        for t, rs, rn in zip(names, s.results, n.results):
+            row["targets"].append(dict(target=t, mare_mm=[1e3 * rs.mare, 1e3 * rn.mare],
+                                       pressures_kpa=[(rs.ipam_pressures / 1e3).round(1).tolist(),
+                                                      (rn.ipam_pressures / 1e3).round(1).tolist()]))
+        rows.append(row)
+    _print_designs(rows)
+    return dict(designs=rows)
+
+
+def _print_designs(rows) -> None:
+    print("\n| problem | vertices | time springs / neo-Hookean (s) | IPAMs | cells | same IPAMs | IPAM ends apart (mm) |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['problem']} | {r['vertices']} | {r['seconds'][0]:.0f} / {r['seconds'][1]:.0f} "
+              f"({r['seconds'][1] / r['seconds'][0]:.2f}x) | {r['ipams'][0]} / {r['ipams'][1]} | "
+              f"{r['cells'][0]} / {r['cells'][1]} | {r['same_ipams']} | {r['ipam_end_distance_mm']:.1f} |")
+    print("\n| problem | target | MARE springs (mm) | MARE neo-Hookean (mm) | IPAM kPa springs | IPAM kPa neo-Hookean |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        for t in r["targets"]:
+            print(f"| {r['problem']} | {t['target']} | {t['mare_mm'][0]:.3f} | {t['mare_mm'][1]:.3f} | "
+                  f"{' '.join(f'{p:.0f}' for p in t['pressures_kpa'][0])} | "
+                  f"{' '.join(f'{p:.0f}' for p in t['pressures_kpa'][1])} |")
+
+
+def _device(seed: int):
+    """(model design with the neo-Hookean law, the device, truth, observations: 3 fitted + 1 held out)."""
+    import test_calibration as tc
+
+    rng = np.random.default_rng(seed)
+    d = cube_fig6_design(subdivisions=2)
+    neo = d.replace(material=_material(d.material, "neo_hookean"))
+    k0, a0 = (np.array([getattr(ip, n) for ip in d.ipams]) for n in ("stiffness", "area"))
+    truth = dict(shear_modulus=1.3 * neo.material.mu, ipam_stiffness=k0 * rng.uniform(0.8, 0.9, 5),
+                 ipam_area=a0 * rng.uniform(1.1, 1.2, 5), rest_scale=1.02)
+    device = apply_values(neo, truth)
+    n = host_model(d).rest_air
+    states = [ControlState(n * air, tuple(1e3 * p for p in kpa)) for air, kpa in tc.STATES]
+    probe = [ws.ScanObservation(np.random.default_rng(0).random((60, 3)) * 0.05, s) for s in states]
+    shapes, pressures = replay_held(device, [o.sequence(device) for o in probe], pressures=True)
+    obs = []
+    for i, (x, s, p) in enumerate(zip(shapes, states, pressures)):
+        obs.append(ws.ScanObservation(tc.scan_of(device.rest.copy_with(x), rng), s, name=f"s{i}",
+                                      pressure=float(p + rng.normal(0.0, tc.PRESSURE_NOISE)),
+                                      pressure_stderr=tc.PRESSURE_NOISE, held_out=i == len(states) - 1))
+    return d, neo, truth, obs
+
+
+def calibration(seed: int) -> dict:
+    springs, neo, truth, obs = _device(seed)
+    rows = []
+    for law, model, wrt in (("springs", springs, DEFAULT_WRT), ("neo_hookean", neo, HYPERELASTIC_WRT)):
+        t0 = time.perf_counter()
+        cal = ws.calibrate(model, obs, wrt=wrt)
+        held = cal.held_out[0]
+        rows.append(dict(law=law, wrt=list(wrt), seconds=time.perf_counter() - t0,
+                         initial_mm=list(cal.initial_residual_mm), fitted_mm=list(cal.residual_mm),
+                         held_out_before_mm=held[1], held_out_after_mm=held[2], flags=list(cal.flags),
+                         values={k: np.asarray(v).tolist() for k, v in cal.values.items()}))
+        print(f"{law}: {rows[-1]['seconds']:.0f} s", flush=True)
+    print(f"\ndevice: neo-Hookean, mu = {truth['shear_modulus']:.0f} Pa (model start {neo.material.mu:.0f}); "
+          f"scanner noise 0.30 mm")
+    print("| calibrated by | fitted scans RMS (mm), start -> fitted | held-out scan RMS (mm), start -> calibrated |")
+    print("|---|---|---|")
+    for r in rows:
+        print(f"| {r['law']} | {' '.join(f'{a:.3f}' for a in r['initial_mm'])} -> "
+              f"{' '.join(f'{a:.3f}' for a in r['fitted_mm'])} | "
+              f"{r['held_out_before_mm']:.3f} -> {r['held_out_after_mm']:.3f} |")
+    mu = rows[1]["values"].get("shear_modulus")
+    if mu is not None:
+        print(f"neo-Hookean fit: mu = {mu:.0f} Pa ({100 * (mu / truth['shear_modulus'] - 1):+.1f} % of the truth)")
+    return dict(truth={k: np.asarray(v).tolist() for k, v in truth.items()}, calibration=rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("part", choices=["designs", "calibration"])
+    ap.add_argument("--problems", nargs="+", default=["default", "egg+peanut", "tilted_ellipsoid+puck"])
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args()
+    out = designs(args.problems) if args.part == "designs" else calibration(args.seed)
+    OUT.mkdir(parents=True, exist_ok=True)
+    atomic_write(OUT / f"{args.part}.json", json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
