@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 import warp_shape as ws
-from warp_shape.calibration import ControlState, apply_values, default_wrt, replay_held
+from warp_shape.calibration import ControlState, apply_values, default_wrt, fit, replay_held
 from warp_shape.model import host_model
 from warp_shape.scan import surface_samples
 from warp_shape.scenarios import cube_fig6_design
 
-#: the control states scanned: (chamber air / rest air, IPAM gauge pressures kPa)
-STATES = [(1.4, (200, -30, 100, 0, 150)), (1.9, (0, 220, -40, 150, 250))]
+#: the control state scanned: (chamber air / rest air, IPAM gauge pressures kPa)
+STATES = [(1.9, (200, 220, -40, 150, 250))]
 
 
 def _law(design, membrane: str, **kw):
@@ -42,10 +42,11 @@ def test_each_law_fits_its_own_constants_and_refuses_the_others_by_name():
     assert (fitted.shear_modulus, fitted.yeoh_c2, fitted.thickness, fitted.membrane) == (3e4, 2e3, 1.5e-3, "yeoh")
 
 
-def test_a_neo_hookean_devices_shear_modulus_is_recovered_from_noise_free_scans():
+def test_a_neo_hookean_devices_shear_modulus_is_recovered_from_noise_free_scans(monkeypatch):
     """The 42-vertex Fig. 6 device with the neo-Hookean membrane, its mu 25 % above the model's start
-    (E / 3) and its rest shape 1.5 % larger, scanned whole (noise-free, a random pose) at two states:
-    the fit of mu with the rest scale recovers both within 3 % and leaves the residual far below the start's."""
+    (E / 3) and its rest shape 1.5 % larger, scanned whole (noise-free, shifted) at one state with every
+    IPAM pressurised: the fit of mu with the rest scale recovers both within 3 % and leaves the residual
+    far below the start's."""
     design = _law(cube_fig6_design(subdivisions=1), "neo_hookean")
     truth = dict(shear_modulus=1.25 * design.material.mu, rest_scale=1.015)
     device = apply_values(design, truth)
@@ -58,6 +59,10 @@ def test_a_neo_hookean_devices_shear_modulus_is_recovered_from_noise_free_scans(
     for i, (x, s) in enumerate(zip(shapes, states)):
         pts = surface_samples(device.rest.copy_with(x), 4000, seed=i)
         obs.append(ws.ScanObservation(pts + rng.normal(0.0, 0.01, 3), s, name=f"s{i}"))
+    # the scan is only shifted: a few starts of the unknown-pose search find it (tests/test_calibration.py
+    # covers the search itself)
+    monkeypatch.setattr(fit, "POSE_TRIALS", 2)
+    monkeypatch.setattr(fit, "HALF_TURN_AXES", 2)
     cal = ws.calibrate(design, obs, wrt=("shear_modulus", "rest_scale"))
     for name, value in truth.items():
         assert abs(cal.values[name] / value - 1.0) < 0.03, (name, cal.values[name], value)
