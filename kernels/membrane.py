@@ -48,13 +48,17 @@ def first_invariant(fa: Any, fb: Any):
 
 @wp.func
 def membrane_gradients(x0: Any, x1: Any, x2: Any, d00: Any, d01: Any, d10: Any, d11: Any, area: Any, c1: Any,
-                       c2: Any, c3: Any):
-    """(g1, g2): the triangle energy's gradient with respect to x1 and x2 (x0's is -(g1 + g2))."""
+                       c2: Any, c3: Any, relax: int):
+    """(g1, g2): the triangle energy's gradient with respect to x1 and x2 (x0's is -(g1 + g2)). With
+    ``relax`` the tension-field energy: where the minor principal stretch l2 is below l1^-1/2 (its
+    stress would be compressive) the sheet wrinkles across it and W = W(l1^2 + 2 / l1), the uniaxial
+    state of the major stretch l1; where l1 <= 1 too it is slack (no energy)."""
     fa, fb = deformation_columns(x0, x1, x2, d00, d01, d10, d11)
     c00 = wp.dot(fa, fa)
     c01 = wp.dot(fa, fb)
     c11 = wp.dot(fb, fb)
     det = c00 * c11 - c01 * c01
+    zero = type(det)(0.0)
     one = type(det)(1.0)
     two = type(det)(2.0)
     three = type(det)(3.0)
@@ -65,6 +69,30 @@ def membrane_gradients(x0: Any, x1: Any, x2: Any, d00: Any, d01: Any, d10: Any, 
     k = two * inv * inv
     pa = fa * two - (fa * c11 - fb * c01) * k
     pb = fb * two - (fb * c00 - fa * c01) * k
+    if relax != 0:
+        # the major eigenvalue L = l1^2 of C and its unit eigenvector n (the better conditioned of two forms)
+        half = wp.sqrt(type(det)(0.25) * (c00 - c11) * (c00 - c11) + c01 * c01)
+        big = type(det)(0.5) * (c00 + c11) + half
+        na0 = c01
+        na1 = big - c00
+        nb0 = big - c11
+        nb1 = c01
+        use_a = na0 * na0 + na1 * na1 >= nb0 * nb0 + nb1 * nb1
+        n0 = wp.where(use_a, na0, nb0)
+        n1 = wp.where(use_a, na1, nb1)
+        norm = wp.max(wp.sqrt(n0 * n0 + n1 * n1), type(det)(1e-30))
+        n0 = n0 / norm
+        n1 = n1 / norm
+        wrinkled = det * det < big  # l2^4 L < 1 with l2^2 = det / L
+        if big <= one:  # slack
+            s = zero
+        elif wrinkled:
+            # W(I1*), I1* = L + 2 L^-1/2, dI1*/dF = (1 - L^-3/2) 2 (F n) n^T
+            root = wp.sqrt(big)
+            s = area * yeoh_slope(big + two / root - three, c1, c2, c3) * (one - one / (big * root))
+            fn = fa * n0 + fb * n1
+            pa = fn * (two * n0)
+            pb = fn * (two * n1)
     # dW/d[x1 - x0, x2 - x0] = dW/dF Dm^-T
     return (pa * d00 + pb * d01) * s, (pa * d10 + pb * d11) * s
 
@@ -75,6 +103,7 @@ def eval_membrane_kernel(
     faces: wp.array(dtype=wp.vec3i),  # (F,) vertex indices
     rest: wp.array2d(dtype=Any),  # (F, 5) Dm^-1 (d00, d01, d10, d11) in 1/m, rest area A0 in m^2
     moduli: wp.array2d(dtype=Any),  # (F, 3) t C1, t C2, t C3 in N/m
+    relax: int,  # 1: the tension-field energy (membrane_gradients); 0: the solid sheet
     use_jam: int,  # 1: read the jam fields below; 0: nothing jammed (they are placeholders)
     # State in:
     jam_in: wp.array3d(dtype=Any),  # (6, W, F) a jammed triangle's Dm^-1, rest area, moduli multiplier
@@ -99,7 +128,7 @@ def eval_membrane_kernel(
     # the multiplier scales the energy as the area does
     area = wp.where(frozen, jam_in[4, wj, ij] * jam_in[5, wj, ij], rest[i, 4])
     g1, g2 = membrane_gradients(x_in[w, face[0]], x_in[w, face[1]], x_in[w, face[2]], d00, d01, d10, d11, area,
-                                moduli[i, 0], moduli[i, 1], moduli[i, 2])
+                                moduli[i, 0], moduli[i, 1], moduli[i, 2], relax)
     wp.atomic_add(f_out, w, face[0], g1 + g2)
     wp.atomic_add(f_out, w, face[1], -g1)
     wp.atomic_add(f_out, w, face[2], -g2)

@@ -251,7 +251,7 @@ def test_the_force_kernels_adjoint_matches_central_differences_of_the_float64_fo
         tape = wp.Tape()
         with tape:
             wp.launch(km.membrane_rest_kernel, len(h["faces"]), [faces, rest_pos, rest])
-            wp.launch(km.eval_membrane_kernel, (1, len(h["faces"])), [faces, rest, moduli, 0, no_jam, no_jammed, x, f])
+            wp.launch(km.eval_membrane_kernel, (1, len(h["faces"])), [faces, rest, moduli, 0, 0, no_jam, no_jammed, x, f])
             wp.launch(_project_kernel, x.shape, [f, wp.array(r[None], dtype=wp.vec3d), out])
         tape.backward(out)
         return x.grad.numpy()[0], rest_pos.grad.numpy(), moduli.grad.numpy()
@@ -407,3 +407,50 @@ def test_codesign_of_a_hyperelastic_design_runs_and_lowers_the_objective():
     rec = out.codesign
     assert out.design.material.membrane == "neo_hookean" and rec["mode"] == "rest+ipams" and rec["kept"], rec["reason"]
     assert out.results[0].objective < 0.9 * rec["before"][0]
+
+
+def test_with_a_tension_field_the_sheet_wrinkles_instead_of_carrying_compression():
+    """``compression="tension_field"``: a triangle whose minor principal stretch is below l1^-1/2 carries
+    only the uniaxial stress of its major stretch, one with both stretches below 1 none; the kernel's
+    forces are the relaxed energy's negative gradient (central differences), taut triangles are as the
+    solid's, and a sphere shrunk to 95 % (every triangle slack) pushes back as a solid but not wrinkling."""
+    from warp_shape.physics.membrane import principal_stretches_np
+
+    for bad, words in [(dict(compression="wrinkle"), "Material.compression must be one of"),
+                       (dict(compression="tension_field"), "set membrane='neo_hookean'")]:
+        with pytest.raises(DesignError, match=words):
+            ws.Material(**bad)
+    d, h = _law(membrane="yeoh", yeoh_c2=2.0e3, compression="tension_field")
+    solid = _law(membrane="yeoh", yeoh_c2=2.0e3)[1]
+    rng = np.random.default_rng(4)
+    x = (d.rest.vertices * np.array([1.2, 0.8, 1.0]) + rng.normal(0.0, 3e-4, d.rest.vertices.shape))[None]
+    s = principal_stretches_np(x, h["faces"], h["rest"])[0]
+    slack = s[:, 1] <= 1.0
+    wrinkled = ~slack & (s[:, 0] ** 4 * s[:, 1] ** 2 < 1.0)
+    assert slack.sum() >= 3 and wrinkled.sum() >= 3 and (~slack & ~wrinkled).sum() >= 3
+    relaxed = membrane_energy_np(x, h["faces"], h["rest"], h["moduli"], relax=True)[0]
+    full = membrane_energy_np(x, h["faces"], h["rest"], h["moduli"])[0]
+    assert 0.0 < relaxed < full
+    taut = ~slack & ~wrinkled  # the taut triangles alone: the same energy either way
+    sub = h["faces"][taut]
+    assert membrane_energy_np(x, sub, h["rest"][taut], h["moduli"][taut], relax=True)[0] == pytest.approx(
+        membrane_energy_np(x, sub, h["rest"][taut], h["moduli"][taut])[0], rel=1e-12)
+    sim = ws.Simulator(d, precision="float64")
+    sim.positions = x[0]
+    f = sim.forces("membrane")
+    assert sim.energy()["membrane"] == pytest.approx(relaxed, rel=1e-12)
+    eps = 1e-8
+    for v in rng.choice(d.rest.n_vertices, 8, replace=False):
+        for c in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[0, v, c] += eps
+            xm[0, v, c] -= eps
+            g = (membrane_energy_np(xp, h["faces"], h["rest"], h["moduli"], relax=True)
+                 - membrane_energy_np(xm, h["faces"], h["rest"], h["moduli"], relax=True))[0] / (2 * eps)
+            assert -g == pytest.approx(f[v, c], rel=1e-5, abs=1e-7 * np.abs(f).max())
+    shrunk = d.rest.vertices * 0.95
+    sim.positions = shrunk
+    assert np.abs(sim.forces("membrane")).max() == 0.0 and sim.energy()["membrane"] == 0.0
+    hard = ws.Simulator(ws.Design(d.rest, ws.Material(membrane="yeoh", yeoh_c2=2.0e3)), precision="float64")
+    hard.positions = shrunk
+    assert np.abs(hard.forces("membrane")).max() > 1e-3 and solid["relax"][0] == 0

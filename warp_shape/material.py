@@ -13,11 +13,15 @@ GAS_CONSTANT = 8.314462618  # J / (mol K)
 MAX_ATMOSPHERIC_PRESSURE = 1.0e7
 #: the membrane laws: the paper's edge-spring lattice, and two thin incompressible hyperelastic sheets
 MEMBRANE_LAWS = ("springs", "neo_hookean", "yeoh")
+#: what a hyperelastic sheet does in compression: "solid" resists it (I1 > 3 for any stretch but the
+#: identity), "tension_field" wrinkles (docs/membrane.md): no stress across a wrinkled direction, none
+#: at all where both principal stretches are below 1
+COMPRESSION_MODES = ("solid", "tension_field")
 #: Poisson's ratio of the plate bending stiffness E t^3 / 12 (1 - nu^2) of the hyperelastic laws
 #: (incompressible rubber)
 PLATE_POISSON = 0.5
 #: fields that are not plain numbers (checked on their own)
-_SPECIAL = ("membrane", "shear_modulus")
+_SPECIAL = ("membrane", "shear_modulus", "compression")
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,8 @@ class Material:
     shear_modulus: mu in Pa of the hyperelastic laws; None: E / 3 (the small-strain shear modulus of
         an incompressible solid of Young's modulus E).
     yeoh_c2 / yeoh_c3: C2 and C3 in Pa of the Yeoh law (must be 0 for "neo_hookean" and "springs").
+    compression: the hyperelastic sheet in compression (``COMPRESSION_MODES``): "solid" (default) or
+        "tension_field" (the sheet wrinkles instead of carrying a compressive stress; springs: "solid").
     """
 
     youngs_modulus: float = 69.0e3
@@ -66,6 +72,7 @@ class Material:
     shear_modulus: float | None = None
     yeoh_c2: float = 0.0
     yeoh_c3: float = 0.0
+    compression: str = "solid"
 
     def __post_init__(self):
         positive = ("youngs_modulus", "thickness", "areal_density", "temperature")
@@ -99,6 +106,11 @@ class Material:
             if mu <= 0:
                 raise DesignError(f"Material.shear_modulus must be > 0 Pa (or None for E / 3), got {mu!r}")
             object.__setattr__(self, "shear_modulus", mu)
+        if self.compression not in COMPRESSION_MODES:
+            raise DesignError(f"Material.compression must be one of {list(COMPRESSION_MODES)}, got {self.compression!r}")
+        if self.compression != "solid" and self.membrane == "springs":
+            raise DesignError("Material.compression = 'tension_field' is a hyperelastic sheet's; set membrane="
+                              "'neo_hookean' or 'yeoh' (the springs carry compression as the paper's lattice)")
         for name in ("yeoh_c2", "yeoh_c3"):
             value = check_number(getattr(self, name), f"Material.{name}")
             if value != 0.0 and self.membrane != "yeoh":

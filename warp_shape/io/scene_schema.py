@@ -46,7 +46,8 @@ def _camel(name: str) -> str:
 # ---------------------------------------------------------------------------------------------- attribute table
 #: The membrane law's fields, read when present (a scene without them holds the paper's springs):
 #: the law as a token, mu (written only when set; absent: E / 3) and the Yeoh terms in Pa.
-_MEMBRANE_LAW_TYPES = {"membrane": "token", "shear_modulus": "double", "yeoh_c2": "double", "yeoh_c3": "double"}
+_MEMBRANE_LAW_TYPES = {"membrane": "token", "shear_modulus": "double", "yeoh_c2": "double", "yeoh_c3": "double",
+                       "compression": "token"}
 #: The Membrane prim: every ``Material`` field as ``custom double warpShape:<camelCaseName>`` (SI), the
 #: membrane law's as ``_MEMBRANE_LAW_TYPES`` says (optional).
 MATERIAL_ATTRIBUTES = tuple(SceneAttribute(f"{NS}:{_camel(f.name)}", _MEMBRANE_LAW_TYPES.get(f.name, "double"), f.name,

@@ -81,7 +81,8 @@ def _author_membrane(stage, d: Design) -> None:
     author_attribute(prim, REST_POINTS, "point3d[]", d.rest.vertices)
     for attr in MATERIAL_ATTRIBUTES:
         value = getattr(d.material, attr.field)
-        if value is not None:  # shear_modulus None (E / 3) is written as no attribute
+        if value is not None and (attr.field, value) != ("compression", "solid"):  # shear_modulus None (E / 3)
+            # and the default compression are written as no attribute (scenes written before them read the same)
             author_attribute(prim, attr.name, attr.usd_type, value if attr.usd_type == "token" else float(value))
     pv = UsdGeom.PrimvarsAPI(prim)
     pv.CreatePrimvar(f"{NS}:cellId", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform).Set(

@@ -70,10 +70,18 @@ def principal_stretches_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray) -
     return np.sqrt(np.stack([mean - half, mean + half], axis=-1))
 
 
-def membrane_energy_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray, moduli: np.ndarray) -> np.ndarray:
+def membrane_energy_np(x: np.ndarray, faces: np.ndarray, rest: np.ndarray, moduli: np.ndarray,
+                       relax: bool = False) -> np.ndarray:
     """(W,) membrane energy in J: sum A0 (c1 i + c2 i^2 + c3 i^3), i = I1 - 3, moduli (F, 3) = t (C1, C2, C3)
-    in N/m; rest (F, 5) or per world (W, F, 5) (``jammed_rest_np``)."""
+    in N/m; rest (F, 5) or per world (W, F, 5) (``jammed_rest_np``). ``relax``: the tension-field energy
+    (``Material.compression``): a triangle whose minor principal stretch l2 is below l1^-1/2 wrinkles
+    (I1 = l1^2 + 2 / l1, the uniaxial state of its major stretch), one with l1 <= 1 is slack (i = 0)."""
     i = membrane_invariants_np(x, faces, rest)[0] - 3.0
+    if relax:
+        s = principal_stretches_np(x, faces, rest)
+        big, small = s[..., 1] ** 2, s[..., 0]
+        i = np.where(small ** 4 * big < 1.0, big + 2.0 / np.sqrt(big) - 3.0, i)
+        i = np.where(big <= 1.0, 0.0, i)
     c1, c2, c3 = moduli.T
     return np.sum(rest[..., 4] * i * (c1 + i * (c2 + i * c3)), axis=1)
 
@@ -138,7 +146,7 @@ class MembraneFamily(ForceFamily):
     name = "membrane"
     summary = "a thin incompressible hyperelastic sheet (neo-Hookean / Yeoh) on the triangles"
     label, plural = "membrane triangle", "membrane triangles"
-    owner = "Material (membrane, shear_modulus, yeoh_c2, yeoh_c3, thickness)"
+    owner = "Material (membrane, shear_modulus, yeoh_c2, yeoh_c3, thickness, compression)"
     jams = True
     # the force kernel's adjoint is Warp's, checked against central differences of the float64 law
     # (tests/test_membrane.py); the moduli, the plate stiffness and the rest frames are derived from the
@@ -167,7 +175,8 @@ class MembraneFamily(ForceFamily):
                     jam_factor=np.array([mat.jam_stretch_factor]), face_scale=scale,
                     shear_modulus=np.array([mat.mu]), yeoh_c2=np.array([mat.yeoh_c2]),
                     yeoh_c3=np.array([mat.yeoh_c3]), thickness=np.array([mat.thickness]),
-                    plate=np.array([mat.plate_stiffness]))
+                    plate=np.array([mat.plate_stiffness]),
+                    relax=np.array([int(mat.compression == "tension_field")]))
         k, V = self._equivalent(host), mesh.n_vertices
         host["vertex_stiffness"] = np.bincount(a, k, V) + np.bincount(b, k, V)  # the settle's preconditioner part
         return host
@@ -216,15 +225,16 @@ class MembraneFamily(ForceFamily):
         dev = model.actuators[self.name]
         fields = None if state is None else getattr(state, "family_jam", {}).get(self.name)
         jam = [1, fields["jam"], fields["jammed"]] if fields else [0, dev["no_jam"], dev["no_jammed"]]
-        launch(km.eval_membrane_kernel, (x.shape[0], dev["faces"].shape[0]), [dev["faces"], dev["rest"], dev["moduli"], *jam,
-                                                                             x, f])
+        relax = int(model.host.actuators[self.name]["relax"][0])
+        launch(km.eval_membrane_kernel, (x.shape[0], dev["faces"].shape[0]), [dev["faces"], dev["rest"], dev["moduli"], relax,
+                                                                             *jam, x, f])
 
     def rest_controls(self, host):
         return np.zeros(len(host["faces"]))
 
     def energy(self, host, x, controls, enabled, jam=None):
         rest = host["rest"] if jam is None else jammed_rest_np(host["rest"], jam)
-        return membrane_energy_np(x, host["faces"], rest, host["moduli"])
+        return membrane_energy_np(x, host["faces"], rest, host["moduli"], relax=bool(host["relax"][0]))
 
     def _equivalent(self, host, slope_scale=None) -> np.ndarray:
         """(3F,) stiffness (N/m) of the springs standing for the triangles' edges."""
