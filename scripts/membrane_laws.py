@@ -4,6 +4,7 @@ calibrated by each law.
 
     nice -n 10 .venv/bin/python scripts/membrane_laws.py designs [--problems default egg+peanut ...]
     nice -n 10 .venv/bin/python scripts/membrane_laws.py calibration [--seed 1]
+    nice -n 10 .venv/bin/python scripts/membrane_laws.py compression
 
 ``designs``: each problem designed by ``ws.design`` with ``codesign="off"`` (co-design refuses a
 hyperelastic membrane) once per law, the runs alternating; for each, the wall time, how far the IPAMs'
@@ -17,7 +18,12 @@ with 3 IPAMs.
 membrane (mu 1.3 x E / 3, each IPAM's k -10..-20 % and A +10..+20 %, rest scale +2 %), scanned at the
 test's four states (0.3 mm noise, 60 % coverage, random pose, chamber pressure read), the first three
 fitted and the fourth held out, calibrated by the springs model (``DEFAULT_WRT``) and by the neo-Hookean
-model (``HYPERELASTIC_WRT``). Prints the tables and writes out/membrane_laws/<part>.json.
+model (``HYPERELASTIC_WRT``).
+
+``compression``: the 642-vertex Fig. 6 device with the neo-Hookean membrane at 1.2, 1.0 and 0.9 x its
+rest air and every IPAM at 250 kPa, settled statically in float64 with the solid sheet and with the tension field
+(``Material.compression``): the triangles in compression, wrinkled and slack, and how far the two
+shapes lie apart. Prints the tables and writes out/membrane_laws/<part>.json.
 """
 
 from __future__ import annotations
@@ -177,13 +183,54 @@ def calibration(seed: int) -> dict:
     return dict(truth={k: np.asarray(v).tolist() for k, v in truth.items()}, calibration=rows)
 
 
+def _settle(d, mode: str, air: float, kpa: float):
+    """(positions (V, 3), row) of the neo-Hookean device ``d`` settled with ``mode`` at ``air`` x its rest air,
+    every IPAM at ``kpa``."""
+    from warp_shape.physics.membrane import principal_stretches_np
+
+    dm = d.replace(material=replace(_material(d.material, "neo_hookean"), compression=mode))
+    sim = ws.Simulator(dm, precision="float64")
+    sim.air_moles = air * host_model(dm).rest_air
+    sim.ipam_pressures = np.full(dm.n_ipams, 1e3 * kpa)
+    eq = sim.settle_static()
+    x = np.asarray(sim.positions, dtype=np.float64).reshape(-1, 3)
+    h = host_model(dm).actuators["membrane"]
+    s = principal_stretches_np(x[None], h["faces"], h["rest"])[0]
+    slack = s[:, 1] <= 1.0
+    margin = s[:, 0] * np.sqrt(s[:, 1])  # below 1: the minor stress is compressive (the tension field wrinkles it)
+    return x, dict(air=air, kpa=kpa, compression=mode, converged=bool(np.all(eq.converged)),
+                   compressed_pct=100 * float(np.mean(s[:, 0] < 1.0)), least_stretch=float(s[:, 0].min()),
+                   least_margin=float(margin.min()), wrinkled_pct=100 * float(np.mean(~slack & (margin < 1.0))),
+                   slack_pct=100 * float(slack.mean()), pressure_pa=float(sim.pressure()))
+
+
+def compression(states=((1.2, 250.0), (1.0, 250.0), (0.9, 250.0))) -> dict:
+    d = cube_fig6_design(subdivisions=3)
+    rows = []
+    for air, kpa in states:
+        xs, rs = _settle(d, "solid", air, kpa)
+        xt, rt = _settle(d, "tension_field", air, kpa)
+        dist = np.linalg.norm(xs - xt, axis=1)
+        rows += [rs, dict(rt, rms_mm=1e3 * float(np.sqrt(np.mean(dist ** 2))), max_mm=1e3 * float(dist.max()))]
+    print("\n| air x rest | compression | converged | l2 < 1 | least l2 | least l2 l1^1/2 | wrinkled | slack | "
+          "pressure (Pa) | apart RMS / max (mm) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        apart = f"{r['rms_mm']:.3f} / {r['max_mm']:.3f}" if "rms_mm" in r else ""
+        print(f"| {r['air']} | {r['compression']} | {r['converged']} | {r['compressed_pct']:.0f} % | "
+              f"{r['least_stretch']:.2f} | {r['least_margin']:.3f} | {r['wrinkled_pct']:.1f} % | {r['slack_pct']:.1f} % | "
+              f"{r['pressure_pa']:.0f} | {apart} |")
+    return dict(rows=rows)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("part", choices=["designs", "calibration"])
+    ap.add_argument("part", choices=["designs", "calibration", "compression"])
     ap.add_argument("--problems", nargs="+", default=["default", "egg+peanut", "tilted_ellipsoid+puck"])
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
-    out = designs(args.problems) if args.part == "designs" else calibration(args.seed)
+    out = (designs(args.problems) if args.part == "designs" else calibration(args.seed) if args.part == "calibration"
+           else compression())
     OUT.mkdir(parents=True, exist_ok=True)
     atomic_write(OUT / f"{args.part}.json", json.dumps(out, indent=2))
 
