@@ -127,8 +127,14 @@ def designs(problems) -> dict:
                                        pressures_kpa=[(rs.ipam_pressures / 1e3).round(1).tolist(),
                                                       (rn.ipam_pressures / 1e3).round(1).tolist()]))
         rows.append(row)
-    _print_designs(rows)
+        _print_designs(rows)  # each problem as it finishes (a run takes minutes)
+        _write("designs", dict(designs=rows))
     return dict(designs=rows)
+
+
+def _write(part: str, data: dict) -> None:
+    OUT.mkdir(parents=True, exist_ok=True)
+    atomic_write(OUT / f"{part}.json", json.dumps(data, indent=2))
 
 
 def _print_designs(rows) -> None:
@@ -244,8 +250,7 @@ def main() -> None:
     args = ap.parse_args()
     out = (designs(args.problems) if args.part == "designs" else calibration(args.seed) if args.part == "calibration"
            else compression())
-    OUT.mkdir(parents=True, exist_ok=True)
-    atomic_write(OUT / f"{args.part}.json", json.dumps(out, indent=2))
+    _write(args.part, out)
 
 
 if __name__ == "__main__":
