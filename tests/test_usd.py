@@ -88,7 +88,7 @@ def _full_scene() -> Scene:
     mat = ws.Material(youngs_modulus=71234.5, thickness=1.9e-3, areal_density=3.25, bending_stiffness=1.3e-4,
                       spring_damping=4e-3, viscous_damping=0.025, jam_stretch_factor=9.5, jam_bend_factor=27.0,
                       temperature=295.0, atmospheric_pressure=100e3, membrane="yeoh", shear_modulus=21e3,
-                      yeoh_c2=900.0, yeoh_c3=40.0)
+                      yeoh_c2=900.0, yeoh_c3=40.0, compression="tension_field")
     d2 = ws.Design(d.rest, mat)
     for i, ip in enumerate(d.ipams):
         d2.add_ipam(ip.face_a, ip.face_b, stiffness=40.0 + i, area=1.2e-5 + 1e-7 * i,
