@@ -81,7 +81,7 @@ def default_wrt(design: Design) -> tuple:
     return tuple(n for n in names if design.n_ipams or n not in _PER_IPAM)
 
 
-def check_law(design: Design, names) -> None:
+def check_law(design: Design, names, what: str = "calibrate wrt") -> None:
     """Every name of ``names`` acts on ``design``'s membrane law: a springs parameter on a hyperelastic
     membrane, a hyperelastic one on springs or a Yeoh term on a neo-Hookean sheet is an error naming the fix."""
     law = design.material.membrane
@@ -90,15 +90,15 @@ def check_law(design: Design, names) -> None:
         if bad:
             fix = ("fit shear_modulus (mu; E only sets it where shear_modulus is None)" if bad[0] == "youngs_modulus"
                    else "the plate bending follows shear_modulus and thickness: fit those")
-            raise DesignError(f"calibrate wrt: {bad[0]} does not act on the {law} membrane; {fix}")
+            raise DesignError(f"{what}: {bad[0]} does not act on the {law} membrane; {fix}")
     else:
         bad = [n for n in names if n in _HYPERELASTIC_ONLY]
         if bad:
-            raise DesignError(f"calibrate wrt: {bad[0]} is a hyperelastic membrane's parameter and the design's "
+            raise DesignError(f"{what}: {bad[0]} is a hyperelastic membrane's parameter and the design's "
                               f"membrane is springs; fit youngs_modulus, or design with membrane='neo_hookean'/'yeoh'")
     yeoh = [n for n in names if n in ("yeoh_c2", "yeoh_c3")]
     if yeoh and law != "yeoh":
-        raise DesignError(f"calibrate wrt: {yeoh[0]} is a Yeoh term and the design's membrane is {law}; "
+        raise DesignError(f"{what}: {yeoh[0]} is a Yeoh term and the design's membrane is {law}; "
                           f"use membrane='yeoh' with a starting {yeoh[0]} > 0")
 
 
@@ -212,7 +212,8 @@ def apply_values(design: Design, values: dict, regions: dict | None = None) -> D
     unknown = sorted(set(values) - set(CALIBRATION_PARAMETERS))
     if unknown:
         raise DesignError(f"unknown calibration parameter {unknown[0]!r}; known: {', '.join(CALIBRATION_PARAMETERS)}")
-    check_law(design, tuple(values))
+    check_law(design, tuple(values), "calibration values (a calibration of another membrane law: give the design "
+                                     "that law, --membrane)")
     mat = replace(design.material, **{k: float(values[k]) for k in ("youngs_modulus", "thickness", "bending_stiffness",
                                                                       *_HYPERELASTIC_ONLY) if k in values})
     scale = float(values.get("rest_scale", 1.0))
