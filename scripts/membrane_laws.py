@@ -6,8 +6,8 @@ calibrated by each law.
     nice -n 10 .venv/bin/python scripts/membrane_laws.py calibration [--seed 1]
     nice -n 10 .venv/bin/python scripts/membrane_laws.py compression
 
-``designs``: each problem designed by ``ws.design`` with ``codesign="off"`` (co-design refuses a
-hyperelastic membrane) once per law, the runs alternating, after every kernel of both laws is compiled
+``designs``: each problem designed by ``ws.design`` with ``codesign="off"`` (as measured while co-design
+refused a hyperelastic membrane) once per law, the runs alternating, after every kernel of both laws is compiled
 (``warm_up``: a worker process otherwise compiles the triangle kernel inside the first timed run); for each, the wall time, how far the IPAMs'
 ends moved (each IPAM's end faces against the nearest IPAM of the other law's design, on the rest
 shape), the cells kept, and per target the fit (MARE, each against its own law's model) and the IPAM
