@@ -454,3 +454,43 @@ def test_with_a_tension_field_the_sheet_wrinkles_instead_of_carrying_compression
     hard = ws.Simulator(ws.Design(d.rest, ws.Material(membrane="yeoh", yeoh_c2=2.0e3)), precision="float64")
     hard.positions = shrunk
     assert np.abs(hard.forces("membrane")).max() > 1e-3 and solid["relax"][0] == 0
+
+
+def test_the_tension_fields_adjoint_matches_central_differences_of_its_force():
+    """Warp's adjoint of the relaxed branch (wrinkled and slack triangles among taut ones) gives d(f . r)/dx
+    equal to central differences of the kernel's own forward force (float64), which the energy test above
+    ties to the relaxed energy."""
+    from warp_shape.kernels import membrane as km
+    from warp_shape.physics.membrane import principal_stretches_np
+
+    d, h = _law(membrane="yeoh", yeoh_c2=2.0e3, compression="tension_field")
+    rng = np.random.default_rng(4)
+    x0 = d.rest.vertices * np.array([1.2, 0.8, 1.0]) + rng.normal(0.0, 3e-4, d.rest.vertices.shape)
+    s = principal_stretches_np(x0[None], h["faces"], h["rest"])[0]
+    assert (s[:, 0] ** 4 * s[:, 1] ** 2 < 1.0).sum() >= 6  # wrinkled or slack triangles
+    r = rng.normal(size=x0.shape)
+    faces = wp.array(h["faces"].astype(np.int32), dtype=wp.vec3i)
+    rest, moduli = wp.array(h["rest"], dtype=wp.float64), wp.array(h["moduli"], dtype=wp.float64)
+    no_jam, no_jammed = wp.zeros((6, 1, 1), dtype=wp.float64), wp.zeros((1, 1), dtype=wp.int32)
+
+    def force(x_np, grad=False):
+        x = wp.array(x_np[None], dtype=wp.vec3d, requires_grad=grad)
+        f = wp.zeros(x.shape, dtype=wp.vec3d, requires_grad=grad)
+        out = wp.zeros(1, dtype=wp.float64, requires_grad=grad)
+        tape = wp.Tape()
+        with tape:
+            wp.launch(km.eval_membrane_kernel, (1, len(h["faces"])), [faces, rest, moduli, 1, 0, no_jam, no_jammed, x, f])
+            wp.launch(_project_kernel, x.shape, [f, wp.array(r[None], dtype=wp.vec3d), out])
+        if grad:
+            tape.backward(out)
+            return x.grad.numpy()[0]
+        return float(out.numpy()[0])
+
+    g = force(x0, grad=True)
+    for v in rng.choice(len(x0), 6, replace=False):
+        for c in range(3):
+            plus, minus = x0.copy(), x0.copy()
+            plus[v, c] += 1e-7
+            minus[v, c] -= 1e-7
+            fd = (force(plus) - force(minus)) / 2e-7
+            assert g[v, c] == pytest.approx(fd, rel=1e-4, abs=1e-6 * np.abs(g).max())
