@@ -37,6 +37,13 @@ def test_each_law_fits_its_own_constants_and_refuses_the_others_by_name():
             ws.calibrate(design, obs, wrt=wrt)
     with pytest.raises(ws.DesignError, match="shear_modulus is a hyperelastic"):
         apply_values(springs, dict(shear_modulus=3e4))
+    # a calibration's hyperelastic constants come with their law to a new design (design --calibration)
+    from warp_shape.calibration.files import material_values
+
+    values = material_values({"shear_modulus": 3e4, "yeoh_c2": 2e3, "_design": {"membrane": "yeoh"}})
+    assert values == {"shear_modulus": 3e4, "yeoh_c2": 2e3, "membrane": "yeoh"}
+    assert ws.Material(**values).membrane == "yeoh"
+    assert "membrane" not in material_values({"youngs_modulus": 7e4, "_design": {"membrane": "springs"}})
     # mu None in the design starts at E / 3; a fitted mu, C2 and t land in the material
     fitted = apply_values(yeoh, dict(shear_modulus=3e4, yeoh_c2=2e3, thickness=1.5e-3)).material
     assert (fitted.shear_modulus, fitted.yeoh_c2, fitted.thickness, fitted.membrane) == (3e4, 2e3, 1.5e-3, "yeoh")
