@@ -126,6 +126,21 @@ def test_control_figure_has_seconds_pressures_passive_and_named_inflation(tmp_pa
     _check_png(control_figure(res, tmp_path / "c.png"))
 
 
+def test_the_control_figure_names_a_grey_band_only_where_one_is_drawn():
+    """A model-based sequence (every row phase 4) has no inflation rows: no band, and neither the title
+    nor a legend speaks of one; passive IPAMs named only where there are some."""
+    from warp_shape.io.figures import INFLATION_LABEL, build_control_figure
+
+    res = _synthetic_result()
+    res.history["phase"] = np.full(20, 4)
+    res.passive_ipams = np.array([], dtype=int)
+    fig = build_control_figure(res, "heart")
+    assert not [p for ax in fig.axes for p in ax.patches if p.get_label() == INFLATION_LABEL]
+    legends = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+    assert "grey" not in fig._suptitle.get_text() and INFLATION_LABEL not in legends
+    assert fig._suptitle.get_text() == "heart"
+
+
 def test_report_gives_ipam_ends_and_cells_in_mm_and_a_glossary():
     from types import SimpleNamespace
 
