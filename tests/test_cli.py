@@ -325,3 +325,22 @@ def test_progress_off_a_terminal_is_a_line_per_phase_and_per_minute(monkeypatch)
     lines = log.getvalue().splitlines()
     assert len(lines) == 5 and "compiling kernels" in lines[0] and "writing the outputs" in lines[-1]
     assert [ln.split(": ", 1)[0] for ln in lines] == ["design"] * 5 and "round 1/2: step 10" in lines[2]
+
+
+def test_bench_says_in_a_log_what_each_benchmark_does_how_it_goes_and_how_long_it_took(tmp_path, monkeypatch, capsys):
+    """Off a terminal (a log): a line as a benchmark starts, its own progress lines, and "done in N s" as it
+    ends, on stderr, before the tables; the rays benchmark reports each measured row as it goes."""
+    import warp_shape.benchmarks.rays as rays_bench
+
+    def rays(device, progress):
+        progress("  rays: warp, 10000 rays: 1e+06 rays/s; trimesh next")
+        clock[0] += 7.0
+        return [dict(engine="warp", device="cpu", triangles=1, rays=10000, rays_per_s=1e6, seconds=0.01, note="")]
+
+    clock = [50.0]
+    monkeypatch.setattr(rays_bench, "bench_rays", rays)
+    monkeypatch.setattr("warp_shape.cli.bench.time.perf_counter", lambda: clock[0])
+    assert main(["bench", "rays", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["bench rays: radial sampling throughput ...", "  rays: warp, 10000 rays: 1e+06 rays/s; trimesh next",
+                   "bench rays: done in 7 s"], err
