@@ -65,8 +65,10 @@ def _target_with(triangles: int):
 
 
 def bench_rays(device="cpu", counts=(10**4, 10**6), triangles: int = 20000, repeats: int = 3,
-               trimesh_max_rays: int = 10**4, seed: int = 0) -> list[dict]:
-    """Rays per second of Warp radial sampling and of trimesh, one row per (engine, ray count)."""
+               trimesh_max_rays: int = 10**4, seed: int = 0, progress=None) -> list[dict]:
+    """Rays per second of Warp radial sampling and of trimesh, one row per (engine, ray count);
+    ``progress(text)`` is told as each row is measured."""
+    say = progress or (lambda text: None)
     device = wp.get_device(device)
     mesh = _target_with(triangles)
     sampler = RadialSampler(mesh, device=device, check=False)
@@ -99,6 +101,7 @@ def bench_rays(device="cpu", counts=(10**4, 10**6), triangles: int = 20000, repe
         sampler.raise_failures(pts, faces, ids)  # every ray must have hit
         rows.append(dict(engine="warp", device=str(device), triangles=mesh.n_faces, rays=n,
                          rays_timed=n, seconds=secs, rays_per_s=n / secs, note=""))
+        say(f"  rays: warp, {n} rays: {n / secs:.3g} rays/s; trimesh next")
 
         m = min(n, int(trimesh_max_rays))
         origins = np.zeros((m, 3))
@@ -121,6 +124,7 @@ def bench_rays(device="cpu", counts=(10**4, 10**6), triangles: int = 20000, repe
         rows.append(dict(engine="trimesh narrow", device="cpu (numpy)", triangles=mesh.n_faces, rays=n,
                          rays_timed=m, seconds=secs_n * n / m, rays_per_s=m / secs_n,
                          note=subset + "broad phase excluded (trimesh's best case with a free rtree)"))
+        say(f"  rays: trimesh, {n} rays: {m / secs_t:.3g} rays/s (narrow phase {m / secs_n:.3g})")
     return rows
 
 

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from warp_shape.cli import build_parser, main
+from warp_shape.cli.progress import without_progress
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -87,7 +88,7 @@ def no_work(monkeypatch):
 
 def error_of(capsys, argv) -> str:
     assert main(argv) == 2, argv
-    err = capsys.readouterr().err
+    err = without_progress(capsys.readouterr().err)  # a log's progress lines, then the error
     assert err.startswith("warp-shape: error: ") and "Traceback" not in err
     return err
 
@@ -293,14 +294,53 @@ def test_design_progress_counts_phases_by_the_time_they_take(monkeypatch):
     assert bar.tqdm.n == bar.tqdm.total and bar.eta() == "0:00"
 
 
-def test_progress_is_quiet_off_a_terminal():
+def test_progress_off_a_terminal_is_a_line_per_phase_and_per_minute(monkeypatch):
+    """A log (not a terminal) gets no bar but a plain line when a design enters a phase and, within a
+    long phase, at least once a minute: a run writing to a log is seen working."""
+    from warp_shape.cli import progress
     from warp_shape.cli.progress import ControlProgress, DesignProgress
 
     with DesignProgress(5, stream=Terminal()) as early:  # a design that stops early ends complete
         early.update(2, 4, 3, 300, 0, 1)
     assert early.tqdm.n == early.tqdm.total
-    quiet = io.StringIO()  # not a terminal: nothing drawn
-    with ControlProgress(stream=quiet) as steps:
+    clock = [100.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
+    log = io.StringIO()
+    with ControlProgress(stream=log) as steps:
         steps.update(40, 300, 0, 2)
         assert steps.tqdm.total is None  # counted, never against the step limit
-    assert quiet.getvalue() == ""
+        for _ in range(30):  # news every second for 30 s: no line beyond the first
+            clock[0] += 1.0
+            steps.update(41, 300, 1, 2)
+        clock[0] += 31.0
+        steps.update(90, 300, 1, 2)  # a minute after the first line
+    assert log.getvalue().splitlines() == ["control: 0/2 targets done [0:00]", "control: 1/2 targets done [1:01]"]
+    assert "\r" not in log.getvalue() and "|" not in log.getvalue()  # lines, no bar
+    log = io.StringIO()
+    bar = DesignProgress(3, n_targets=2, stream=log, outputs=True)
+    for i in range(3):
+        for step in (10, 20):
+            bar.update(i, 2, step, 300, 0, 2)
+    bar.writing_outputs()
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 5 and "compiling kernels" in lines[0] and "writing the outputs" in lines[-1]
+    assert [ln.split(": ", 1)[0] for ln in lines] == ["design"] * 5 and "round 1/2: step 10" in lines[2]
+
+
+def test_bench_says_in_a_log_what_each_benchmark_does_how_it_goes_and_how_long_it_took(tmp_path, monkeypatch, capsys):
+    """Off a terminal (a log): a line as a benchmark starts, its own progress lines, and "done in N s" as it
+    ends, on stderr, before the tables; the rays benchmark reports each measured row as it goes."""
+    import warp_shape.benchmarks.rays as rays_bench
+
+    def rays(device, progress):
+        progress("  rays: warp, 10000 rays: 1e+06 rays/s; trimesh next")
+        clock[0] += 7.0
+        return [dict(engine="warp", device="cpu", triangles=1, rays=10000, rays_per_s=1e6, seconds=0.01, note="")]
+
+    clock = [50.0]
+    monkeypatch.setattr(rays_bench, "bench_rays", rays)
+    monkeypatch.setattr("warp_shape.cli.bench.time.perf_counter", lambda: clock[0])
+    assert main(["bench", "rays", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["bench rays: radial sampling throughput ...", "  rays: warp, 10000 rays: 1e+06 rays/s; trimesh next",
+                   "bench rays: done in 7 s"], err

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from warp_shape.cli import main
+from warp_shape.cli.progress import without_progress
 from test_run_folders import SMALL, assert_whole_set, fake_previous_set, no_control, snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -20,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def one_line(capsys, rc: int, argv) -> str:
     assert main(argv) == rc, argv
-    err = capsys.readouterr().err.strip()
+    err = without_progress(capsys.readouterr().err).strip()  # a log's progress lines, then the error
     assert "Traceback" not in err and err.count("\n") == 0, err
     return err
 

@@ -343,3 +343,15 @@ def test_the_icp_warning_does_not_advise_the_method_in_use():
         with pytest.warns(IcpConvergenceWarning) as caught:
             compare_scan(pts, ref, method=method, max_iterations=1)
         assert ("--method point_to_plane" in str(caught[0].message)) is advice, method
+
+
+def test_one_meaning_per_flag_and_calibrate_names_its_design(tmp_path, monkeypatch, capsys):
+    """``--units`` is the input meshes' unit wherever it exists: ``export --units`` is one line pointing to
+    ``--mold-units``, before any work; ``calibrate`` without ``--design`` is refused rather than guessed."""
+    monkeypatch.chdir(tmp_path)
+    err = error_of(capsys, ["export", "cube_fig6", "--units", "mm", "--out", str(tmp_path / "e")])
+    assert "--mold-units" in err and "input mesh files" in err and not (tmp_path / "e").exists()
+    with pytest.raises(SystemExit) as stop:
+        main(["calibrate", str(tmp_path / "manifest.json"), "--out", str(tmp_path / "c")])
+    assert stop.value.code == 2 and "required: --design" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

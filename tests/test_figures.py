@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -124,6 +126,21 @@ def test_control_figure_has_seconds_pressures_passive_and_named_inflation(tmp_pa
     assert "inflation" in [tx.get_text() for tx in a.texts]
     assert "grey band: inflation" in fig._suptitle.get_text()
     _check_png(control_figure(res, tmp_path / "c.png"))
+
+
+def test_the_control_figure_names_a_grey_band_only_where_one_is_drawn():
+    """A model-based sequence (every row phase 4) has no inflation rows: no band, and neither the title
+    nor a legend speaks of one; passive IPAMs named only where there are some."""
+    from warp_shape.io.figures import INFLATION_LABEL, build_control_figure
+
+    res = _synthetic_result()
+    res.history["phase"] = np.full(20, 4)
+    res.passive_ipams = np.array([], dtype=int)
+    fig = build_control_figure(res, "heart")
+    assert not [p for ax in fig.axes for p in ax.patches if p.get_label() == INFLATION_LABEL]
+    legends = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+    assert "grey" not in fig._suptitle.get_text() and INFLATION_LABEL not in legends
+    assert fig._suptitle.get_text() == "heart"
 
 
 def test_report_gives_ipam_ends_and_cells_in_mm_and_a_glossary():
@@ -275,3 +292,41 @@ def test_control_figure_draws_the_chamber_pressure_the_valve_file_gives(small_de
     c = next(ax for ax in fig.axes if ax.get_title().startswith("(c)"))
     solid = [ln.get_linewidth() for ln in c.get_lines() if ln.get_label().startswith("cell ")]
     assert len(solid) == small_design.design.n_cells and solid == sorted(solid, reverse=True)
+
+
+def test_calibration_residual_maps_have_mm_axes_equal_scale_one_colour_scale_and_the_sign():
+    """Two scans' residual maps of a flattened membrane: axes in mm with the box in the membrane's true
+    proportions, one symmetric colour scale across both (the larger scan's largest residual), a face the
+    scan lies outside of (+) red, one inside (-) blue, a face no scan point reaches dark grey."""
+    from matplotlib.colors import to_rgba
+
+    from warp_shape.calibration import ScanResidual
+    from warp_shape.calibration.files import UNSCANNED_COLOR, build_residual_figure, residual_scale_mm
+
+    mesh = ws.icosphere(2, 0.035)
+    v = mesh.vertices * np.array([1.0, 1.0, 0.5])  # 70 x 70 x 35 mm
+    faces = mesh.faces
+    top = v[:, 2] > 0.008
+    first = np.where(top, 1.5e-3, -1.0e-3)  # + outside on the top, - inside below
+    first[v[:, 0] > 0.03] = np.nan  # a side no scan point reached
+    second = np.full(len(v), 2.0e-3)
+    scans = [ScanResidual(name, np.zeros((1, 3)), np.zeros(1), np.ones(1), np.eye(4), v, r)
+             for name, r in (("a", first), ("b", second))]
+    result = SimpleNamespace(residuals=scans)
+    lim = residual_scale_mm(result, faces)
+    assert lim == pytest.approx(2.0)  # mm: one scale for both, from the larger scan
+    fig = build_residual_figure(scans[0], faces, lim)
+    ax = fig.axes[0]
+    assert all("mm" in label for label in (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()))
+    box = np.asarray(ax.get_box_aspect(), dtype=float)
+    assert box / box[0] == pytest.approx([1.0, 1.0, 0.5], abs=0.02)  # equal scale: the flattening shows
+    surf = ax.collections[0]
+    assert surf.get_clim() == pytest.approx((-2.0, 2.0))
+    colours = surf.to_rgba(surf.get_array())  # each face's colour from its residual, before any shading
+    vr = first[faces]
+    seen = np.isfinite(vr)
+    face_r = np.where(seen, vr, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1)
+    up, down = np.flatnonzero(seen.all(axis=1) & (face_r > 1.4e-3))[0], np.flatnonzero(face_r < -0.9e-3)[0]
+    assert colours[up][0] > colours[up][2] + 0.2 and colours[down][2] > colours[down][0] + 0.1  # red +, blue -
+    unseen = np.flatnonzero(~seen.any(axis=1))
+    assert unseen.size and to_rgba(UNSCANNED_COLOR)[:3] == pytest.approx(tuple(colours[unseen[0]][:3]), abs=0.02)

@@ -95,3 +95,25 @@ def test_the_final_fit_table_stays_narrow():
     md = design_markdown(_design_result([[r, r]] * 6, [[0.9, 0.9]] * 6))
     table = [x for x in md.split("## Final fit")[1].split("\n## ")[0].splitlines() if x.startswith("|")]
     assert len(table) == 4 and max(len(x) for x in table) < 100, max(table, key=len)
+
+
+def test_a_finished_design_prints_a_short_verdict_table_and_where_its_outputs_are():
+    """The run's own printout (the demo's): a line per target with its verdict, fit and what limits it, the
+    thresholds, the idle IPAMs; the outputs grouped in a few lines (the full report stays in report.md)."""
+    from warp_shape.cli.options import grouped_outputs
+    from warp_shape.io.report import design_summary
+
+    rest = cube_fig6_design(subdivisions=2).rest
+    egg = _result(rest, mpre=1.2, pcc=0.999, passive=[4])
+    pear = _result(rest, mpre=9.3, pcc=0.93, scale=1.2, saturated=["ipam 1 at P_max 300 kPa"], settled=False,
+                   passive=[2, 4])
+    lines = design_summary(_design_result([[egg, pear]] * 6, [[0.999, 0.8]] * 6))
+    assert len(lines) <= 8 and max(len(x) for x in lines) <= 100
+    rows = {x.split()[0]: x for x in lines if x.split() and x.split()[0] in ("egg", "pear")}
+    assert rows["egg"].split()[1:3] == ["reached", "0.9990"] and rows["egg"].rstrip().endswith("-")
+    assert rows["pear"].split()[1:3] == ["not", "reached"] and "IPAM 1 at P_max 300 kPa" in rows["pear"]
+    assert "moving at 1.60 mm/s" in rows["pear"] and f"MPRE <= {REACHED_MPRE:g} %" in "\n".join(lines)
+    assert any(x.startswith("IPAM 4 helps no target") for x in lines)
+    names = [f"{k}_{t}.{e}" for k in ("control", "fit", "valve") for t in ("egg", "pear") for e in ("png", "csv")]
+    listed = grouped_outputs(names + ["design.usda", "report.md", "mold_core_mm.stl", "mold_shell_top_mm.stl"])
+    assert len(listed) <= 3 and "valve_*.csv (2)" in listed[-1] and "report.md" in "".join(listed)

@@ -18,6 +18,7 @@ import pytest
 
 import warp_shape as ws
 from warp_shape.cli import main
+from warp_shape.cli.progress import without_progress
 from warp_shape.io.atomic import MANIFEST, OutputError, StagedFolder, file_digest, manifest_problems, read_manifest
 from warp_shape.io.outputs import is_run_output
 
@@ -538,7 +539,7 @@ def test_a_lock_left_by_a_killed_run_is_taken_and_removed(tmp_path, capsys):
 
 def one_line_error(capsys, rc: int, argv) -> str:
     assert main(argv) == rc, argv
-    err = capsys.readouterr().err.strip()
+    err = without_progress(capsys.readouterr().err).strip()  # a log's progress lines, then the error
     assert "Traceback" not in err and err.count("\n") == 0, err
     return err
 

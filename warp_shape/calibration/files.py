@@ -31,7 +31,8 @@ from .result import CalibrationResult
 
 __all__ = ["CALIBRATION_FORMAT", "CALIBRATION_VERSION", "UNITS", "calibration_data", "write_calibration",
            "read_calibration", "apply_calibration", "read_manifest", "calibration_markdown", "bounds_reached",
-           "write_residual_figures", "valve_sequence", "control_sequence"]
+           "write_residual_figures", "build_residual_figure", "residual_scale_mm", "valve_sequence",
+           "control_sequence"]
 
 CALIBRATION_FORMAT = "warp-shape calibration"
 CALIBRATION_VERSION = 1
@@ -464,37 +465,61 @@ def _rows(result: CalibrationResult):
             yield next(labels), float(s0[i]), float(v[i]), float(se[i])
 
 
-def write_residual_figures(result: CalibrationResult, faces: np.ndarray, out_dir) -> list[Path]:
-    """``residuals_<k>.png`` per scan: the membrane coloured by the signed residual (mm) of the scan points
-    nearest each vertex; none (an empty list) where matplotlib is not installed."""
-    try:
-        import matplotlib  # noqa: PLC0415  (optional)
+UNSCANNED_COLOR = "0.25"  # faces no scan point is nearest to: dark grey, apart from coolwarm's light-grey zero
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt  # noqa: PLC0415
+
+def _face_residual(m, faces: np.ndarray) -> np.ndarray:
+    """(F,) the mean of each face's vertices' residuals (m) over the vertices a scan point is nearest to;
+    NaN for a face none of whose vertices is."""
+    vr = m.vertex_residual[faces]
+    seen = np.isfinite(vr)
+    with np.errstate(invalid="ignore"):
+        return np.where(seen.any(axis=1), np.where(seen, vr, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1),
+                        np.nan)
+
+
+def residual_scale_mm(result: CalibrationResult, faces: np.ndarray) -> float:
+    """The colour scale's half-width (mm) shared by every scan's map: the largest face residual of the run."""
+    worst = [float(np.nanmax(np.abs(f))) for f in (_face_residual(m, faces) for m in result.residuals)
+             if np.any(np.isfinite(f))]
+    return max(max(worst, default=0.0) * 1e3, 1e-3)
+
+
+def build_residual_figure(m, faces: np.ndarray, lim_mm: float):
+    """One scan's residual map as a matplotlib ``Figure``: the replayed membrane (axes in mm, model frame,
+    equal scale) coloured by the signed residual (mm, + where the scan lies outside the model) on the
+    symmetric scale +-``lim_mm``; faces no scan point reaches dark grey."""
+    from matplotlib import colormaps  # noqa: PLC0415  (optional)
+    from matplotlib.figure import Figure  # noqa: PLC0415
+
+    fig = Figure(figsize=(5, 4.5))
+    ax = fig.add_subplot(projection="3d")
+    v = m.vertices * 1e3
+    cmap = colormaps["coolwarm"].with_extremes(bad=UNSCANNED_COLOR)
+    tri = ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=faces, cmap=cmap, vmin=-lim_mm, vmax=lim_mm,
+                          linewidth=0.1, edgecolor="0.5")
+    tri.set_array(np.ma.masked_invalid(_face_residual(m, faces) * 1e3))
+    fig.colorbar(tri, ax=ax, shrink=0.7, label="signed residual (mm): + scan outside the model\n"
+                                                "(one scale for every scan; dark grey: not scanned)")
+    ax.set_box_aspect(tuple(np.ptp(v, axis=0)))  # equal scale on the three axes: the membrane's true shape
+    for set_label, axis in ((ax.set_xlabel, "x"), (ax.set_ylabel, "y"), (ax.set_zlabel, "z")):
+        set_label(f"{axis} (mm, model frame)", fontsize=7)
+    ax.set_title(f"{m.name}: RMS {m.rms_mm:.3f} mm")
+    return fig
+
+
+def write_residual_figures(result: CalibrationResult, faces: np.ndarray, out_dir) -> list[Path]:
+    """``residuals_<k>.png`` per scan (``build_residual_figure``, one colour scale across the scans); none
+    (an empty list) where matplotlib is not installed."""
+    try:
+        import matplotlib  # noqa: F401, PLC0415  (optional)
     except ImportError:
         return []
+    lim = residual_scale_mm(result, faces)
     out = []
     for k, m in enumerate(result.residuals):
-        fig = plt.figure(figsize=(5, 4.5))
-        ax = fig.add_subplot(projection="3d")
-        v = m.vertices * 1e3
-        vr = m.vertex_residual[faces]
-        seen = np.isfinite(vr)
-        face_r = np.where(seen.any(axis=1), np.where(seen, vr, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1),
-                          np.nan)
-        lim = max(float(np.nanmax(np.abs(face_r))) * 1e3, 1e-3) if np.any(np.isfinite(face_r)) else 1.0
-        tri = ax.plot_trisurf(v[:, 0], v[:, 1], v[:, 2], triangles=faces, cmap="coolwarm", vmin=-lim, vmax=lim,
-                              linewidth=0.1, edgecolor="0.5")
-        tri.set_array(np.nan_to_num(face_r * 1e3, nan=0.0))
-        fig.colorbar(tri, ax=ax, shrink=0.7, label="signed residual, mm (grey: not scanned)")
-        ax.set_box_aspect(tuple(np.ptp(v, axis=0)))  # equal scale on the three axes: the membrane's true shape
-        for set_label, axis in ((ax.set_xlabel, "x"), (ax.set_ylabel, "y"), (ax.set_zlabel, "z")):
-            set_label(f"{axis} (mm, model frame)", fontsize=7)
-        ax.set_title(f"{m.name}: RMS {m.rms_mm:.3f} mm")
-        path = Path(out_dir) / f"residuals_{k}.png"
+        fig = build_residual_figure(m, faces, lim)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=100)
-        plt.close(fig)
-        out.append(atomic_write(path, buf.getvalue()))
+        out.append(atomic_write(Path(out_dir) / f"residuals_{k}.png", buf.getvalue()))
     return out

@@ -164,7 +164,7 @@ def _rays(args, results: dict) -> None:
     except ImportError:
         print("ray benchmark unavailable in this build")
     else:
-        rows = bench_rays(device=args.device)
+        rows = bench_rays(device=args.device, progress=lambda text: print(text, file=sys.stderr, flush=True))
         results["rays"] = rows
         print(format_table(rows))
 

@@ -25,7 +25,7 @@ from ..interrupts import held_interrupts
 from ..io.atomic import StagedFolder
 from ..io.figures import prepare_drawing
 from ..io.outputs import is_run_output, record_round, write_design_outputs, write_round_outputs
-from ..io.report import design_markdown
+from ..io.report import design_summary
 from ..io.scene_read import load_scene
 from ..molds import equivalent_radius
 from ..material import Material
@@ -254,8 +254,9 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(report, indent=2))
     else:
-        print(design_markdown(res))
-        print(f"wall time {wall:.1f} s")
-        print_outputs(out, report["outputs"], args, next_step=f"print the molds (mold_*_mm.stl); re-control the saved design: warp-shape "
+        print(f"design of {', '.join(n for n, _ in named)} finished in {wall:.1f} s: "
+              + "\n".join(design_summary(res)))
+        print(f"\nthe full report: {out / 'report.md'}")
+        print_outputs(out, report["outputs"], args, short=True, next_step=f"print the molds (mold_*_mm.stl); re-control the saved design: warp-shape "
                       f"control {out / 'design.usda'} --out {out / 'control'}")
     return 0

@@ -34,7 +34,7 @@ from ..scenarios import cube_fig6_design
 from ..targets import TARGET_NAMES, load_target, target
 from .progress import Bar, ControlProgress, DesignProgress
 
-__all__ = ["MIN_LENGTH", "MAX_LENGTH", "add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "control_progress",
+__all__ = ["MIN_LENGTH", "MAX_LENGTH", "add_common_args", "add_rerun_args", "add_units_arg", "open_recorder", "quiet_warp", "grouped_outputs", "control_progress",
            "add_workers_arg", "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "commit", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
            "ControlProgress",
@@ -395,12 +395,34 @@ def recording_entry(args) -> dict:
     return {"recording": {"path": str(p), "bytes": p.stat().st_size if p.is_file() else None}}
 
 
-def print_outputs(out, names, args, next_step: str = "") -> None:
+def grouped_outputs(names, width: int = 100) -> list[str]:
+    """Output file names in a few lines: names sharing a first word and an extension as one
+    ``word_*.ext (n)``, the groups joined and wrapped at ``width`` characters."""
+    groups: dict = {}
+    for name in sorted(names):
+        path = Path(name)
+        key = (path.stem.split("_", 1)[0], path.suffix) if "_" in path.stem else (name, "")
+        groups.setdefault(key, []).append(name)
+    items = [ns[0] if len(ns) == 1 else f"{stem}_*{ext} ({len(ns)})" for (stem, ext), ns in groups.items()]
+    lines, line = [], ""
+    for item in items:
+        if line and len(line) + 2 + len(item) > width - 2:
+            lines.append(line + ",")
+            line = ""
+        line = f"{line}, {item}" if line else item
+    return ["  " + ln for ln in lines + ([line] if line else [])]
+
+
+def print_outputs(out, names, args, next_step: str = "", short: bool = False) -> None:
     """The closing lines of a run: where every output and the recording went, and what to do next."""
     out = Path(out)
-    print(f"outputs in {out}/:")
-    for name in names:
-        print(f"  {out / name}")
+    if short:  # the names grouped, in a few lines
+        print(f"outputs in {out}/ ({len(names)} files, each listed in manifest.json):")
+        print("\n".join(grouped_outputs(names)))
+    else:
+        print(f"outputs in {out}/:")
+        for name in names:
+            print(f"  {out / name}")
     rrd = getattr(args, "rerun", None)
     if rrd:
         print(f"recording: {Path(rrd).absolute()}   (open it: warp-shape view {rrd})")

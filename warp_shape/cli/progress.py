@@ -1,4 +1,5 @@
-"""Progress bars of long runs (tqdm): drawn on a terminal, quiet otherwise (logs, pipes, tests).
+"""Progress of long runs: a tqdm bar on a terminal; elsewhere (a log, a pipe) a plain line when a run
+enters a new phase and at least once a minute (``LOG_EVERY_S``), so a log shows the run working.
 
 Each bar counts the work that is really done: design phases, simulated steps, control steps. A
 control run's length is not known in advance (it stops when every target has converged), so its
@@ -9,12 +10,13 @@ ETA comes from the construction rounds already finished.
 
 from __future__ import annotations
 
+import re
 import shutil
 import sys
 import threading
 import time
 
-__all__ = ["Bar", "DesignProgress", "ControlProgress"]
+__all__ = ["Bar", "DesignProgress", "ControlProgress", "LOG_EVERY_S", "without_progress"]
 
 
 def _on_terminal(stream) -> bool:
@@ -24,9 +26,21 @@ def _on_terminal(stream) -> bool:
         return False
 
 
+def without_progress(text: str) -> str:
+    """``text`` (a run's stderr) less the progress lines ``Bar`` writes off a terminal ("<what>: ... [m:ss]")."""
+    return "".join(ln for ln in text.splitlines(keepends=True) if not _PROGRESS_LINE.match(ln))
+
+
+_PROGRESS_LINE = re.compile(r"^[a-z ]+: .* \[\d+:\d\d\]\n?$")  # "design: ... [0:35]"
+
+#: off a terminal, a progress line at least this often (seconds) while news comes, and at each new phase
+LOG_EVERY_S = 60.0
+
+
 class Bar:
-    """A tqdm bar on ``stream`` (stderr), disabled when it is not a terminal; a context manager. Its
-    clock is redrawn every second, so a long step without news still shows time passing."""
+    """A tqdm bar on ``stream`` (stderr) on a terminal, its clock redrawn every second, so a long step
+    without news still shows time passing; elsewhere a line per phase (``log_key``) and per minute
+    (``LOG_EVERY_S``) of what runs now. A context manager."""
 
     def __init__(self, total=None, desc: str = "", unit: str = "it", stream=None, smoothing: float = 0.3,
                  bar_format: str | None = None):
@@ -39,6 +53,9 @@ class Bar:
                          smoothing=smoothing, bar_format=bar_format)
         self._drawn = 0.0
         self._text = ""
+        self._stream, self._desc = stream, desc
+        self._t0, self._logged_at = time.monotonic(), float("-inf")  # the first note is a line
+        self._logged_key = None
         self._stop = threading.Event()
         if not self.tqdm.disable:
             threading.Thread(target=self._tick, daemon=True).start()
@@ -57,8 +74,25 @@ class Bar:
         if done > self.tqdm.n:
             self.tqdm.update(done - self.tqdm.n)
 
+    def log_key(self):
+        """What a new progress line is written for off a terminal (besides each minute): nothing here."""
+        return None
+
+    def _log(self, text: str) -> None:
+        """Off a terminal: ``text`` as a line on the stream where the phase changed or a minute passed."""
+        now, key = time.monotonic(), self.log_key()
+        if key == self._logged_key and now - self._logged_at < LOG_EVERY_S:
+            return
+        self._logged_at, self._logged_key = now, key
+        print(f"{self._desc}: {self.compose(text)} [{_clock(now - self._t0)}]", file=self._stream, flush=True)
+
     def note(self, text: str) -> None:
-        """Show what is being done now beside the bar (drawn at most every 0.2 s)."""
+        """Show what is being done now beside the bar (drawn at most every 0.2 s); off a terminal, a line
+        now and then (``_log``)."""
+        if self.tqdm.disable:
+            self._text = text
+            self._log(text)
+            return
         self._text = text
         self.tqdm.set_postfix_str(self.compose(text), refresh=False)
         now = time.monotonic()
@@ -120,6 +154,9 @@ class DesignProgress(Bar):
         self._phase_start = time.monotonic()
         self._pace = None  # seconds per construction round, once one has finished
         self.note(STARTING)
+
+    def log_key(self):
+        return self.phase, self._start is None  # each phase, and the first step after the kernels load
 
     def _enter(self, phase: int) -> None:
         """Phase ``phase`` starts (the phases before it are done)."""

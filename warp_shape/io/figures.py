@@ -263,7 +263,8 @@ def build_control_figure(result, title: str | None = None, timing=None):
     (a) volume, (b) IPAM lengths, (c) cell curvatures, (d) PCC, (e) IPAM pressures, (f) chamber
     pressure and air, against the lab's time of the valve CSV (``timing``, default
     ``io.valve.ValveTiming()``) with the simulated time on a top axis; passive IPAMs grey dashed and
-    labelled, the inflation phase a named grey band."""
+    labelled, the inflation phase a named grey band (the title names the band only where one is drawn: a
+    model-based sequence has no inflation phase of its own)."""
     h = result.history
     t, sim, xlabel = _timeline(result, timing)
     phase = np.asarray(h["phase"]) if "phase" in h else None
@@ -290,8 +291,9 @@ def build_control_figure(result, title: str | None = None, timing=None):
         _simulated_axis(ax, t, sim)
     for ax in (e, f):
         ax.set_xlabel(xlabel, fontsize=8)
-    note = "grey band: inflation" + ("; grey dashed: passive IPAMs held neutral" if passive else "")
-    fig.suptitle(f"{title or 'Control sequence'} ({note})")
+    notes = (["grey band: inflation"] if phase is not None and np.any(phase == 1) else []) + (
+        ["grey dashed: passive IPAMs held neutral"] if passive else [])  # only what is drawn
+    fig.suptitle(f"{title or 'Control sequence'}" + (f" ({'; '.join(notes)})" if notes else ""))
     return fig
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from ..designer import PLACEMENTS
 
-__all__ = ["design_markdown", "verdict", "largest_error_mm", "idle_actuators", "flat_rounds", "REACHED_MPRE", "REACHED_PCC",
+__all__ = ["design_markdown", "design_summary", "verdict", "largest_error_mm", "idle_actuators", "flat_rounds", "REACHED_MPRE", "REACHED_PCC",
            "PARTLY_MPRE", "HELPS_PCC", "figures_section", "ipam_geometry_section", "cell_extent_section", "glossary_section", "lab_sections"]
 
 
@@ -354,6 +354,35 @@ def figures_section(result, figures) -> list[str]:
     shown += [(f.format(t=n), c.format(t=n)) for n in result.target_names for f, c in FIGURE_CAPTIONS]
     lines = [f"![{caption}]({name})" for name, caption in shown if name in have]
     return ["## Figures", "", *[x for line in lines for x in (line, "")]][:-1] if lines else []
+
+
+def _limits_short(r) -> str:
+    """``_limits`` in a table cell: the IPAMs at a limit and a membrane still moving, else the actuators."""
+    why = [x.replace("ipam ", "IPAM ") for x in r.saturated]
+    if not getattr(r, "settled", True):
+        why.append(f"moving at {r.max_speed * 1e3:.2f} mm/s")
+    return "; ".join(why) if why else "no IPAM at a limit: more actuators or a nearer rest shape"
+
+
+def design_summary(result) -> list[str]:
+    """The few lines a finished design run prints (the whole report stays in ``report.md``): the design
+    in a line, each target's verdict with its fit and what limits it, the thresholds, idle IPAMs."""
+    d = result.design
+    names = list(result.target_names)
+    w = max(6, *(len(n) for n in names))
+    lines = [f"{d.n_ipams} IPAMs, {d.n_cells} jamming cells, {d.rest.n_vertices}-vertex membrane", "",
+             f"{'target':<{w}}  {'verdict':<11}  {'PCC':>6}  {'MARE mm':>7}  {'MPRE %':>6}  {'max mm':>6}  limited by"]
+    for n, r in zip(names, result.results):
+        v = verdict(r)
+        why = "-" if v == "reached" else _limits_short(r)
+        lines.append(f"{n:<{w}}  {v:<11}  {r.pcc:6.4f}  {r.mare * 1e3:7.2f}  {r.mpre:6.1f}  "
+                     f"{largest_error_mm(r):6.1f}  {why}")
+    lines.append(f"(reached: MPRE <= {REACHED_MPRE:g} % and PCC >= {REACHED_PCC:g}; partly: MPRE <= {PARTLY_MPRE:g} %)")
+    idle = idle_actuators(result)
+    if idle:
+        lines.append(f"IPAM{'s' if len(idle) > 1 else ''} {', '.join(map(str, idle))} help{'' if len(idle) > 1 else 's'} "
+                     f"no target (held neutral for every one)")
+    return lines
 
 
 def design_markdown(result, figures=()) -> str:

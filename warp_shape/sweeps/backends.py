@@ -13,6 +13,7 @@ Nothing of it can be reached, or joined, from another machine.
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import time
@@ -75,6 +76,28 @@ def _single_machine_mode(ray):
             os.environ[CLUSTER_MODE_ENV] = saved_env
 
 
+RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
+
+
+class _QuietTokenNotice(logging.Filter):
+    """Drops Ray's notice that a local instance uses token authentication (Ray >= 2.59's default, kept:
+    docs/sweeps.md says so once), printed on every start; its other messages pass."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith("Token authentication is enabled")
+
+
+@contextmanager
+def quiet_token_notice():
+    """Ray's token-authentication notice left out while a local instance starts."""
+    logger, quiet = logging.getLogger(RAY_TOKEN_LOGGER), _QuietTokenNotice()
+    logger.addFilter(quiet)
+    try:
+        yield
+    finally:
+        logger.removeFilter(quiet)
+
+
 def start_ray(address: str | None, workers: int | None) -> tuple[bool, float]:
     """Join ``address`` or start a local Ray instance with ``workers`` CPUs (this machine's count by
     default); returns (started here, seconds taken). An instance already running in this process is used."""
@@ -91,7 +114,7 @@ def start_ray(address: str | None, workers: int | None) -> tuple[bool, float]:
             ray.init(address=address, **common)
         else:
             # "local": a new instance even where a cluster's address is on record (RAY_ADDRESS, a stale file)
-            with _single_machine_mode(ray):
+            with _single_machine_mode(ray), quiet_token_notice():
                 ray.init(address="local", num_cpus=workers or os.cpu_count() or 1, **common)
     except (ConnectionError, RuntimeError, ValueError, ray.exceptions.RayError) as exc:
         where = f"the Ray cluster at {address!r}" if address else "a local Ray instance"
