@@ -187,6 +187,36 @@ def test_a_scene_with_too_many_ipams_is_refused_at_reading(tmp_path):
         d.add_ipam(5, int(opposite[5]))
 
 
+def test_a_scene_of_100000_ipams_is_refused_before_usd_reads_it(tmp_path, capsys, monkeypatch):
+    """A scene of 100,000 IPAMs was refused only after USD had parsed it (33 s): now the count is read
+    from the text first, one line naming the bound and the fix, USD never opening the file."""
+    import types
+
+    import warp_shape.io.scene_read as scene_read
+
+    no_work(monkeypatch)
+    d = ws.Design(ws.icosphere(1, 0.04))
+    c = d.rest.face_centroids()
+    d.add_ipam(int(np.argmax(c[:, 2])), int(np.argmin(c[:, 2])))
+    text = ws.save_scene(ws.Scene(design=d, targets=[ws.target("oval")], target_names=["oval"]),
+                         tmp_path / "one.usda").read_text()
+    start = text.index('def BasisCurves "Ipams"')
+    end = text.index("def Scope", start)
+    block = re.sub(r"(warpShape:\w+ = )\[(.*)\]", lambda m: f"{m.group(1)}[{', '.join([m.group(2)] * 100000)}]",
+                   text[start:end])
+    (tmp_path / "many.usda").write_text(text[:start] + block + text[end:])
+    real = scene_read.load_pxr()
+
+    def never(*a, **k):
+        raise AssertionError("USD opened the scene before its IPAMs were counted")
+
+    monkeypatch.setattr(scene_read, "load_pxr", lambda: types.SimpleNamespace(
+        Sdf=real.Sdf, Tf=real.Tf, UsdGeom=real.UsdGeom, Usd=types.SimpleNamespace(Stage=types.SimpleNamespace(Open=never))))
+    err = error_of(capsys, ["control", tmp_path / "many.usda", "--out", tmp_path / "c"])
+    assert "warpShape:faces: 100000 IPAMs, more than the 1000 a design holds" in err and "use fewer" in err
+    assert not (tmp_path / "c").exists()
+
+
 # ------------------------------------------------------------------------------------ units and names
 def test_a_target_100x_too_big_names_centimetres_and_the_units_flag(tmp_path, capsys, monkeypatch):
     no_work(monkeypatch)
