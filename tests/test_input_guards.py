@@ -444,6 +444,37 @@ def test_a_schedule_cell_that_is_no_number_and_odd_manifests_are_one_line(tmp_pa
                 read(tmp_path / name)
 
 
+@pytest.mark.parametrize("case, message", [
+    ("nested", "nested too deeply"),
+    ("10s", "time_s (s) must be a finite number, got '10s'"),
+    ("list", "youngs_modulus must be a finite positive number"),
+])
+def test_a_deep_manifest_a_time_in_words_and_a_listed_value_are_one_line_before_any_work(tmp_path, capsys,
+                                                                                         monkeypatch, case, message):
+    """The command line for three of the probe's tracebacks (a manifest nested 100,000 deep: RecursionError;
+    "time_s": "10s": ValueError; a calibration value as a list: TypeError): exit 2, one line, before the
+    fit or any control, no --out made."""
+    import json
+
+    import warp_shape.cli.calibrate as cal_cli
+
+    no_work(monkeypatch)
+    monkeypatch.setattr(cal_cli, "calibrate", lambda *a, **k: pytest.fail("the fit started"))
+    _lab(tmp_path)
+    out, manifest = tmp_path / "out", tmp_path / "m.json"
+    if case == "nested":
+        manifest.write_text("[" * 100_000 + "]" * 100_000)
+    else:
+        manifest.write_text(json.dumps({"observations": [{"scan": "scan.ply", "control": "control_oval.csv",
+                                                          "time_s": "10s"}]}))
+    argv = ["calibrate", manifest, "--design", "cube_fig6", "--out", out]
+    if case == "list":
+        (tmp_path / "c.json").write_text(json.dumps({"format": "warp-shape calibration", "version": 1,
+                                                     "values": {"youngs_modulus": [1e6]}}))
+        argv = ["control", "cube_fig6", "--calibration", tmp_path / "c.json", "--out", out]
+    assert message in error_of(capsys, argv) and not out.exists()
+
+
 @pytest.mark.parametrize("values, message", [
     ({"youngs_modulus": [1e6]}, "youngs_modulus must be a finite positive number"),
     ({"ipam_area": [1e-4, [2e-4]]}, "ipam_area must be a finite positive number or a list of them"),
