@@ -14,6 +14,7 @@ import pytest
 
 from warp_shape.cli import main
 from warp_shape.cli.progress import without_progress
+from warp_shape.io.atomic import manifest_problems
 from test_run_folders import SMALL, assert_whole_set, fake_previous_set, no_control, snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -73,9 +74,10 @@ def test_a_ctrl_c_that_usd_swallows_at_start_up_still_stops_the_run(tmp_path, mo
     assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
 
 
-def test_ctrl_c_during_the_folder_swap_lets_it_finish_then_stops(tmp_path, monkeypatch, capsys):
+def test_ctrl_c_during_the_folder_swap_lets_it_finish_and_ends_as_done(tmp_path, monkeypatch, capsys):
     """A real SIGINT as the finished set is sealed for the swap: the swap completes (the new set whole
-    in <out>, no staging folder left), then the command ends as interrupted."""
+    in <out>, no staging folder left), then the command ends with 0, saying the outputs were in place
+    (it ended with 130 "interrupted" over the new set: the exit code no longer said which set was there)."""
     from warp_shape.io.atomic import StagedFolder
 
     real = StagedFolder.seal
@@ -88,8 +90,8 @@ def test_ctrl_c_during_the_folder_swap_lets_it_finish_then_stops(tmp_path, monke
     out = tmp_path / "out"
     fake_previous_set(out)
     monkeypatch.setattr(StagedFolder, "seal", seal_with_ctrl_c)
-    assert main(["design", "--out", str(out), *SMALL, "--targets", "oval"]) == 130
-    assert capsys.readouterr().err.strip().endswith("warp-shape: interrupted")
+    assert main(["design", "--out", str(out), *SMALL, "--targets", "oval"]) == 0
+    assert "warp-shape: interrupted after the outputs were in place" in capsys.readouterr().err
     report = assert_whole_set(out)
     assert report["complete"] is True and report["targets"] == ["oval"] and not (tmp_path / "out.partial").exists()
 
@@ -345,6 +347,35 @@ def test_a_recording_the_disk_refuses_is_one_line_and_leaves_no_temporary_file(t
     with pytest.raises(DesignError, match="the recording .*x.rrd could not be written .*free some space"):
         rec.close()
     assert os.listdir(tmp_path) == []
+
+
+FULL_DISK = r"""
+import resource, signal, sys
+from warp_shape.cli import main
+out, rrd = sys.argv[1], sys.argv[2]
+sim = ["simulate", "--subdivisions", "1", "--inflate-time", "0.01", "--actuate-time", "0.01", "--out", out]
+assert main(sim) == 0  # the previous set, and every kernel loaded before the limit
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails (EFBIG) as on a full disk
+resource.setrlimit(resource.RLIMIT_FSIZE, (65536, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+sys.exit(main([*sim, "--rerun", rrd]))
+"""
+
+
+def test_a_recording_a_real_disk_refuses_is_one_line_and_the_run_ends(tmp_path):
+    """A recording the disk refuses for real (a file size limit, as a full disk: writes fail part-way):
+    rerun's file writer hung for good on it (with "File-writer thread shut down prematurely" and a
+    .x.rrd.*.tmp left behind on a full tmpfs); now one line, exit 2, no temporary file, the previous
+    set whole."""
+    pytest.importorskip("rerun")
+    out, folder = tmp_path / "s", tmp_path / "rec"
+    folder.mkdir()
+    run = subprocess.run([sys.executable, "-c", FULL_DISK, str(out), str(folder / "x.rrd")], capture_output=True,
+                         text=True, timeout=120, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    err = run.stderr.strip()
+    assert run.returncode == 2 and "Traceback" not in err and err.count("\n") == 0, (run.returncode, err)
+    assert err.startswith(f"warp-shape: error: the recording {folder / 'x.rrd'} could not be written (File too")
+    assert "free some space" in err and os.listdir(folder) == []
+    assert manifest_problems(out) == [] and not (tmp_path / "s.partial").exists()
 
 
 def test_calibrate_checks_its_out_folder_before_the_fit(tmp_path, monkeypatch, capsys):

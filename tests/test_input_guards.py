@@ -187,6 +187,36 @@ def test_a_scene_with_too_many_ipams_is_refused_at_reading(tmp_path):
         d.add_ipam(5, int(opposite[5]))
 
 
+def test_a_scene_of_100000_ipams_is_refused_before_usd_reads_it(tmp_path, capsys, monkeypatch):
+    """A scene of 100,000 IPAMs was refused only after USD had parsed it (33 s): now the count is read
+    from the text first, one line naming the bound and the fix, USD never opening the file."""
+    import types
+
+    import warp_shape.io.scene_read as scene_read
+
+    no_work(monkeypatch)
+    d = ws.Design(ws.icosphere(1, 0.04))
+    c = d.rest.face_centroids()
+    d.add_ipam(int(np.argmax(c[:, 2])), int(np.argmin(c[:, 2])))
+    text = ws.save_scene(ws.Scene(design=d, targets=[ws.target("oval")], target_names=["oval"]),
+                         tmp_path / "one.usda").read_text()
+    start = text.index('def BasisCurves "Ipams"')
+    end = text.index("def Scope", start)
+    block = re.sub(r"(warpShape:\w+ = )\[(.*)\]", lambda m: f"{m.group(1)}[{', '.join([m.group(2)] * 100000)}]",
+                   text[start:end])
+    (tmp_path / "many.usda").write_text(text[:start] + block + text[end:])
+    real = scene_read.load_pxr()
+
+    def never(*a, **k):
+        raise AssertionError("USD opened the scene before its IPAMs were counted")
+
+    monkeypatch.setattr(scene_read, "load_pxr", lambda: types.SimpleNamespace(
+        Sdf=real.Sdf, Tf=real.Tf, UsdGeom=real.UsdGeom, Usd=types.SimpleNamespace(Stage=types.SimpleNamespace(Open=never))))
+    err = error_of(capsys, ["control", tmp_path / "many.usda", "--out", tmp_path / "c"])
+    assert "warpShape:faces: 100000 IPAMs, more than the 1000 a design holds" in err and "use fewer" in err
+    assert not (tmp_path / "c").exists()
+
+
 # ------------------------------------------------------------------------------------ units and names
 def test_a_target_100x_too_big_names_centimetres_and_the_units_flag(tmp_path, capsys, monkeypatch):
     no_work(monkeypatch)
@@ -412,6 +442,37 @@ def test_a_schedule_cell_that_is_no_number_and_odd_manifests_are_one_line(tmp_pa
         for read in (lambda p: read_manifest(p, design), read_calibration):
             with pytest.raises(ws.DesignError, match=kind):
                 read(tmp_path / name)
+
+
+@pytest.mark.parametrize("case, message", [
+    ("nested", "nested too deeply"),
+    ("10s", "time_s (s) must be a finite number, got '10s'"),
+    ("list", "youngs_modulus must be a finite positive number"),
+])
+def test_a_deep_manifest_a_time_in_words_and_a_listed_value_are_one_line_before_any_work(tmp_path, capsys,
+                                                                                         monkeypatch, case, message):
+    """The command line for three of the probe's tracebacks (a manifest nested 100,000 deep: RecursionError;
+    "time_s": "10s": ValueError; a calibration value as a list: TypeError): exit 2, one line, before the
+    fit or any control, no --out made."""
+    import json
+
+    import warp_shape.cli.calibrate as cal_cli
+
+    no_work(monkeypatch)
+    monkeypatch.setattr(cal_cli, "calibrate", lambda *a, **k: pytest.fail("the fit started"))
+    _lab(tmp_path)
+    out, manifest = tmp_path / "out", tmp_path / "m.json"
+    if case == "nested":
+        manifest.write_text("[" * 100_000 + "]" * 100_000)
+    else:
+        manifest.write_text(json.dumps({"observations": [{"scan": "scan.ply", "control": "control_oval.csv",
+                                                          "time_s": "10s"}]}))
+    argv = ["calibrate", manifest, "--design", "cube_fig6", "--out", out]
+    if case == "list":
+        (tmp_path / "c.json").write_text(json.dumps({"format": "warp-shape calibration", "version": 1,
+                                                     "values": {"youngs_modulus": [1e6]}}))
+        argv = ["control", "cube_fig6", "--calibration", tmp_path / "c.json", "--out", out]
+    assert message in error_of(capsys, argv) and not out.exists()
 
 
 @pytest.mark.parametrize("values, message", [

@@ -202,80 +202,199 @@ def test_a_second_run_into_the_same_folder_is_refused(tmp_path, monkeypatch, cap
     assert snapshot(out) == before and not (tmp_path / "out.partial").exists()
 
 
-KILLER = r"""
-import os, shutil, signal, sys
+ZYGOTE = r"""
+import json, os, signal, sys, traceback
 import warp_shape.io.atomic as atomic
 import warp_shape.io.figures as figures
-k, log, watched = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+import warp_shape.cli.calibrate as cal_cli
+from warp_shape.cli import main
 def figure_files(kind, what, path, title, timing, *, progress=None):
     # a figure's file events (its PNG and SVG, each written atomically), without drawing it
     atomic.atomic_write(path, b"\x89PNG\r\n\x1a\n" + kind.encode())
     atomic.atomic_write(figures.svg_path(path), b"<svg/>")
     return path
 figures.draw_figure = figure_files
-count = [0]
-def counted(name, fn):
-    def wrapper(*a, **kw):
-        path = os.fspath(a[0]) if a else ""
-        if name != "exchange" and os.path.isabs(path) and not path.startswith(watched):
-            return fn(*a, **kw)  # not the run's folders (Warp's kernel cache, matplotlib's, ...)
-        count[0] += 1
-        with open(log, "a") as f:
-            f.write(f"{count[0]} {name}\n")
-        if count[0] == k:
-            os.kill(os.getpid(), signal.SIGKILL)
-        return fn(*a, **kw)
-    return wrapper
-for name in ("replace", "rename", "unlink", "rmdir", "link", "mkdir"):
-    setattr(os, name, counted(name, getattr(os, name)))
-atomic._exchange = counted("exchange", atomic._exchange)
-from warp_shape.cli import main
-sys.exit(main(sys.argv[4:]))
+# a calibration's fit (about 20 s here) replaced by the one a first run saved: the killed runs write the same
+# files as the real one, without fitting again
+import pickle
+real_fit = cal_cli.calibrate
+def cached_fit(*a, **kw):
+    cache = os.environ["FIT_CACHE"]
+    if not os.path.exists(cache):
+        with open(cache, "wb") as f:
+            pickle.dump(real_fit(*a, **kw), f)
+    with open(cache, "rb") as f:
+        result = pickle.load(f)
+    result.values["youngs_modulus"] *= float(os.environ.get("FIT_SCALE", "1"))  # another set, the same files
+    return result
+cal_cli.calibrate = cached_fit
+def count_events(k, log, watched, sig):
+    count = [0]
+    def counted(name, fn):
+        def wrapper(*a, **kw):
+            path = os.fspath(a[0]) if a else ""
+            if name != "exchange" and os.path.isabs(path) and not path.startswith(watched):
+                return fn(*a, **kw)  # not the run's folders (Warp's kernel cache, matplotlib's, ...)
+            count[0] += 1
+            with open(log, "a") as f:
+                f.write(f"{count[0]} {name}\n")
+            if count[0] == k:
+                os.kill(os.getpid(), sig)
+            return fn(*a, **kw)
+        return wrapper
+    for name in ("replace", "rename", "unlink", "rmdir", "link", "mkdir"):
+        setattr(os, name, counted(name, getattr(os, name)))
+    atomic._exchange = counted("exchange", atomic._exchange)
+def run(req):
+    old = dict(os.environ)
+    os.environ.update(req["env"])
+    try:
+        return main(req["argv"])
+    finally:
+        os.environ.clear()
+        os.environ.update(old)
+answers = os.fdopen(os.dup(1), "w")  # the runs' own output goes to stderr, the answers to stdout
+os.dup2(2, 1)
+def answer(rc):
+    answers.write(json.dumps(rc) + "\n")
+    answers.flush()
+for line in sys.stdin:
+    req = json.loads(line)
+    if not req["fork"]:  # in this process: the modules and kernels the command loads stay for the next runs
+        answer(run(req))
+        continue
+    pid = os.fork()
+    if pid == 0:
+        rc = 99
+        try:
+            fd = os.open(req["stderr"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+            os.dup2(fd, 1)
+            os.dup2(fd, 2)
+            if req["k"]:
+                open(req["log"], "w").close()
+            count_events(req["k"], req["log"], req["watched"], getattr(signal, "SIG" + req["signal"]))
+            rc = run(req)
+        except SystemExit as exc:
+            rc = exc.code if isinstance(exc.code, int) else 1
+        except BaseException:
+            traceback.print_exc()
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(rc)
+    _, status = os.waitpid(pid, 0)
+    answer(-os.WTERMSIG(status) if os.WIFSIGNALED(status) else os.WEXITSTATUS(status))
 """
 
 
-def run_killed_at(k: int, log: Path, args) -> int:
-    log.unlink(missing_ok=True)
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    watched = str(log.parent)  # only file events in the test's folder count (a cold kernel cache adds others)
-    return subprocess.run([sys.executable, "-c", KILLER, str(k), str(log), watched, "design", *args], env=env,
-                          capture_output=True, text=True, timeout=300).returncode
+class Zygote:
+    """One process that has imported the package and run each command once, forking a child per run:
+    the runs killed at a file event start in milliseconds instead of seconds (imports, Warp, kernels)."""
+
+    def __init__(self):
+        env = dict(os.environ, PYTHONPATH=str(ROOT))
+        self.proc = subprocess.Popen([sys.executable, "-c", ZYGOTE], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     env=env, text=True)
+
+    def run(self, argv, log: Path, k: int = 0, env=None, fork: bool = True, sig: str = "KILL") -> int:
+        """``warp-shape argv``, in a child that gets ``sig`` at its k-th file event in ``log``'s folder
+        (0: none; the events are counted in ``log``); ``fork=False``: in the process itself, uncounted."""
+        req = dict(argv=[str(a) for a in argv], log=str(log), watched=str(log.parent), k=k, env=env or {},
+                   fork=fork, signal=sig, stderr=str(log.with_suffix(".err")))
+        log.unlink(missing_ok=True)
+        self.proc.stdin.write(json.dumps(req) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        assert line, "the forking process ended"
+        return json.loads(line)
+
+    def stderr(self, log: Path) -> str:
+        return log.with_suffix(".err").read_text()
+
+    def close(self):
+        self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+
+
+@pytest.fixture(scope="module")
+def zygote():
+    z = Zygote()
+    yield z
+    z.close()
+
+
+#: a design run of one actuator on a 42-vertex membrane (the killed runs' own problem)
+TINY = ["--subdivisions", "1", "--actuators", "1", "--placement", "paper", "--codesign", "off", "--workers", "1"]
+
+
+def design_problem(tmp_path: Path) -> Path:
+    """A 42-vertex pear problem with the paper's law (its runs write the same files as the model-based
+    controller's, sooner)."""
+    return ws.save_scene(ws.Scene(design=ws.Design(rest=ws.icosphere(1, 0.04)), targets=[ws.target("pear")],
+                                  target_names=["pear"], settings={"controller": {"method": "paper"}}),
+                         tmp_path / "problem.usda")
+
+
+def design_events(zygote, tmp_path: Path, problem: Path):
+    """``out`` holding a finished oval-and-heart run (its snapshot returned), and the file events of the
+    pear run that the kills interrupt (counted in a copy of it): (old snapshot, events, swap's index)."""
+    out, ref, log = tmp_path / "out", tmp_path / "ref", tmp_path / "events.log"
+    assert zygote.run(["design", problem, "--out", out, *TINY, "--targets", "oval", "heart"], log, fork=False) == 0
+    shutil.copytree(out, tmp_path / "old")
+    shutil.copytree(out, ref)
+    assert zygote.run(["design", problem, *TINY, "--out", ref], log) == 0, zygote.stderr(log)
+    events = log.read_text().split("\n")[:-1]
+    swap = next(i for i, e in enumerate(events, 1) if e.endswith("exchange"))
+    return snapshot(out), events, swap
 
 
 @pytest.mark.slow
-def test_sigkill_at_ten_points_leaves_one_whole_set(tmp_path):
+def test_sigkill_at_ten_points_leaves_one_whole_set(zygote, tmp_path):
     """A design run into a folder holding a different finished run, SIGKILLed at 10 points (file
     writes, renames, the folder swap, the removal of the old set): the folder holds one whole set
     every time, the old one until the swap, the new one after. The killed runs write their figures'
     files as the real ones are written (two atomic writes each) without drawing them."""
-    out, ref, log = tmp_path / "out", tmp_path / "ref", tmp_path / "events.log"
-    # the paper's law controls: the runs write the same files as the model-based controller's, sooner
-    problem = ws.save_scene(ws.Scene(design=ws.Design(rest=ws.icosphere(2, 0.04)), targets=[ws.target("pear")],
-                                     target_names=["pear"], settings={"controller": {"method": "paper"}}),
-                            tmp_path / "problem.usda")
-    assert main(["design", str(problem), "--out", str(out), *SMALL, "--targets", "oval", "heart"]) == 0
-    old = snapshot(out)
-    shutil.copytree(out, ref)
-    # one process: the killer's stand-in for drawing a figure lives in its __main__, which no worker can import
-    new_args = [str(problem), *SMALL, "--workers", "1"]
-    assert run_killed_at(0, log, [*new_args, "--out", str(ref)]) == 0  # the same run, whole, counting its events
-    events = log.read_text().split("\n")[:-1]
-    swap = next(i for i, e in enumerate(events, 1) if e.endswith("exchange"))
+    out, log, problem = tmp_path / "out", tmp_path / "events.log", design_problem(tmp_path)
+    old, events, swap = design_events(zygote, tmp_path, problem)
     points = sorted({*(round(1 + j * (swap - 2) / 6) for j in range(7)), swap, swap + 1, swap + 3})
     assert len(points) == 10 and points[-1] < len(events)
     for k in points:
         shutil.rmtree(tmp_path / "out.partial", ignore_errors=True)  # the same events in every run: no staging
         (tmp_path / ".out.lock").unlink(missing_ok=True)  # folder or lock of the last killed run to clear first
-        rc = run_killed_at(k, log, [*new_args, "--out", str(out)])
-        assert rc == -signal.SIGKILL, (k, rc)
+        rc = zygote.run(["design", problem, *TINY, "--out", out], log, k)
+        assert rc == -signal.SIGKILL, (k, rc, zygote.stderr(log))
         report = assert_whole_set(out)
         if k <= swap:
             assert snapshot(out) == old, k
         else:
             assert report["targets"] == ["pear"] and report["complete"], k
-    assert run_killed_at(0, log, [*new_args, "--out", str(out)]) == 0  # past a killed run's leftovers
+    assert zygote.run(["design", problem, *TINY, "--out", out], log) == 0  # past a killed run's leftovers
     assert assert_whole_set(out)["targets"] == ["pear"]
     assert not list(out.glob("*heart*")) and not (tmp_path / "out.partial").exists()
+
+
+def test_ctrl_c_at_any_point_of_the_outputs_is_130_with_the_old_set_or_0_with_the_new(zygote, tmp_path):
+    """A real SIGINT at file events of a design run (the first, half-way, just before the swap, at the
+    swap, after it): before the swap, exit 130 with "interrupted" and the previous set byte for byte in
+    <out>; from the swap on (held until it ends), exit 0 with the new set whole (a SIGINT near the end
+    of design returned 0 without the line; at the swap it said interrupted over the new set)."""
+    out, log, problem = tmp_path / "out", tmp_path / "events.log", design_problem(tmp_path)
+    old, events, swap = design_events(zygote, tmp_path, problem)
+    for k in sorted({1, swap // 2, swap - 1, swap, swap + 1}):
+        shutil.rmtree(tmp_path / "out.partial", ignore_errors=True)  # an interrupted run's finished rounds
+        rc = zygote.run(["design", problem, *TINY, "--out", out], log, k, sig="INT")
+        err = zygote.stderr(log)
+        assert "Traceback" not in err and rc == (130 if k <= swap // 2 else 0 if k >= swap else rc), (k, rc, err)
+        if rc != 0:  # just before the swap: as the swap's seal holds the press, either outcome, each whole
+            assert rc == 130 and err.strip().splitlines()[-1] == "warp-shape: interrupted", (k, rc, err)
+            assert snapshot(out) == old, k
+        else:
+            assert rc == 0 and "interrupted after the outputs were in place" in err, (k, rc, err)
+            report = assert_whole_set(out)
+            assert report["targets"] == ["pear"] and report["complete"], k
+            assert not (tmp_path / "out.partial").exists() and not (tmp_path / ".out.lock").exists()
+            shutil.rmtree(out)
+            shutil.copytree(tmp_path / "old", out)  # the oval-and-heart set again
 
 
 # ------------------------------------------------------------------------------- the user's files in --out
@@ -424,34 +543,6 @@ def test_every_command_replaces_only_its_own_set(tmp_path, monkeypatch, capsys):
 
 
 # ------------------------------------------------------------- export, control and calibrate killed mid-write
-#: a calibration's fit (about 20 s here) replaced by the one a first run saved: the killed runs write the same
-#: files as the real one, without fitting again
-FIT_FROM_CACHE = r"""
-import pickle
-import warp_shape.cli.calibrate as cal_cli
-cache = os.environ["FIT_CACHE"]
-real_fit = cal_cli.calibrate
-def cached_fit(*a, **kw):
-    if not os.path.exists(cache):
-        with open(cache, "wb") as f:
-            pickle.dump(real_fit(*a, **kw), f)
-    with open(cache, "rb") as f:
-        result = pickle.load(f)
-    result.values["youngs_modulus"] *= float(os.environ.get("FIT_SCALE", "1"))  # another set, the same files
-    return result
-cal_cli.calibrate = cached_fit
-"""
-
-
-def run_command_killed_at(k: int, log: Path, argv, env=None) -> int:
-    """``warp-shape argv`` in a process SIGKILLed at its k-th file event in ``log``'s folder (0: none)."""
-    log.unlink(missing_ok=True)
-    script = KILLER.replace("from warp_shape.cli import main", FIT_FROM_CACHE + "from warp_shape.cli import main")
-    env = dict(os.environ, PYTHONPATH=str(ROOT), **(env or {}))
-    return subprocess.run([sys.executable, "-c", script, str(k), str(log), str(log.parent), *argv], env=env,
-                          capture_output=True, text=True, timeout=300).returncode
-
-
 @pytest.fixture(scope="module")
 def small_lab(tmp_path_factory):
     """A 42-vertex Fig. 6 design with the paper's law, its scene, a scan of it inflated and a manifest."""
@@ -483,27 +574,27 @@ def _kill_cases(lab: Path):
 
 
 @pytest.mark.parametrize("command", ["export", "control", "calibrate"])
-def test_a_command_killed_at_three_points_of_its_writes_keeps_the_previous_set(small_lab, tmp_path, command):
+def test_a_command_killed_at_three_points_of_its_writes_keeps_the_previous_set(small_lab, zygote, tmp_path, command):
     """export, control and calibrate SIGKILLed at their first file event, half-way and at the swap:
     ``--out`` holds the previous set byte for byte (its manifest whole) each time, and the next run
     into it succeeds with no hand work (today they wrote file by file: a set mixing two runs, then
-    refused as the user's files)."""
+    refused as the user's files). A calibration's fit is the one the first run saved."""
     first, second = _kill_cases(small_lab)[command]
     out, log, ref = tmp_path / "out", tmp_path / "events.log", tmp_path / "ref"
     env = {"FIT_CACHE": str(tmp_path / "fit.pickle")}
-    assert run_command_killed_at(0, log, [*first, "--out", str(out)], dict(env, FIT_SCALE="1.01")) == 0
+    assert zygote.run([*first, "--out", out], log, env=dict(env, FIT_SCALE="1.01"), fork=False) == 0
     old = snapshot(out)
     assert manifest_problems(out) == [] and read_manifest(out)["command"] == command
     shutil.copytree(out, ref)
-    assert run_command_killed_at(0, log, [*second, "--out", str(ref)], env) == 0  # the same run, counting its events
+    assert zygote.run([*second, "--out", ref], log, env=env) == 0, zygote.stderr(log)  # counting its events
     assert snapshot(ref) != old
     events = log.read_text().split("\n")[:-1]
     swap = next(i for i, e in enumerate(events, 1) if e.endswith("exchange"))
     for k in sorted({1, swap // 2, swap}):
-        rc = run_command_killed_at(k, log, [*second, "--out", str(out)], env)
-        assert rc == -signal.SIGKILL, (k, rc)
+        rc = zygote.run([*second, "--out", out], log, k, env=env)
+        assert rc == -signal.SIGKILL, (k, rc, zygote.stderr(log))
         assert snapshot(out) == old and manifest_problems(out) == [], k
-    assert run_command_killed_at(0, log, [*second, "--out", str(out)], env) == 0  # past the killed runs' leftovers
+    assert zygote.run([*second, "--out", out], log, env=env) == 0  # past the killed runs' leftovers
     assert manifest_problems(out) == [] and not (tmp_path / "out.partial").exists()
     assert set(snapshot(out)) == set(snapshot(ref))
 

@@ -214,6 +214,14 @@ class ActuatorFamily(ForceFamily):
     scene_attributes: tuple = ()
     history_columns: tuple = ()
     color = (0.08, 0.08, 0.08)
+    max_count: int | None = None  # the most elements a design holds (None: no bound)
+    count_hint = ""  # what a refusal of too many elements adds, e.g. " (the paper's displays have 4-20)"
+
+    def count_problem(self, n: int) -> str | None:
+        """A message when ``n`` elements are more than a design holds (``max_count``), or None."""
+        if self.max_count is None or n <= self.max_count:
+            return None
+        return f"{n} {self.plural}, more than the {self.max_count} a design holds{self.count_hint}; use fewer"
 
     @property
     def control_column(self) -> str:

@@ -14,7 +14,8 @@ from .. import __version__
 from ..errors import WarpShapeError
 from ..registry import load_plugins
 from . import bench, calibrate, compare, control, design, export, feel, simulate, sweep, view
-from .options import check_bounds, check_warp_cache, interrupts_noted, quiet_warp, stop_if_interrupted, write_failure
+from .options import (check_bounds, check_warp_cache, interrupts_noted, outputs_in_place, quiet_warp, stop_if_interrupted,
+                      write_failure)
 
 __all__ = ["main", "build_parser"]
 
@@ -60,6 +61,10 @@ def main(argv=None) -> int:
             print(f"warp-shape: error: {exc}", file=sys.stderr)
             return 2
         except KeyboardInterrupt:
+            if outputs_in_place() is not None:  # after the swap: the run's work is done and whole
+                print(f"\nwarp-shape: interrupted after the outputs were in place ({outputs_in_place()} holds "
+                      f"this run's set, whole)", file=sys.stderr)
+                return 0
             print("\nwarp-shape: interrupted", file=sys.stderr)
             return 130
         except OSError as exc:

@@ -33,9 +33,8 @@ from ..limits import MAX_ACTUATORS, MAX_CANDIDATES, MAX_REFINE_ROUNDS
 from .calibrate import add_calibration_arg
 from .lab_timing import add_timing_args, timing_from_args
 from .options import (MAX_LENGTH, MIN_LENGTH, add_bounded, add_common_args, add_membrane_arg, add_units_arg,
-                      add_workers_arg, check_device, check_mold_flags, check_out, check_rerun, load_targets,
-                      material_with_membrane, open_recorder, print_outputs, recording_entry, run_progress,
-                      stop_if_interrupted)
+                      add_workers_arg, check_device, check_mold_flags, check_out, check_rerun, commit, load_targets,
+                      material_with_membrane, open_recorder, print_outputs, run_progress, stop_if_interrupted)
 
 __all__ = ["register", "run"]
 
@@ -220,8 +219,7 @@ def _write_outputs(res, args, staged, wall: float, timing) -> list:
 def _commit(staged, args):
     """The staged outputs swapped into ``<out>`` (the recording, closed by now, in the manifest)."""
     try:
-        with held_interrupts():  # a Ctrl-C now lets the swap finish, then stops
-            return staged.commit(True, command="design", **recording_entry(args))
+        return commit(staged, args, command="design")  # a Ctrl-C now lets the swap finish
     except BaseException:
         staged.discard()
         raise

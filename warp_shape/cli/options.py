@@ -38,7 +38,7 @@ __all__ = ["MIN_LENGTH", "MAX_LENGTH", "add_common_args", "add_rerun_args", "add
            "add_workers_arg", "load_targets", "resolve_design_and_targets", "actuator_selection", "check_device",
            "check_out", "check_rerun", "commit", "check_mold_flags", "recording_entry", "print_outputs", "run_progress", "Bar",
            "ControlProgress",
-           "interrupts_noted", "stop_if_interrupted", "check_warp_cache", "write_failure", "add_bounded", "check_bounds"]
+           "interrupts_noted", "stop_if_interrupted", "outputs_in_place", "check_warp_cache", "write_failure", "add_bounded", "check_bounds"]
 
 CUDA_DRIVER_NOTE = b"Could not find or load the NVIDIA CUDA driver"
 #: the range of a length flag (m): 0.1 mm (a printer's resolution) to 0.5 m (a display is a few cm)
@@ -179,6 +179,7 @@ def quiet_warp(verbose: bool = False) -> None:
 
 
 _INTERRUPTS: list = []  # Ctrl-C presses since ``interrupts_noted`` began
+_IN_PLACE: list = []  # the command's finished set, once swapped into its folder (``commit``)
 
 
 @contextlib.contextmanager
@@ -195,6 +196,7 @@ def interrupts_noted():
         raise KeyboardInterrupt
 
     _INTERRUPTS.clear()
+    _IN_PLACE.clear()
     previous = signal.signal(signal.SIGINT, on_sigint)
     before_start, pressed = release_the_command()  # Ctrl-C while the command started
     previous = before_start or previous
@@ -207,9 +209,16 @@ def interrupts_noted():
 
 
 def stop_if_interrupted() -> None:
-    """``KeyboardInterrupt`` where Ctrl-C was pressed since the command began (even if swallowed)."""
-    if _INTERRUPTS:
+    """``KeyboardInterrupt`` where Ctrl-C was pressed since the command began (even if swallowed), unless
+    the command's finished set is in place already (``outputs_in_place``): then the run has done its work."""
+    if _INTERRUPTS and not _IN_PLACE:
         raise KeyboardInterrupt
+
+
+def outputs_in_place():
+    """The folder the command's finished set was swapped into (``commit``), or None: a Ctrl-C after that
+    swap ends the command as a success, the new set whole; before it, as interrupted, the previous set whole."""
+    return _IN_PLACE[-1] if _IN_PLACE else None
 
 
 #: what a failing disk answers a write with, as the one line a user reads
@@ -311,8 +320,10 @@ def commit(staged, args, **info):
     """The staged set swapped into ``<out>`` whole (``StagedFolder.commit``, the run's recording in its
     manifest); a Ctrl-C now lets the swap finish, then stops. Returns ``<out>``."""
     stop_if_interrupted()
-    with held_interrupts():
-        return staged.commit(True, **recording_entry(args), **info)
+    with held_interrupts():  # a Ctrl-C now waits for the swap's end, where the set is in place
+        out = staged.commit(True, **recording_entry(args), **info)
+        _IN_PLACE.append(out)
+    return out
 
 
 def check_mold_flags(args, radius: float) -> None:

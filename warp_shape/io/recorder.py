@@ -51,11 +51,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DesignError
-from .atomic import finalize_permissions
+from .atomic import atomic_write, finalize_permissions
 
 __all__ = ["Recorder", "diverging_colors", "viewer_problem", "spawn_viewer", "ERROR_RANGE_M", "FORCE_RANGE_N",
            "VIEWER_PORT"]
 
+#: seconds a recording's flush may take: rerun's default (no bound) waits forever when its file writer has
+#: stopped on a full disk, a bounded flush raises at once
+FLUSH_TIMEOUT = 600.0
 VIEWER_PORT = 9876  # the rerun viewer's usual port, on the loopback interface only
 
 ERROR_RANGE_M = 5e-3  # radial error (m) at which the membrane colour saturates
@@ -163,8 +166,9 @@ class _Run:
 class Recorder:
     """Log simulations, control runs and design runs to a rerun recording.
 
-    ``path``: the ``.rrd`` file, written on ``close()`` (to a temporary file in the same directory
-    while recording, renamed into place at the end, so the path never holds a partial recording).
+    ``path``: the ``.rrd`` file, written whole on ``close()`` (kept in memory while recording, or with
+    ``spawn`` in a temporary file in the same directory, renamed into place at the end, so the path
+    never holds a partial recording; rerun's own file writer hung for good on a full disk).
     ``spawn``: also stream live to a rerun viewer started for it. With neither, the recording is
     kept in memory. ``every``: log every k-th control step (the last state of every run is always
     logged). Use as a context manager, or call ``close()``; the default blueprint (the 3-D view
@@ -197,7 +201,7 @@ class Recorder:
         self._tmp = None
         self._memory = None
         sinks = []
-        if self.path is not None:
+        if self.path is not None and spawn:  # a file beside a live viewer: rerun's file writer
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
             os.close(fd)
@@ -225,17 +229,23 @@ class Recorder:
         if self._closed:
             return self.path
         self._closed = True
+        data = None
         try:
             self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
-            self.stream.flush()
-            if self._memory is not None:
+            self.stream.flush(timeout_sec=FLUSH_TIMEOUT)
+            if self._memory is not None and self.path is None:
                 return None  # in-memory recording: keep it readable through ``memory_bytes()``
+            if self._memory is not None:
+                data = self._memory.drain_as_bytes()
             self.stream.disconnect()
-        except RuntimeError as exc:  # rerun's file writer stopped (a full or failing disk) or the viewer went
+            if data is not None:
+                atomic_write(self.path, data)
+        except (RuntimeError, OSError) as exc:  # a full or failing disk, or the viewer went
             self._drop_tmp()
             where = f"the recording {self.path}" if self.path is not None else "the live recording"
-            raise DesignError(f"{where} could not be written ({exc}); nothing was left half-written: free some "
-                              f"space (or check the disk) and run again, or give --rerun a path on another "
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise DesignError(f"{where} could not be written ({reason}); nothing was left half-written: free "
+                              f"some space (or check the disk) and run again, or give --rerun a path on another "
                               f"disk") from None
         if self._tmp is not None:
             finalize_permissions(self._tmp)
@@ -245,9 +255,9 @@ class Recorder:
 
     def memory_bytes(self) -> bytes:
         """The recording as ``.rrd`` bytes (in-memory recorders: no ``path`` and no ``spawn``)."""
-        if self._memory is None:
+        if self._memory is None or self.path is not None:
             raise DesignError("memory_bytes() is for a Recorder without path or spawn; read the .rrd file instead")
-        self.stream.flush()
+        self.stream.flush(timeout_sec=FLUSH_TIMEOUT)
         return self._memory.drain_as_bytes()
 
     def _drop_tmp(self) -> None:

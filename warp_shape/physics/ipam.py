@@ -86,6 +86,7 @@ class IpamFamily(ActuatorFamily):
     always = True
     scene_prim = "Ipams"
     scene_attributes = IPAM_ATTRIBUTES
+    max_count, count_hint = MAX_IPAMS, " (the paper's displays have 4-20)"
     history_columns = ("ipam{i}_pressure_pa", "ipam{i}_length_m", "ipam{i}_target_length_m", "ipam{i}_force_n",
                        "ipam{i}_strain")
     differentiable = True
@@ -213,9 +214,9 @@ class IpamFamily(ActuatorFamily):
 
     def check_scene_values(self, design, values: dict) -> str | None:
         faces, nf = values["faces"], design.rest.n_faces
-        if faces.shape[0] > MAX_IPAMS:
-            return f"{faces.shape[0]} IPAMs, more than the {MAX_IPAMS} a design holds (the paper's displays have " \
-                   f"4-20); use fewer"
+        too_many = self.count_problem(faces.shape[0])
+        if too_many:
+            return too_many
         bad = np.flatnonzero(((faces < 0) | (faces >= nf)).any(axis=1))
         if bad.size:
             i = int(bad[0])
