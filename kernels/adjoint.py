@@ -564,3 +564,105 @@ def advance_slot_kernel(
 ):
     """Move the tape's slot index (inside the captured graphs, so they serve every slot)."""
     slot_out[0] = slot_out[0] + delta
+
+
+@wp.func
+def acceleration_adjoint(a_bar: Any, fg: wp.array3d(dtype=Any), volume: wp.array2d(dtype=wp.float64),
+                         air: wp.array(dtype=wp.float64), gas_rt: wp.float64, p_atm: wp.float64, inv_mass: Any, i: int,
+                         fg_adj: wp.array3d(dtype=Any), volume_adj: wp.array2d(dtype=wp.float64),
+                         air_adj: wp.array(dtype=wp.float64), inv_mass_adj: wp.array(dtype=Any)):
+    """The adjoint of ``acceleration`` (vertex i) with a_bar the adjoint of its result: accumulated into
+    the forces' and dV/dx's adjoints (vertex i), the inverse mass's (i), the volume's and the air's."""
+    f = fg[0, 0, i]
+    g = fg[1, 0, i]
+    p = gauge_pressure(air[0], volume[0, 0], gas_rt, p_atm)
+    pp = type(inv_mass)(p)
+    fg_adj[0, 0, i] = fg_adj[0, 0, i] + a_bar * inv_mass
+    fg_adj[1, 0, i] = fg_adj[1, 0, i] + a_bar * (inv_mass * pp)
+    inv_mass_adj[i] = inv_mass_adj[i] + wp.dot(a_bar, f + g * pp)
+    p_bar = wp.float64(wp.dot(a_bar, g) * inv_mass)
+    vol = volume[0, 0]
+    wp.atomic_add(air_adj, 0, p_bar * gas_rt / vol)
+    wp.atomic_add(volume_adj, 0, 0, -p_bar * air[0] * gas_rt / (vol * vol))
+
+
+@wp.kernel(enable_backward=False, module=MODULE)
+def rk4_point_adjoint_kernel(
+    # Model:
+    inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
+    gas_rt: wp.float64,  # R T, J/mol
+    p_atm: wp.float64,  # Pa absolute
+    step_in: wp.array(dtype=Any),  # (1,) internal step h, s
+    fraction: Any,  # the next stage point's share of h
+    # Control:
+    air_in: wp.array(dtype=wp.float64),  # (1,) mol
+    # State in (the forward's inputs):
+    fg_in: wp.array3d(dtype=Any),  # (2, 1, V) this stage's forces without pressure, dV/dx
+    volume_in: wp.array2d(dtype=wp.float64),  # (1, 1) this stage's volume, m^3
+    # State in (adjoints of the forward's outputs):
+    accel_adj: wp.array2d(dtype=Any),  # (1, V)
+    xv_next_adj: wp.array3d(dtype=Any),  # (2, 1, V)
+    # Out (accumulated):
+    inv_mass_adj: wp.array(dtype=Any),
+    air_adj: wp.array(dtype=wp.float64),
+    xv_start_adj: wp.array3d(dtype=Any),  # (2, 1, V); may be xv_stage_adj (the first stage)
+    xv_stage_adj: wp.array3d(dtype=Any),
+    fg_adj: wp.array3d(dtype=Any),
+    volume_adj: wp.array2d(dtype=wp.float64),
+):
+    """The vector-Jacobian product of ``rk4_point_kernel`` (Warp's generated adjoint replays the
+    forward and cost 10x the kernel): the adjoints of its inputs from those of its outputs."""
+    i = wp.tid()
+    c = fraction * step_in[0]
+    nx_bar = xv_next_adj[0, 0, i]
+    nv_bar = xv_next_adj[1, 0, i]
+    xv_start_adj[0, 0, i] = xv_start_adj[0, 0, i] + nx_bar
+    xv_start_adj[1, 0, i] = xv_start_adj[1, 0, i] + nv_bar
+    xv_stage_adj[1, 0, i] = xv_stage_adj[1, 0, i] + nx_bar * c
+    acceleration_adjoint(accel_adj[0, i] + nv_bar * c, fg_in, volume_in, air_in, gas_rt, p_atm, inv_mass[i], i,
+                         fg_adj, volume_adj, air_adj, inv_mass_adj)
+
+
+@wp.kernel(enable_backward=False, module=MODULE)
+def rk4_combine_adjoint_kernel(
+    # Model:
+    inv_mass: wp.array(dtype=Any),  # (V,) 1/kg
+    gas_rt: wp.float64,  # R T, J/mol
+    p_atm: wp.float64,  # Pa absolute
+    step_in: wp.array(dtype=Any),  # (1,) internal step h, s
+    # Control:
+    air_in: wp.array(dtype=wp.float64),  # (1,) mol
+    # State in (the forward's inputs):
+    fg_3: wp.array3d(dtype=Any),  # (2, 1, V) the last stage's forces without pressure, dV/dx
+    volume_3: wp.array2d(dtype=wp.float64),  # (1, 1) m^3
+    # State in (adjoint of the forward's output):
+    xv_out_adj: wp.array3d(dtype=Any),  # (2, 1, V)
+    # Out (accumulated):
+    inv_mass_adj: wp.array(dtype=Any),
+    air_adj: wp.array(dtype=wp.float64),
+    xv_start_adj: wp.array3d(dtype=Any),  # (2, 1, V)
+    xv_1_adj: wp.array3d(dtype=Any),
+    xv_2_adj: wp.array3d(dtype=Any),
+    xv_3_adj: wp.array3d(dtype=Any),
+    a_0_adj: wp.array2d(dtype=Any),  # (1, V)
+    a_1_adj: wp.array2d(dtype=Any),
+    a_2_adj: wp.array2d(dtype=Any),
+    fg_3_adj: wp.array3d(dtype=Any),
+    volume_3_adj: wp.array2d(dtype=wp.float64),
+):
+    """The vector-Jacobian product of ``rk4_combine_kernel`` (written by hand, as the stage points')."""
+    i = wp.tid()
+    sixth = step_in[0] / type(step_in[0])(6.0)
+    two_sixth = sixth * type(sixth)(2.0)
+    ox_bar = xv_out_adj[0, 0, i]
+    ov_bar = xv_out_adj[1, 0, i]
+    xv_start_adj[0, 0, i] = xv_start_adj[0, 0, i] + ox_bar
+    xv_start_adj[1, 0, i] = xv_start_adj[1, 0, i] + ov_bar + ox_bar * sixth
+    xv_1_adj[1, 0, i] = xv_1_adj[1, 0, i] + ox_bar * two_sixth
+    xv_2_adj[1, 0, i] = xv_2_adj[1, 0, i] + ox_bar * two_sixth
+    xv_3_adj[1, 0, i] = xv_3_adj[1, 0, i] + ox_bar * sixth
+    a_0_adj[0, i] = a_0_adj[0, i] + ov_bar * sixth
+    a_1_adj[0, i] = a_1_adj[0, i] + ov_bar * two_sixth
+    a_2_adj[0, i] = a_2_adj[0, i] + ov_bar * two_sixth
+    acceleration_adjoint(ov_bar * sixth, fg_3, volume_3, air_in, gas_rt, p_atm, inv_mass[i], i, fg_3_adj,
+                         volume_3_adj, air_adj, inv_mass_adj)

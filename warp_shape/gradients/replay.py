@@ -32,6 +32,7 @@ from ..model import PRECISIONS, host_model
 from ..simulator import Simulator
 from ..step_plan import create_overloads
 from .families import ReplayFamilies, controls_gradient_name
+from .step_adjoints import adjoint_launch
 
 __all__ = ["ReplayPlan", "DifferentiableReplay", "ReplayGradient"]
 
@@ -396,8 +397,9 @@ class DifferentiableReplay:
         hand-written adjoint; e.g. to compile them."""
         step = self._record(lambda launch: self._step(self.single, launch))
         hinge = [hinge_adjoint_launch(dim, inputs) for kernel, dim, inputs in step if kernel is ka.hinge_grad_kernel]
+        hand = {launch[0]: launch for launch in (adjoint_launch(*x) for x in step) if launch is not None}
         return (self._record(self._build) + step + self._tape_launches(store=True) + self._tape_launches(store=False)
-                + hinge[:1] + self._jam_launches())
+                + hinge[:1] + list(hand.values()) + self._jam_launches())
 
     def _tape_launches(self, store: bool, lane: Lane | None = None, tape: Tape | None = None) -> list:
         """Store the lane's work buffers' intermediates in the tape's slot in hand and move to the next,
@@ -426,6 +428,10 @@ class DifferentiableReplay:
         for kernel, dim, inputs in reversed(launches):
             if kernel is ka.hinge_grad_kernel:  # its adjoint is written by hand
                 wp.launch(*hinge_adjoint_launch(dim, inputs), device=self.device, record_tape=False)
+                continue
+            hand = adjoint_launch(kernel, dim, inputs)  # the integrator's, written by hand too
+            if hand is not None:
+                wp.launch(*hand, device=self.device, record_tape=False)
                 continue
             wp.launch(kernel, dim, inputs, adj_inputs=[adjoint_argument(a) for a in inputs], device=self.device,
                       adjoint=True, record_tape=False)
