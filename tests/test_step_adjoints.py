@@ -1,7 +1,8 @@
 """The hand-written adjoints of the replay's RK4 kernels (gradients/step_adjoints.py) against Warp's
 generated adjoints of the same kernels: for random inputs and random adjoints of the outputs, every
-input's adjoint (accumulated onto a random start, as Warp's are) must agree to rounding, in float64
-and float32, with the first stage's point being the step's start (one array, as the replay has it).
+input's adjoint (accumulated onto a random start, as Warp's are) must agree to rounding (float64, the
+gradients' precision: a float32 check would rebuild the adjoint module in the suite for float32 alone),
+with the first stage's point being the step's start (one array, as the replay has it).
 The outputs' own adjoints are not compared: Warp's adjoint zeroes them after reading, the replay
 zeroes them before every step's adjoint."""
 
@@ -55,7 +56,7 @@ def _grads(a, outputs) -> list:
     return [x.grad.numpy().astype(np.float64) for k, x in named.items() if k not in outputs and x.grad is not None]
 
 
-@pytest.mark.parametrize("precision", ["float64", "float32"])
+@pytest.mark.parametrize("precision", ["float64"])
 @pytest.mark.parametrize("which", [0, 1, 2], ids=["first_stage_point", "stage_point", "combine"])
 def test_the_hand_written_rk4_adjoint_is_warps(precision, which):
     tol = PRECISION[precision][3]
