@@ -315,12 +315,41 @@ def test_the_package_metadata_builds_without_license_warnings():
 
 
 def test_the_recording_of_a_design_is_in_its_manifest(tmp_path, capsys):
+    """A design's recording is in its manifest; with ``--feel`` the design's outputs carry per target the
+    stiffness map: CSV, figure, a report section (N/mm), report.json's entry (keys with units), a per-face
+    primvar on design.usda's membrane whose values are the CSV's, and a layer of the recording."""
+    import csv
+
+    from warp_shape.io.feel_outputs import feel_primvar_name
+    from warp_shape.io.usd_common import load_pxr
+
     rrd, out = tmp_path / "run.rrd", tmp_path / "out"
     assert main(["design", "--subdivisions", "2", "--actuators", "1", "--placement", "paper", "--targets", "oval",
-                 "--codesign", "off", "--rerun", str(rrd), "--out", str(out)]) == 0
+                 "--codesign", "off", "--rerun", str(rrd), "--out", str(out), "--feel", "6", "--feel-radius",
+                 "0.016"]) == 0
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["recording"] == {"path": str(rrd), "bytes": rrd.stat().st_size} and rrd.stat().st_size > 1000
     assert not (tmp_path / ".out.lock").exists()
+    with open(out / "feel_oval.csv") as fh:
+        k = np.array([float(r["stiffness_n_per_mm"]) for r in csv.DictReader(fh)])
+    assert 3 <= len(k) <= 6 and np.all((k > 0.001) & (k < 1.0))  # N/mm of a thumb on an inflated balloon
+    assert (out / "feel_oval.png").stat().st_size > 10_000
+    report = json.loads((out / "report.json").read_text())
+    entry = report["feel"]["oval"]
+    assert entry["points"] == len(k) and entry["depth_m"] == 0.002 and entry["radius_m"] == 0.016
+    np.testing.assert_allclose(entry["stiffness_n_per_mm"], k, rtol=1e-5)
+    assert entry["min_n_per_mm"] == pytest.approx(k.min(), rel=1e-5) and report["feel_seconds"] > 0
+    assert {"feel_oval.csv", "feel_oval.png"} <= set(report["outputs"]) & set(manifest["files"])
+    assert "## Feel: oval" in (out / "report.md").read_text() and "N/mm" in (out / "report.md").read_text()
+    pxr = load_pxr()
+    stage = pxr.Usd.Stage.Open(str(out / "design.usda"))
+    var = pxr.UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/Scene/Membrane")).GetPrimvar(feel_primvar_name("oval"))
+    faces = np.asarray(var.Get())
+    assert var.GetInterpolation() == "uniform" and len(faces) == 320
+    assert np.all(np.min(np.abs(faces[:, None] / k[None] - 1.0), axis=1) < 1e-5)  # each face: a pressed point's
+    assert np.isclose(faces.min(), k.min(), rtol=1e-5) and np.isclose(faces.max(), k.max(), rtol=1e-5)
+    assert ws.load_scene(out / "design.usda").design.rest.n_vertices == 162  # the scene still reads
+    assert b"design/feel/oval/membrane" in rrd.read_bytes()  # the map's layer in the recording
 
 
 def test_a_viewer_that_fails_gets_a_word_of_our_own(tmp_path, monkeypatch, capsys):

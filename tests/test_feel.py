@@ -159,10 +159,16 @@ def test_jamming_stiffens_the_fig6_device_and_a_press_before_the_jam_leaves_a_de
 
 
 def test_feel_command_writes_a_map_per_target(tmp_path, capsys):
+    """The Fig. 6 device (162 vertices, so a 12 mm fingertip) saved as a design file, controlled to the cube."""
     from warp_shape.cli import main
+    from warp_shape.io.scene_schema import Scene
+    from warp_shape.io.scene_write import save_scene
 
+    scene = save_scene(Scene(design=cube_fig6_design(2), targets=[ws.target("cube")], target_names=["cube"]),
+                       tmp_path / "fig6.usda")
     out = tmp_path / "feel"
-    rc = main(["feel", "--points", "6", "--method", "paper", "--max-steps", "10", "--out", str(out), "--json"])
+    rc = main(["feel", str(scene), "--points", "6", "--radius", "0.012", "--method", "paper", "--max-steps", "10",
+               "--out", str(out), "--json"])
     assert rc == 0
     rows = (out / "feel_cube.csv").read_text().strip().splitlines()
     assert rows[0].startswith("point,direction_x") and 3 <= len(rows) - 1 <= 6  # the plug's directions left out
@@ -177,21 +183,21 @@ def test_feel_command_writes_a_map_per_target(tmp_path, capsys):
 def test_press_takes_a_control_result_and_the_spec_signatures():
     """SPEC section 16 as written: ws.press(sim, direction, depths, indenter=, radius=, world=) and
     ws.stiffness_map(sim_or_result, directions, depth=, radius=); a control result's final state replayed."""
-    design = ws.Design(ws.icosphere(3, 0.04))
+    design = ws.Design(ws.icosphere(2, 0.04))
     c = design.rest.face_centroids()
     design.add_ipam(0, int(np.argmin(c @ c[0])))
     res = ws.control(design, ws.target("oval"), method="paper", max_steps=6, max_settle_steps=2)
-    p = ws.press(res, (0, 0, 1), [0.001, 0.002], indenter="sphere", radius=0.008, world=0)
+    p = ws.press(res, (0, 0, 1), [0.001, 0.002], indenter="sphere", radius=0.016, world=0)
     for name in ("depth", "force", "stiffness", "pressure", "contact_area"):
         assert getattr(p, name).shape == (2,) and np.all(np.isfinite(getattr(p, name)))
-    assert p.positions.shape == (2, 642, 3) and p.force[1] > p.force[0] > 0
+    assert p.positions.shape == (2, 162, 3) and p.force[1] > p.force[0] > 0
     replayed = ws.Simulator(design, settings=res.settings.simulation)
     replayed.positions = ws.replay(design, res)
     replayed.air_moles = float(res.air_moles)
     replayed.ipam_pressures = res.ipam_pressures
-    again = ws.press(replayed, (0, 0, 1), [0.001, 0.002])
+    again = ws.press(replayed, (0, 0, 1), [0.001, 0.002], radius=0.016)
     np.testing.assert_allclose(again.force, p.force, rtol=1e-3)  # the same state: the result's final one
-    k = ws.stiffness_map(res, [(0, 0, 1), (1, 0, 0)], depth=0.002, radius=0.008)
+    k = ws.stiffness_map(res, [(0, 0, 1), (1, 0, 0)], depth=0.002, radius=0.016)
     assert k.shape == (2,) and k[0] == pytest.approx(p.stiffness[1], rel=1e-3)
 
 
@@ -217,3 +223,75 @@ def test_presses_at_the_extremes_give_finite_answers_or_a_clear_error_before_any
     with pytest.raises(DesignError, match="jammed cells included"):
         ws.press(sim, (0, 0, 1), [0.002], radius=0.016)
     assert sim.jammed[0] and np.all(np.isfinite(sim.positions))
+
+
+def test_stiffness_gradient_matches_central_differences():
+    """d stiffness / d (air, IPAM pressure, a cell's stiffness) at a press's equilibrium by the equilibrium's
+    adjoint against central differences of the stiffness itself (float64, settles to 1e-11 N), the finger held
+    where it is: air and cells within 1e-4, the IPAM's within 1e-3 (its effect is small: a 30 Pa step moves
+    the stiffness by about 1e-2 N/m, near the differences' noise)."""
+    design = ws.Design(ws.icosphere(2, 0.04))
+    c = design.rest.face_centroids()
+    design.add_ipam(int(np.argmax(c[:, 0] + 0.5 * c[:, 2])), int(np.argmin(c[:, 0] - 0.5 * c[:, 2])))
+    top = design.add_cell(np.flatnonzero(c[:, 2] > 0.03))
+    side = design.add_cell(np.flatnonzero(c[:, 0] > 0.03))
+    sim = ws.Simulator(design, precision="float64")
+    sim.air_moles *= 1.3
+    sim.ipam_pressures = [3000.0]
+    sim.settle_static()
+    sim.jam(top)
+    depth, radius, u = 0.002, 0.016, (0.2, 0.0, 1.0)
+    g = ws.stiffness_gradient(sim, u, depth=depth, radius=radius)
+    assert g.converged and 100 < g.stiffness < 200 and g.pressures.shape == (1,) and g.cells.shape == (2,)
+    setup, depths = feel.press_setup(sim, 0, u, "sphere", radius, [depth])
+    feel.press_path(setup, depths)
+    s = setup.sim
+    x0, a0, e0 = s.positions.copy(), s.air_moles, s.state.edge.numpy().copy()
+    h = feel.STIFFNESS_STEP
+
+    def k():
+        f = []
+        for d in (depth + h, depth - h):
+            feel.settle_at(setup, np.array([d]), 1e-11)
+            f.append(feel.measure(setup)["force"][0])
+            s.positions = x0
+        return (f[0] - f[1]) / (2 * h)
+
+    assert k() == pytest.approx(g.stiffness, rel=1e-5)
+
+    def central(set_, step):
+        set_(step)
+        up = k()
+        set_(-step)
+        down = k()
+        set_(0.0)
+        return (up - down) / (2 * step)
+
+    def air(e):
+        s.air_moles = a0 + e
+
+    def pressure(e):
+        s.ipam_pressures = [3000.0 + e]
+
+    def cell(i):
+        def scale(e):
+            edge = e0.copy()
+            edge[2:4, :, s.model.host.cell_edges[i]] *= np.exp(e)
+            s.state.edge.assign(edge)
+        return scale
+
+    assert g.air == pytest.approx(central(air, 1e-3 * a0), rel=1e-4)
+    assert g.pressures[0] == pytest.approx(central(pressure, 30.0), rel=1e-3)
+    assert g.cells[top] == pytest.approx(central(cell(top), 1e-3), rel=1e-4)  # the jammed cell under the finger
+    assert g.cells[side] == pytest.approx(central(cell(side), 1e-3), rel=1e-4)
+    assert g.cells[top] > 0  # a stiffer jammed skin under the finger: a stiffer feel
+
+
+
+def test_the_feel_report_names_points_with_no_positive_stiffness():
+    from warp_shape.io.feel_outputs import feel_report_section
+
+    points = np.zeros((3, 3))
+    assert "stiffness <= 0" not in feel_report_section("a", np.array([10.0, 20.0, 30.0]), 0.002, 0.008, points)
+    text = feel_report_section("a", np.array([-19.9, 20.0, 30.0]), 0.002, 0.008, points)
+    assert "1 point(s) read a stiffness <= 0" in text and "| softest | -0.0199" in text

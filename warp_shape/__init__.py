@@ -22,7 +22,7 @@ from .calibration.files import apply_calibration, read_calibration, write_calibr
 from .controller import (CONTROL_METHODS, LAWS, ControlResult, ControlSettings, control, control_many,
                          register_control_method, register_law, replay)
 from .design import Cell, Design, Ipam
-from .feel import Press, press, stiffness_map
+from .feel import Press, StiffnessGradient, press, stiffness_gradient, stiffness_map
 from .designer import PLACEMENTS, DesignResult, DesignSettings, Placement, design, register_placement
 from .gradients import GRADIENT_PARAMETERS, Gradient, gradient
 from .errors import DesignError, MeshError, SceneError, ShapeError, SimulationError, StabilityError, WarpShapeError

@@ -19,12 +19,14 @@ import warp as wp
 from .controller.replay import replay_simulator
 from .controller.result import ControlResult
 from .errors import DesignError, SimulationError
+from .gradients.equilibrium import EquilibriumGradient
 from .physics.contact import (DEFAULT_CONTACT_STIFFNESS, DEFAULT_RADIUS, KINDS, add_hold, add_indenter,
                               closest_weights_np, face_contact_np, indenter_force_one,
                               set_indenter_stiffness, surface_penetration_np)
 from .simulator import Simulator
 
 __all__ = ["Press", "press", "stiffness_map", "FeelMap", "feel_map", "pressable_directions", "press_setup",
+           "StiffnessGradient", "stiffness_gradient", "contact_force_gradient",
            "press_path", "vertex_areas", "plug_vertices",
            "surface_point", "PLUG_ANGLE",
            "MAX_INCREMENT", "STIFFNESS_STEP", "HOLD_STIFFNESS_FACTOR"]
@@ -39,12 +41,18 @@ STIFFNESS_STEP = 2.0e-5
 HOLD_STIFFNESS_FACTOR = 1.0e3
 #: the contact's stiffness in the first settle of each depth, as a fraction of its own
 SOFT_CONTACT = 0.05
+#: the residual vertex force (N) the softened first settle stops at: it only slides the membrane to its place
+#: (the full-stiffness settle after it converges to the precision's tolerance); 16 % fewer force evaluations
+#: than 1e-7 on a map of the Fig. 6 device (docs/feel.md)
+SOFT_TOLERANCE = 1.0e-5
 #: a press's settle leaving a larger residual vertex force than this (N) is an error
 RESIDUAL_LIMIT = 1.0e-4
 #: fresh starts of a settle left above ``RESIDUAL_LIMIT`` before a press gives up
 RESTARTS = 12
 #: the contact penalty must be at least this many times the membrane's stiffness per edge
 PENALTY_MARGIN = 100.0
+#: the residual vertex force (N) of the settles whose derivatives ``stiffness_gradient`` takes
+EQUILIBRIUM_TOLERANCE = 1.0e-10
 #: a vertex deeper than this (m) inside a plate counts as touching it (contact area)
 CONTACT_DEPTH = 1.0e-9
 #: bisection steps placing a fingertip's first touch of the surface
@@ -426,24 +434,24 @@ def set_depth(setup: PressSetup, depth: np.ndarray) -> None:
     sim.positions = x
 
 
-def settle_at(setup: PressSetup, depth: np.ndarray) -> None:
+def settle_at(setup: PressSetup, depth: np.ndarray, tolerance: float | None = None) -> None:
     """Settle every world with its indenter at depth (W,): first with the contact softened
-    (``SOFT_CONTACT``: the membrane slides over the indenter to its place), then at full stiffness (started
-    afresh up to ``RESTARTS`` times); a world left with a residual force over ``RESIDUAL_LIMIT`` raises
-    ``SimulationError``."""
+    (``SOFT_CONTACT``: the membrane slides over the indenter to its place; to ``SOFT_TOLERANCE``), then at full stiffness (started
+    afresh up to ``RESTARTS`` times; ``tolerance``: the full-stiffness settle's, N, None: the precision's);
+    a world left with a residual force over ``RESIDUAL_LIMIT`` raises ``SimulationError``."""
     set_depth(setup, depth)
     sim = setup.sim
     k = sim.model.host.actuators["indenter"]["stiffness"].copy()
     set_indenter_stiffness(sim.model, SOFT_CONTACT * k)
     try:
-        sim.settle_static()
+        sim.settle_static(SOFT_TOLERANCE)
     finally:
         set_indenter_stiffness(sim.model, k)
-    out = sim.settle_static()
+    out = sim.settle_static(tolerance)
     for _ in range(RESTARTS):  # a settle stopped at its floor above the limit starts again from where it is
         if np.all(out.residual <= RESIDUAL_LIMIT):
             break
-        out = sim.settle_static()
+        out = sim.settle_static(tolerance)
     bad = np.flatnonzero(out.residual > RESIDUAL_LIMIT)
     if bad.size:
         w = int(bad[0])
@@ -574,3 +582,126 @@ def pressable_directions(sim_or_result, count: int, world: int = 0, plug_angle: 
         hit = surface_point(x, faces, x.mean(axis=0), d)
         keep.append(hit is not None and not touches_plug(x, held, hit[0], 2.0 * radius))
     return dirs[np.asarray(keep, dtype=bool)]
+
+
+# ---------------------------------------------------------------------- how the controls move the stiffness
+@dataclass
+class StiffnessGradient:
+    """How the controls move the stiffness felt at one press. At ``depth`` (m from first touch): ``stiffness``
+    (N/m, dF/d depth by central differences of +-``STIFFNESS_STEP``, as ``press``), ``force`` (N) and the
+    chamber's gauge ``pressure`` (Pa); the stiffness's derivatives at that equilibrium, the finger held where
+    it is (its depth counted from the first touch of the state before the change), by implicit
+    differentiation: ``air`` (N/m per mol of air), ``pressures`` (n_ipam,) (N/m per Pa of each IPAM's gauge
+    pressure; 0 where an IPAM is disabled), ``cells`` (n_cells,) (N/m per unit of ln s, s a factor on the
+    stretch and bending stiffness of the cell's edges as the state holds them: for a jammed cell, its
+    jam's stiffening factor); ``converged``: every adjoint solve reached its tolerance."""
+
+    depth: float
+    stiffness: float
+    force: float
+    pressure: float
+    air: float
+    pressures: np.ndarray
+    cells: np.ndarray
+    converged: bool
+
+
+def contact_force_gradient(host: dict, x: np.ndarray, depth: float, i: int = 0, step: float = 1e-7) -> np.ndarray:
+    """(V, 3) dF/dx, F (N) the push of indenter ``i`` of ``host`` (the indenter family's host arrays) at
+    ``depth`` m on the vertices x (V, 3) along its press (-axis), faces included (``indenter_force_one``):
+    central differences of ``step`` m on the coordinates of the vertices of the faces within 1 mm of the
+    indenter (the law is smooth in x away from its kinks: exact to the differences' rounding there)."""
+    axis = np.asarray(host["axis"][i], dtype=np.float64)
+    c = np.asarray(host["origin"][i], dtype=np.float64) - depth * axis
+    x = np.asarray(x, dtype=np.float64)
+    if int(host["kind"][i]) == KINDS["plate"]:
+        near = (x - c) @ axis > -1e-3
+    else:  # the fingertip acts on faces: every vertex of a face that reaches within 1 mm of it
+        tri = x[host["faces"]]
+        reach = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=-1))
+        near = np.linalg.norm(x - c, axis=1) < float(host["radius"][i]) + reach + 1e-3
+
+    def push(y):
+        return -float(np.sum(indenter_force_one(host, i, y, depth) @ axis))
+
+    g = np.zeros_like(x)
+    for v in np.flatnonzero(near):
+        for k in range(3):
+            y = x.copy()
+            y[v, k] += step
+            up = push(y)
+            y[v, k] -= 2 * step
+            g[v, k] = (up - push(y)) / (2 * step)
+    return g
+
+
+def force_gradient(setup: PressSetup, eg: EquilibriumGradient, depth: float, tolerance: float, guess=None):
+    """At the press's settled state at ``depth``: (F N, gauge pressure Pa, dF/d air, dF/d IPAM pressures,
+    dF/d edge fields (4, E), the solve's ControlGradient) by the equilibrium's adjoint."""
+    sim = setup.sim
+    x = sim.positions.reshape(-1, 3).astype(np.float64)
+    host = sim.model.host
+    enabled = sim.control.enabled["ipam"].numpy()[0, :host.n_ipams].astype(bool) if host.n_ipams else None
+    eg.load(x, sim.state.edge.numpy()[:, 0].astype(np.float64), float(sim.air_moles),
+            np.atleast_2d(sim.ipam_pressures)[0] if host.n_ipams else np.zeros(0), enabled,
+            controls={"indenter": np.array([depth])})
+    eg.add_to_preconditioner(contact_stiffness_diagonal(sim, x, depth))
+    cg = eg.control_gradient(contact_force_gradient(host.actuators["indenter"], x, depth), tolerance=tolerance,
+                             guess=guess)
+    return float(measure(setup)["force"][0]), eg.gauge_pressure(), cg
+
+
+def contact_stiffness_diagonal(sim: Simulator, x: np.ndarray, depth: float, i: int = 0) -> np.ndarray:
+    """(V,) the hold's and indenter ``i``'s stiffness on the vertices they act on (N/m): their part of the
+    adjoint solve's preconditioner."""
+    host = sim.model.host
+    d = np.zeros(len(x))
+    hold = host.actuators["hold"]
+    np.add.at(d, np.asarray(hold["vertex"]), np.asarray(hold["stiffness"], dtype=np.float64))
+    ind = host.actuators["indenter"]
+    axis = np.asarray(ind["axis"][i], dtype=np.float64)
+    c = np.asarray(ind["origin"][i], dtype=np.float64) - depth * axis
+    if int(ind["kind"][i]) == KINDS["plate"]:
+        pen = (x - c) @ axis
+    else:
+        pen = float(ind["radius"][i]) - np.linalg.norm(x - c, axis=1)
+    d[pen > -2e-4] += float(ind["stiffness"][i])
+    return d
+
+
+def stiffness_gradient(sim_or_result, direction, depth: float = 0.002, radius: float = DEFAULT_RADIUS,
+                       indenter: str = "sphere", world: int = 0, plug_angle: float | None = None,
+                       tolerance: float = 1e-11) -> StiffnessGradient:
+    """The stiffness a fingertip (or palm) pressed ``depth`` m along -``direction`` feels (as ``press``) and its
+    derivatives with respect to the air, the IPAM pressures and each cell's stiffness (a jam's), at that
+    equilibrium by implicit differentiation (``gradients.equilibrium``: K mu = dF/dx, dF/du = mu^T dR/du,
+    R the net force), at the two settled depths of the stiffness's central difference (settled to
+    ``EQUILIBRIUM_TOLERANCE``). ``tolerance``: the adjoint solves' relative residual (the stiffness's
+    derivative is a difference of two nearly equal force derivatives, so it needs a tight one)."""
+    src = source_simulator(sim_or_result, world)
+    setup, depths = press_setup(src, world if isinstance(sim_or_result, Simulator) else 0, direction, indenter,
+                                radius, [depth], plug_angle=plug_angle)
+    if setup.sim.worlds != 1:
+        raise DesignError("stiffness_gradient takes one direction (a 3-vector)")
+    sim = setup.sim
+    press_path(setup, depths)  # the state at depth
+    eg = EquilibriumGradient(sim.model.host, sim.design.material, sim.device)
+    x0 = sim.positions.copy()
+    rows, guess = [], None
+    lo = max(float(depths[0]) - STIFFNESS_STEP, 0.0)
+    for d in (float(depths[0]) + STIFFNESS_STEP, lo):
+        settle_at(setup, np.array([d]), EQUILIBRIUM_TOLERANCE)
+        f, p, cg = force_gradient(setup, eg, d, tolerance, guess)
+        guess = cg.adjoint
+        rows.append((f, p, cg, eg.edge.grad.numpy()[:, 0].astype(np.float64)))
+        sim.positions = x0
+    sim.set_actuator_controls("indenter", np.array([[depths[0]]]))
+    h = float(depths[0]) + STIFFNESS_STEP - lo
+    (f1, p1, c1, e1), (f0, p0, c0, e0) = rows
+    edge = sim.state.edge.numpy()[:, 0].astype(np.float64)
+    de = (e1 - e0) / h * edge  # dk / d ln(edge field)
+    cells = np.array([float(de[2, c].sum() + de[3, c].sum()) for c in sim.model.host.cell_edges])
+    return StiffnessGradient(depth=float(depths[0]), stiffness=(f1 - f0) / h, force=float(measure(setup)["force"][0]),
+                             pressure=0.5 * (p0 + p1), air=(c1.air - c0.air) / h,
+                             pressures=(c1.pressures - c0.pressures) / h, cells=cells,
+                             converged=bool(c0.converged and c1.converged))

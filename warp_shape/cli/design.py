@@ -21,6 +21,7 @@ from ..designer import PLACEMENTS, design
 from ..designer.settings import CODESIGN_MODES
 from ..designer.run_settings import RunSettings
 from ..errors import DesignError
+from ..feel import feel_map, pressable_directions
 from ..interrupts import held_interrupts
 from ..io.atomic import StagedFolder
 from ..io.figures import prepare_drawing
@@ -70,6 +71,14 @@ def register(subparsers) -> None:
                    help="jamming layer (outer mold offset), m (at most half the device's radius)")
     d.add_argument("--marker-height", type=float, default=2e-3, metavar="M",
                    help="IPAM marker height on the inner mold, m (0: none; at most a quarter of the device's radius)")
+    add_bounded(d, "--feel", 4, 4096, type=int, nargs="?", const=64, default=None, metavar="POINTS",
+                help="also map what a fingertip feels on each controlled shape: POINTS presses (default 64) of "
+                     "--feel-depth by a --feel-radius sphere, one per world (feel_<target>.png|csv, a report section, "
+                     "a primvar on design.usda; costly: on CPU a 64-point map of a 642-vertex shape takes minutes, "
+                     "docs/feel.md)")
+    add_bounded(d, "--feel-depth", 1e-5, 0.02, type=float, default=0.002, metavar="M", help="--feel's press depth, m")
+    add_bounded(d, "--feel-radius", 1e-3, 0.05, type=float, default=0.008, metavar="M",
+                help="--feel's fingertip radius, m")
     add_units_arg(d)
     add_workers_arg(d)
     add_timing_args(d)
@@ -198,14 +207,30 @@ def _keep_interrupted(staged, rounds_done: int) -> None:
               f"{str(complete).lower()})", file=sys.stderr)
 
 
-def _write_outputs(res, args, staged, wall: float, timing) -> list:
-    """Every output of the finished design into the staging folder: the paths written. Ctrl-C keeps
-    what is finished (``_keep_interrupted``)."""
+def feel_maps(res, args) -> dict:
+    """{target: FeelMap} of every controlled shape of the design (``--feel``), or {} without the flag."""
+    if args.feel is None:
+        return {}
+    return {name: feel_map(r, pressable_directions(r, args.feel, radius=args.feel_radius), args.feel_depth,
+                           args.feel_radius) for name, r in zip(res.target_names, res.results)}
+
+
+def _write_outputs(res, args, staged, wall: float, timing, rec=None) -> list:
+    """Every output of the finished design into the staging folder (with ``--feel`` the stiffness maps, timed
+    as ``feel_seconds``, also into the recording ``rec``): the paths written. Ctrl-C keeps what is finished
+    (``_keep_interrupted``)."""
     try:
+        t0 = time.perf_counter()
+        maps = feel_maps(res, args)
+        extra = dict(complete=True, wall_seconds=wall, device=args.device)
+        if maps:
+            extra["feel_seconds"] = time.perf_counter() - t0
         written = write_design_outputs(res, staged.path, marker_height=args.marker_height,
                                        layer_thickness=args.layer_thickness, kept=["rounds.json", "manifest.json"],
-                                       extra_report=dict(complete=True, wall_seconds=wall, device=args.device),
-                                       timing=timing)
+                                       extra_report=extra, timing=timing, feel=maps)
+        if rec is not None:
+            for name, fm in maps.items():
+                rec.log_feel_map(name, res.design.rest.faces, fm)
         stop_if_interrupted()
         return written
     except KeyboardInterrupt:
@@ -244,7 +269,7 @@ def run(args) -> int:
             res = _run_designer(args, base, named, run_opts, staged, bar, rec)
             wall = time.perf_counter() - t0
             bar.writing_outputs()
-            written = _write_outputs(res, args, staged, wall, timing)
+            written = _write_outputs(res, args, staged, wall, timing, rec)
             if rec is not None:  # the report's figures, the same images, in the recording
                 rec.log_figures([p for p in written if p.suffix == ".png"])
         out = _commit(staged, args)

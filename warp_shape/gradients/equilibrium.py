@@ -119,6 +119,12 @@ class EquilibriumGradient:
                 a.assign(np.zeros(a.shape, dtype=a.numpy().dtype) if given is None
                          else np.asarray(given).astype(a.numpy().dtype).reshape(a.shape))
 
+    def add_to_preconditioner(self, stiffness: np.ndarray) -> None:
+        """Add a per-vertex stiffness (V,) N/m to the loaded point's preconditioner: the part of a force family
+        the membrane's estimate does not see (a hold, a contact), so that the solve does not slow where it is
+        stiff."""
+        self._diag = self._diag + np.asarray(stiffness, dtype=np.float64).reshape(self.V)
+
     def _forward(self) -> None:
         """One force evaluation at the point: forces without pressure and dV/dx (fg), the volume."""
         self.fg.zero_()

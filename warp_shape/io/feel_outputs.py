@@ -11,8 +11,12 @@ from pathlib import Path
 import numpy as np
 
 from .atomic import atomic_write
+from .scene_schema import MEMBRANE, ROOT_NAME
+from .scene_write import write_stage_atomic
+from .usd_common import load_pxr
 
-__all__ = ["FEEL_COLUMNS", "feel_rows", "write_feel_csv", "feel_figure", "feel_report_section", "face_stiffness"]
+__all__ = ["FEEL_COLUMNS", "feel_rows", "write_feel_csv", "feel_figure", "feel_report_section", "face_stiffness",
+           "feel_summary", "feel_primvar_name", "add_feel_primvars", "write_feel_maps"]
 
 FEEL_COLUMNS = ["point", "direction_x", "direction_y", "direction_z", "x_m", "y_m", "z_m", "stiffness_n_per_mm"]
 
@@ -88,10 +92,61 @@ def cell_borders(positions: np.ndarray, faces: np.ndarray, face_cell: np.ndarray
 
 
 def feel_report_section(name: str, stiffness: np.ndarray, depth: float, radius: float, points: np.ndarray) -> str:
-    """A Markdown section: the map's spread and where it is softest and stiffest."""
+    """A Markdown section: the map's spread (N/mm) and where it is softest and stiffest (mm)."""
     k = np.asarray(stiffness) / 1000.0
     lo, hi = int(np.argmin(k)), int(np.argmax(k))
     return (f"## Feel: {name}\n\n{len(k)} points pressed {depth * 1e3:.3g} mm by a {radius * 1e3:.3g} mm fingertip "
-            f"(the device held at its plug).\n\n| | N/mm |\n|---|---|\n| softest | {k[lo]:.4f} at "
+            f"(the device held at its plug; stiffness dF/d depth in N/mm, points in mm).\n\n| | N/mm |\n|---|---|\n"
+            f"| softest | {k[lo]:.4f} at "
             f"({', '.join(f'{v * 1e3:.1f}' for v in points[lo])}) mm |\n| median | {np.median(k):.4f} |\n"
-            f"| stiffest | {k[hi]:.4f} at ({', '.join(f'{v * 1e3:.1f}' for v in points[hi])}) mm |\n")
+            f"| stiffest | {k[hi]:.4f} at ({', '.join(f'{v * 1e3:.1f}' for v in points[hi])}) mm |\n"
+            + (f"\n{int(np.sum(k <= 0))} point(s) read a stiffness <= 0: there the vertices in contact change "
+               "within the stiffness's central difference or the membrane buckles "
+               "under the finger; not what a hand feels (docs/feel.md).\n" if np.any(k <= 0) else ""))
+
+
+def feel_summary(fm) -> dict:
+    """A map (``feel.FeelMap``) as JSON-ready data, each key naming its unit."""
+    k = np.asarray(fm.stiffness, dtype=np.float64) / 1000.0
+    return dict(points=len(k), depth_m=float(fm.depth), radius_m=float(fm.radius),
+                min_n_per_mm=float(k.min()), median_n_per_mm=float(np.median(k)), max_n_per_mm=float(k.max()),
+                stiffness_n_per_mm=[float(v) for v in k], points_m=np.asarray(fm.points, dtype=np.float64).tolist())
+
+
+def feel_primvar_name(target: str) -> str:
+    """The membrane's primvar holding a target's map: ``feel_stiffness_n_per_mm_<target>`` (characters other
+    than letters, digits and _ as _)."""
+    return "feel_stiffness_n_per_mm_" + "".join(c if c.isalnum() or c == "_" else "_" for c in target)
+
+
+def add_feel_primvars(usd_path, faces: np.ndarray, maps: dict) -> Path:
+    """Per target of ``maps`` ({name: FeelMap}) a uniform (per face) primvar ``feel_primvar_name(name)`` on the
+    membrane of the scene at ``usd_path``: each face's stiffness in N/mm (that of the point pressed nearest its
+    direction from the centroid of the controlled shape, as the figure colours it); rewritten atomically."""
+    pxr = load_pxr()
+    stage = pxr.Usd.Stage.Open(str(usd_path))
+    prim = stage.GetPrimAtPath(f"/{ROOT_NAME}/{MEMBRANE}")
+    pv = pxr.UsdGeom.PrimvarsAPI(prim)
+    for name, fm in maps.items():
+        k = face_stiffness(np.asarray(fm.positions), faces, np.asarray(fm.points), np.asarray(fm.stiffness)) / 1000.0
+        var = pv.CreatePrimvar(feel_primvar_name(name), pxr.Sdf.ValueTypeNames.FloatArray, pxr.UsdGeom.Tokens.uniform)
+        var.Set(pxr.Vt.FloatArray.FromNumpy(k.astype(np.float32)))
+        var.GetAttr().SetDocumentation(f"fingertip stiffness in N/mm of the shape controlled to {name}: "
+                                       f"{fm.radius * 1e3:.3g} mm fingertip, {fm.depth * 1e3:.3g} mm deep")
+    return write_stage_atomic(stage, usd_path)
+
+
+def write_feel_maps(folder, maps: dict, faces: np.ndarray, face_cell: np.ndarray) -> tuple[list, str]:
+    """Per target of ``maps`` ({name: FeelMap}) ``feel_<name>.csv`` and ``feel_<name>.png`` in ``folder``:
+    (paths written, the report's Markdown sections)."""
+    folder = Path(folder)
+    written, sections = [], []
+    for name, fm in maps.items():
+        written.append(write_feel_csv(folder / f"feel_{name}.csv", fm.directions, fm.points, fm.stiffness))
+        try:
+            written.append(feel_figure(folder / f"feel_{name}.png", fm.positions, faces, face_cell, fm.points,
+                                       fm.stiffness, title=f"{name}: fingertip stiffness at {fm.depth * 1e3:.3g} mm"))
+        except ImportError:  # matplotlib missing: the CSV and the report carry the map
+            pass
+        sections.append(feel_report_section(name, fm.stiffness, fm.depth, fm.radius, fm.points))
+    return written, "\n".join(sections)

@@ -19,6 +19,7 @@ import numpy as np
 from ..designer.run_settings import RunSettings
 from ..molds import mold_set
 from .atomic import atomic_write, write_json
+from .feel_outputs import add_feel_primvars, feel_summary, write_feel_maps
 from .figures import write_figures
 from .report import design_markdown
 from .scene_schema import Scene
@@ -34,7 +35,7 @@ __all__ = ["control_csv_text", "control_json_data", "write_control_usd", "write_
 #: part of a run's set, even in a folder written before manifests existed). Add new outputs here.
 RUN_OUTPUT_NAMES = ("design.usda", "report.json", "report.md", "rounds.json", "pcc_by_round.png", "pcc_by_round.svg",
                     "rest_shape.png", "rest_shape.svg", "manifest.json")
-RUN_OUTPUT_PREFIXES = ("control_", "actuation_", "mold_", "molds_", "valve_", "fit_")
+RUN_OUTPUT_PREFIXES = ("control_", "actuation_", "mold_", "molds_", "valve_", "fit_", "feel_")
 
 
 def is_run_output(name: str) -> bool:
@@ -156,14 +157,18 @@ def write_figures_or_skip(result, out_dir, target_names=None, timing=None) -> li
 
 
 def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickness: float,
-                         extra_report: dict | None = None, kept=(), timing=None) -> list[Path]:
+                         extra_report: dict | None = None, kept=(), timing=None,
+                         feel: dict | None = None) -> list[Path]:
     """Every output of a finished design: ``design.usda`` (the design, its targets, its run settings
     (``RunSettings.groups``) and each target's actuator selection), per target the control sequence (CSV, JSON), the valve-ready
     sequence (``valve_<name>.csv|json``) and ``actuation_<name>.usdc``, the molds, the figures,
     ``report.md`` and ``report.json`` (the result's report, ``extra_report`` entries and the list of
     outputs, with the names in ``kept``: files of the run already in ``out_dir`` such as
     ``rounds.json``), written last. ``timing``: the lab's clock of the valve CSV, the USD animations
-    and the figures (``io.valve.ValveTiming``, default 5 mL/s, 100 kPa/s, 50 Hz)."""
+    and the figures (``io.valve.ValveTiming``, default 5 mL/s, 100 kPa/s, 50 Hz). ``feel``: {target: FeelMap}
+    of the controlled shapes (``warp-shape design --feel``): per target ``feel_<name>.csv|png``, a primvar
+    ``feel_stiffness_n_per_mm_<name>`` on ``design.usda``'s membrane, a section of ``report.md`` and
+    ``report.json["feel"]`` (keys with units)."""
     out = Path(out_dir)
     names = result.target_names
     settings = RunSettings(control=result.control_settings, designer=result.settings,
@@ -176,9 +181,17 @@ def write_design_outputs(result, out_dir, *, marker_height: float, layer_thickne
     written += write_molds(result.design, out, marker_height=marker_height, layer_thickness=layer_thickness)
     figures = write_figures_or_skip(result, out, timing=timing)
     written += figures
+    feel_md = ""
+    if feel:
+        add_feel_primvars(out / "design.usda", result.design.rest.faces, feel)
+        feel_files, feel_md = write_feel_maps(out, feel, result.design.rest.faces, result.design.face_cell())
+        written += feel_files
     report = result.report()
     report.update(extra_report or {})
+    if feel:
+        report["feel"] = {name: feel_summary(fm) for name, fm in feel.items()}
     report["outputs"] = sorted({p.name for p in written} | {"report.json", "report.md"} | set(kept))
-    written.append(atomic_write(out / "report.md", design_markdown(result, [p.name for p in figures])))
+    markdown = design_markdown(result, [p.name for p in figures])
+    written.append(atomic_write(out / "report.md", markdown + ("\n" + feel_md if feel_md else "")))
     written.append(write_json(out / "report.json", report))
     return written

@@ -443,6 +443,27 @@ class Recorder:
         for p in paths:
             self.stream.log(f"design/figures/{Path(p).stem}", self._rr.EncodedImage(path=str(p)), static=True)
 
+    def log_feel_map(self, name: str, faces: np.ndarray, fm) -> None:
+        """A stiffness map (``feel.FeelMap``) of the shape controlled to ``name``: ``design/feel/<name>/membrane``
+        (the shape, each vertex coloured by the stiffness of the point pressed nearest its direction from the
+        centroid, dark blue the softest to yellow the stiffest), ``.../points`` (the points pressed) and
+        ``.../stiffness_n_per_mm`` (their range as text)."""
+        rr = self._rr
+        x, p = np.asarray(fm.positions, np.float64), np.asarray(fm.points, np.float64)
+        k = np.asarray(fm.stiffness, np.float64) / 1000.0
+        c = x.mean(axis=0)
+        u = (x - c) / np.linalg.norm(x - c, axis=1, keepdims=True)
+        q = (p - c) / np.linalg.norm(p - c, axis=1, keepdims=True)
+        t = (k - k.min()) / max(float(np.ptp(k)), 1e-12)
+        colors = np.stack([68 + 185 * t, 1 + 230 * t, 84 - 47 * t, np.full_like(t, 255)], axis=1).astype(np.uint8)
+        base = f"design/feel/{name}"
+        self.stream.log(f"{base}/membrane", rr.Mesh3D(vertex_positions=x, triangle_indices=faces,
+                                                      vertex_colors=colors[np.argmax(u @ q.T, axis=1)]), static=True)
+        self.stream.log(f"{base}/points", rr.Points3D(p, colors=colors, radii=5e-4), static=True)
+        self.stream.log(f"{base}/stiffness_n_per_mm", rr.TextDocument(
+            f"{name}: fingertip ({fm.radius * 1e3:.3g} mm, {fm.depth * 1e3:.3g} mm deep) stiffness "
+            f"{k.min():.4f} .. {k.max():.4f} N/mm, median {np.median(k):.4f} N/mm"), static=True)
+
     def log_calibration(self, result) -> None:
         """A calibration's residual maps (``CalibrationResult.residuals``): per scan ``calibration/<k>`` the
         replayed membrane coloured by the signed residual (blue inside, red outside, white 0, grey where
