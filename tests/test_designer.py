@@ -71,12 +71,11 @@ def test_paper_placement_uses_every_actuator_and_ends_far_below_no_actuators(cub
 @pytest.fixture(scope="module")
 def default_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("out")
-    # the command's default problem (targets, actuators, placement, controller) on a 162-vertex base, a
-    # worker per core (the suite's WARP_SHAPE_WORKERS=1 would make 0 one process); without the refinement
-    # rounds and co-design, which tests/test_placement.py and tests/test_codesign.py (its command test)
-    # check: these tests check the job's rounds and outputs
+    # the command's default problem (targets, actuators, placement, controller, co-design) on a 162-vertex
+    # base, a worker per core (the suite's WARP_SHAPE_WORKERS=1 would make 0 one process); without the
+    # refinement rounds, which tests/test_placement.py checks: these tests check the job's rounds and outputs
     rc = main(["design", "--out", str(out), "--workers", str(available_cores()), "--subdivisions", "2",
-               "--refine-rounds", "0", "--codesign", "off"])
+               "--refine-rounds", "0"])
     return rc, out
 
 
