@@ -71,8 +71,11 @@ def test_paper_placement_uses_every_actuator_and_ends_far_below_no_actuators(cub
 @pytest.fixture(scope="module")
 def default_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("out")
-    # the command's default, a worker per core (the suite's WARP_SHAPE_WORKERS=1 would make 0 one process)
-    rc = main(["design", "--out", str(out), "--workers", str(available_cores())])
+    # the command's default problem (targets, actuators, placement, controller, co-design) on a 162-vertex
+    # base, a worker per core (the suite's WARP_SHAPE_WORKERS=1 would make 0 one process); without the
+    # refinement rounds, which tests/test_placement.py checks: these tests check the job's rounds and outputs
+    rc = main(["design", "--out", str(out), "--workers", str(available_cores()), "--subdivisions", "2",
+               "--refine-rounds", "0"])
     return rc, out
 
 
@@ -253,7 +256,7 @@ def test_four_targets_twenty_actuators_fit_at_least_as_well_as_five():
 def test_interrupted_design_keeps_finished_rounds(tmp_path, ctrl_c_in_round_1, capsys):
     """Ctrl-C during round 1 keeps round 0's report and control sequences, whole."""
     out = tmp_path / "out"
-    rc = main(["design", "--out", str(out), "--actuators", "2"])
+    rc = main(["design", "--out", str(out), "--actuators", "2", "--subdivisions", "2"])  # 162 vertices: the rounds kept
     assert rc == 130 and "interrupted" in capsys.readouterr().err
     report = json.loads((out / "report.json").read_text())
     assert report["complete"] is False and report["rounds_done"] == 1
