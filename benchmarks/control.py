@@ -19,7 +19,7 @@ from warp_shape.controller.laws import PaperLaw
 from warp_shape.controller import loop as control_loop
 from warp_shape.controller.loop import run_law
 from warp_shape.controller.observe import Observer
-from warp_shape.design import Design
+from warp_shape.display import Design
 from warp_shape.designer import design
 from warp_shape.io.scene_read import load_scene
 from warp_shape.sampling import RadialSampler

@@ -16,7 +16,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from warp_shape.controller import control, replay
+from warp_shape.controller import control, open_loop
 from warp_shape.gradients import gradient
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.targets import target

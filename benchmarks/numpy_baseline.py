@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warp_shape.design import Design
+from warp_shape.display import Design
 from warp_shape.errors import DesignError
 from warp_shape.material import GAS_CONSTANT
 from warp_shape.model import host_model

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from warp_shape.design import Design
+from warp_shape.display import Design
 from warp_shape.material import Material
 from warp_shape.mesh import icosphere
 from warp_shape.simulator import Simulator

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from warp_shape.controller import control
-from warp_shape.equilibrium import FORCE_TOLERANCE
+from warp_shape.static_settle import FORCE_TOLERANCE
 from warp_shape.sampling import radial_sample
 from warp_shape.scenarios import cube_fig6_design
 from warp_shape.simulator import Simulator

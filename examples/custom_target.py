@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 import warp_shape as ws
-from warp_shape.designer.settings import CODESIGN_MODES
+from warp_shape.designer.design_settings import CODESIGN_MODES
 
 
 def write_egg(path: Path) -> Path:

@@ -9,7 +9,7 @@ time where the radial error is largest, controlling the device to both targets a
 import argparse
 
 import warp_shape as ws
-from warp_shape.designer.settings import CODESIGN_MODES
+from warp_shape.designer.design_settings import CODESIGN_MODES
 
 
 def main(argv=None) -> dict:

@@ -23,11 +23,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-from warp_shape.design import Design
+from warp_shape.display import Design
 from warp_shape.material import Material
 from warp_shape.mesh import icosphere
 from warp_shape.scenarios import cube_fig6_design
-from warp_shape.settings import SimulationSettings
+from warp_shape.simulation_settings import SimulationSettings
 from warp_shape.io.scene_schema import Scene
 from warp_shape.io.scene_write import save_scene
 from warp_shape.targets import TARGET_NAMES, target

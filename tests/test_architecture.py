@@ -11,6 +11,7 @@ grow in number.
 from __future__ import annotations
 
 import ast
+import inspect
 from pathlib import Path
 
 import pytest
@@ -21,11 +22,11 @@ MAX_FUNCTION_LINES = 80
 #: (module prefix, layer); the longest matching prefix wins
 LAYERS = [
     ("warp_shape.kernels", 0),
-    ("warp_shape.errors", 1), ("warp_shape.interrupts", 1), ("warp_shape.registry", 1), ("warp_shape.settings", 1),
+    ("warp_shape.errors", 1), ("warp_shape.interrupts", 1), ("warp_shape.registry", 1), ("warp_shape.simulation_settings", 1),
     ("warp_shape.material", 1), ("warp_shape.mesh", 1), ("warp_shape.limits", 1),
-    ("warp_shape.force_family", 2), ("warp_shape.design", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
+    ("warp_shape.force_family", 2), ("warp_shape.display", 2), ("warp_shape.model", 2), ("warp_shape.physics", 2), ("warp_shape.forces", 2),
     ("warp_shape.integrators", 2), ("warp_shape.crossing", 2), ("warp_shape.stability", 2), ("warp_shape.step_plan", 2),
-    ("warp_shape.equilibrium", 2),
+    ("warp_shape.static_settle", 2),
     ("warp_shape.simulator", 2),
     ("warp_shape.targets", 3), ("warp_shape.sampling", 3), ("warp_shape.scan", 3), ("warp_shape.objectives", 3),
     ("warp_shape.controller", 4), ("warp_shape.gradients", 4), ("warp_shape.feel", 4),
@@ -291,7 +292,7 @@ def test_host_design_imports_no_kernel():
     """``Design`` (the host-side description) and what it imports, their packages included, reach no
     Warp kernel module: the float64 laws it uses live in kernel-free modules of their family."""
     graph = import_graph()
-    seen, todo = set(), ["warp_shape.design"]
+    seen, todo = set(), ["warp_shape.display"]
     while todo:
         m = todo.pop()
         if m in seen:
@@ -300,7 +301,7 @@ def test_host_design_imports_no_kernel():
         parents = [".".join(m.split(".")[:n]) for n in range(2, m.count(".") + 1)]
         todo += [t for t in list(graph.get(m, ())) + parents if t in MODULES]
     kernels = sorted(m for m in seen if layer_of(m) == 0)
-    assert not kernels, f"warp_shape.design reaches the kernel modules {kernels}"
+    assert not kernels, f"warp_shape.display reaches the kernel modules {kernels}"
 
 
 # ------------------------------------------------------------------------------------ imports inside functions
@@ -336,3 +337,22 @@ def test_function_level_imports_do_not_grow():
     assert len(found) <= MAX_FUNCTION_LEVEL_IMPORTS, (
         f"{len(found)} project imports inside functions (at most {MAX_FUNCTION_LEVEL_IMPORTS}); move new ones to "
         f"the module's top:\n" + "\n".join(found))
+
+
+def test_no_two_modules_share_a_name():
+    """A module's name says what it holds: the names that once meant three things (three ``replay``,
+    two ``equilibrium``, three ``settings``) are one module or none, and no top-level module has the
+    name of a public function (``import warp_shape.design`` gave the ``ws.design`` function)."""
+    import warp_shape as ws
+
+    stems = {}
+    for path in (ROOT / "warp_shape").rglob("*.py"):
+        if path.name != "__init__.py" and "cli" not in path.relative_to(ROOT / "warp_shape").parts:
+            stems.setdefault(path.stem, []).append(path.relative_to(ROOT).as_posix())
+    for name in ("replay", "equilibrium", "settings"):
+        assert len(stems.get(name, [])) <= 1, f"{name}: {stems[name]}"
+    functions = [n for n in dir(ws) if not n.startswith("_") and inspect.isfunction(getattr(ws, n))]
+    assert "design" in functions
+    shadowed = [n for n in functions if (ROOT / "warp_shape" / f"{n}.py").exists()
+                or (ROOT / "warp_shape" / n / "__init__.py").exists()]
+    assert not shadowed, f"modules named as public functions: {shadowed}"

@@ -12,7 +12,7 @@ import warp_shape as ws
 from warp_shape.controller import ControlSettings, control, control_many
 from warp_shape.io.outputs import write_control_outputs, write_control_usd
 from warp_shape.scenarios import cube_fig6_design
-from warp_shape.settings import SimulationSettings
+from warp_shape.simulation_settings import SimulationSettings
 
 
 @pytest.fixture(scope="module")

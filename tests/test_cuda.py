@@ -17,7 +17,7 @@ from launch_counter import LaunchCounter
 
 import warp_shape as ws
 from warp_shape.sampling import RadialSampler, check_star_shaped
-from warp_shape.settings import SimulationSettings
+from warp_shape.simulation_settings import SimulationSettings
 
 DEVICE = os.environ.get("WARP_SHAPE_CUDA_TEST_DEVICE") or ("cuda:0" if wp.is_cuda_available() else None)
 ON_CUDA = DEVICE is not None and DEVICE.startswith("cuda")

@@ -1,4 +1,4 @@
-"""The quasi-static settle (warp_shape.equilibrium): the equilibrium of the held controls, against the
+"""The quasi-static settle (warp_shape.static_settle): the equilibrium of the held controls, against the
 RK4 settle (shapes within 10 um, fit objectives within 1e-4) on the shipped designs and generated
 targets, the energy's gradient zero there (finite differences), rigid modes held, the step's guards."""
 
@@ -15,7 +15,7 @@ from warp_shape.errors import DesignError, SimulationError
 from warp_shape.model import host_model
 from warp_shape.sampling import RadialSampler
 from warp_shape.scenarios import cube_fig6_design
-from warp_shape.settings import SimulationSettings
+from warp_shape.simulation_settings import SimulationSettings
 
 SHAPE_TOL = 10e-6  # m
 OBJECTIVE_TOL = 1e-4

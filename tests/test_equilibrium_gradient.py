@@ -10,13 +10,13 @@ import pytest
 import warp as wp
 
 import warp_shape as ws
-from warp_shape.controller.settings import ControlSettings
+from warp_shape.controller.control_settings import ControlSettings
 from warp_shape.errors import DesignError
 from warp_shape.gradients.equilibrium import EquilibriumGradient
 from warp_shape.model import host_model
 from warp_shape.objectives.radial import fit_objective_and_gradient
 from warp_shape.scenarios import cube_fig6_design
-from warp_shape.settings import SimulationSettings
+from warp_shape.simulation_settings import SimulationSettings
 from warp_shape.simulator import Simulator
 
 SETTLE = 1e-10  # N, the static settle's residual: far below the finite differences' signal

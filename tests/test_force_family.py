@@ -23,7 +23,7 @@ from toy_family import TENDON, add_tendon
 from warp_shape.errors import DesignError
 from warp_shape.gradients import DifferentiableReplay
 from warp_shape.objectives.radial import fit_objective_and_gradient
-from warp_shape.settings import SimulationSettings
+from warp_shape.simulation_settings import SimulationSettings
 
 RTOL = 1e-4
 

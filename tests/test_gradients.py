@@ -15,10 +15,10 @@ import warp_shape as ws
 from warp_shape.calibration import apply_values
 from warp_shape.gradients import DifferentiableReplay
 from warp_shape.gradients.api import replay_gradient
-from warp_shape.gradients.replay import plan_replay
+from warp_shape.gradients.differentiable_replay import plan_replay
 from warp_shape.objectives.radial import fit_objective_and_gradient
 from warp_shape.scenarios import cube_fig6_design
-from warp_shape.settings import SimulationSettings
+from warp_shape.simulation_settings import SimulationSettings
 from conftest import with_pressure_max
 
 RTOL = 1e-4

@@ -13,7 +13,7 @@ from generated_shapes import NAMES, shape
 from warp_shape.controller import ControlSettings, control, control_many
 from warp_shape.controller.gauss_newton import bounded_step
 from warp_shape.controller.inverse import control_inverse
-from warp_shape.controller.replay import replay
+from warp_shape.controller.open_loop import replay
 from warp_shape.objectives.radial import fit_objective
 from warp_shape.scenarios import cube_fig6_design
 
@@ -176,7 +176,7 @@ def test_bad_method_and_plans_are_refused(fig6):
 
 def test_designer_rounds_before_the_last_use_a_cheaper_control():
     from warp_shape.designer import DesignSettings
-    from warp_shape.designer.settings import round_control_settings
+    from warp_shape.designer.design_settings import round_control_settings
 
     full = ControlSettings()
     assert round_control_settings(full, "law").method == "paper"  # the warm-start law

@@ -179,7 +179,7 @@ def _designs_with(n_ipams: int):
     starts from (heart alone for 1, oval and heart for 4, the four targets for 20), each IPAM joining
     the faces nearest to a pair of opposite directions spread over the sphere (no design run)."""
     import warp_shape as ws
-    from warp_shape.design import Design
+    from warp_shape.display import Design
     from warp_shape.designer.initialize import initial_rest_shape
 
     names = {1: ["heart"], 4: ["oval", "heart"], 20: ["oval", "pear", "heart", "cube"]}[n_ipams]

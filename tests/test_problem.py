@@ -19,7 +19,7 @@ from warp_shape.designer.loop import apply_decision
 from warp_shape.designer.passive import PassiveSets
 from warp_shape.designer.placement import Decision, PaperPlacement, PlacementContext, planned_cells
 from warp_shape.designer.rounds import DesignRun
-from warp_shape.designer.settings import DesignSettings
+from warp_shape.designer.design_settings import DesignSettings
 
 
 def _count(monkeypatch):

@@ -74,7 +74,7 @@ def test_a_replayed_sequence_says_it_is_not_at_rest_where_it_is_not():
     import dataclasses
 
     import warp_shape as ws
-    from warp_shape.controller.replay import replay_result
+    from warp_shape.controller.open_loop import replay_result
 
     design = cube_fig6_design(subdivisions=2)
     res = ws.control(design, ws.target("oval"), method="paper", max_steps=40)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from warp_shape.gradients.replay import adjoint_argument
+from warp_shape.gradients.differentiable_replay import adjoint_argument
 from warp_shape.gradients.step_adjoints import adjoint_launch
 from warp_shape.kernels import adjoint as ka
 

@@ -22,7 +22,7 @@ from warp_shape.io.scene_schema import IPAM_ATTRIBUTES, MATERIAL_ATTRIBUTES, Sce
 from warp_shape.io.scene_write import save_scene  # noqa: E402
 from warp_shape.io.usd_animation import export_animation  # noqa: E402
 from warp_shape.scenarios import cube_fig6_design  # noqa: E402
-from warp_shape.settings import SimulationSettings  # noqa: E402
+from warp_shape.simulation_settings import SimulationSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ["cube_fig6", "oval_heart", "four_targets_5", "four_targets_20",

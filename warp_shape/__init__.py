@@ -21,7 +21,7 @@ from .calibration import CalibrationResult, ControlState, ScanObservation, calib
 from .calibration.files import apply_calibration, read_calibration, write_calibration
 from .controller import (CONTROL_METHODS, LAWS, ControlResult, ControlSettings, control, control_many,
                          register_control_method, register_law, replay)
-from .design import Cell, Design, Ipam
+from .display import Cell, Design, Ipam
 from .feel import Press, StiffnessGradient, press, stiffness_gradient, stiffness_map
 from .designer import PLACEMENTS, DesignResult, DesignSettings, Placement, design, register_placement
 from .gradients import GRADIENT_PARAMETERS, Gradient, gradient
@@ -39,7 +39,7 @@ from .mesh import TriMesh, icosphere
 from .sampling import (RadialSampler, check_star_shaped, fibonacci_directions, mare, mpre, pcc, radial_metrics,
                        radial_sample, shape_metrics)
 from .scan import ScanComparison, compare_scan, load_scan
-from .settings import SimulationSettings
+from .simulation_settings import SimulationSettings
 from .simulator import Simulator
 from .sweeps import sweep  # the package is warp_shape.sweeps; ws.sweep(...) is its function
 from .physics import FORCE_TERMS

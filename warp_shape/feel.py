@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from .controller.replay import replay_simulator
+from .controller.open_loop import replay_simulator
 from .controller.result import ControlResult
 from .errors import DesignError, SimulationError
 from .gradients.equilibrium import EquilibriumGradient

@@ -13,7 +13,7 @@ from .forces import eval_actuators, eval_hinges
 from .model import Control, Model, State
 from .physics import Launch
 from .physics.damping import eval_init_step
-from .settings import SimulationSettings
+from .simulation_settings import SimulationSettings
 
 __all__ = ["Solver", "RK4Solver", "SemiImplicitSolver", "make_solver", "blowup_error", "BlowupWatch", "INTEGRATORS",
            "BLOWUP_CODES"]

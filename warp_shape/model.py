@@ -13,7 +13,7 @@ import warp as wp
 
 from warp_shape.kernels import common as kc
 
-from .design import Design
+from .display import Design
 from .errors import DesignError
 from .material import GAS_CONSTANT
 from .force_family import families, force_families

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .design import Design
+from .display import Design
 from .errors import DesignError
 from .mesh import TriMesh
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .design import Design
+from .display import Design
 from .material import Material
 from .mesh import icosphere
 

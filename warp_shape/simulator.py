@@ -18,8 +18,8 @@ import warp as wp
 
 from warp_shape.kernels import common as kc
 
-from .design import Design
-from .equilibrium import MAX_ITERATIONS, STATUS_NAMES, Equilibrium, StaticSettle
+from .display import Design
+from .static_settle import MAX_ITERATIONS, STATUS_NAMES, Equilibrium, StaticSettle
 from .errors import DesignError, SimulationError
 from .forces import eval_forces, eval_forces_fused, force_terms
 from .integrators import BlowupWatch, blowup_error, make_solver
@@ -30,7 +30,7 @@ from .physics.ipam_law import axial_force_np, ipam_lengths_np, natural_length_np
 from .physics.jamming import eval_jam, jammed_factor_np
 from .physics.pressure import eval_volume, gas_energy_np, gauge_pressure_np, pressure_rows, volumes_np
 from .physics.springs import spring_energy_np
-from .settings import SimulationSettings
+from .simulation_settings import SimulationSettings
 from .errors import numeric_array
 from .stability import (check_chamber, check_fixed_step, check_stable_dt, check_storable, elastic_omega2_bound,
                         jam_rows, stable_dt_estimate, substeps_error, substeps_for, worlds_identical)

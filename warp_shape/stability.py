@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from .design import DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_STIFFNESS
+from .display import DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_STIFFNESS
 from .errors import DesignError, SimulationError, StabilityError
 from .force_family import ForceFamily
 from .material import GAS_CONSTANT, Material

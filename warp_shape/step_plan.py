@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from .settings import LAUNCH_MODES
+from .simulation_settings import LAUNCH_MODES
 
 __all__ = ["StepPlan", "Checkpoint", "create_overloads"]
 

@@ -4,7 +4,7 @@
 from .fit import calibrate, scan_residuals
 from .observations import ControlState, ScanObservation, Sequence
 from .parameters import BOUNDS, CALIBRATION_PARAMETERS, DEFAULT_WRT, HYPERELASTIC_WRT, apply_values, default_wrt
-from .replay import HOLD_S, replay_held
+from .held_replay import HOLD_S, replay_held
 from .result import CalibrationResult, ScanResidual
 
 __all__ = ["calibrate", "scan_residuals", "ControlState", "ScanObservation", "Sequence", "BOUNDS",

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError, read_input_file
 from ..io.atomic import atomic_write, write_json
 from ..material import GAS_CONSTANT
-from ..settings import SimulationSettings
+from ..simulation_settings import SimulationSettings
 from .observations import ControlState, ScanObservation, Sequence
 from .parameters import BOUNDS, CALIBRATION_PARAMETERS, RELATIVE_BOUND, apply_values, check_wrt
 from .regions import region_faces

@@ -13,13 +13,13 @@ import warnings
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError, ShapeError
 from ..scan import ICP_POINTS, IcpConvergenceWarning, closest_points_query, compare_scan, icp
 from .observations import ScanObservation
 from .parameters import ParameterSet, check_wrt, default_wrt
 from .regions import region_faces
-from .replay import HOLD_S, replay_held
+from .held_replay import HOLD_S, replay_held
 from .result import CalibrationResult, ScanResidual
 
 __all__ = ["calibrate", "scan_residuals", "FIT_POINTS", "MIN_COVERAGE", "MAX_MEDIAN_DISTANCE", "FLAG_Z"]

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..controller.replay import control_schedule
+from ..controller.open_loop import control_schedule
 from ..controller.result import ControlResult
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError, ShapeError
 from ..model import host_model
 from ..scan import LENGTH_UNITS, check_scan_spread, length_unit_of, load_scan
-from ..settings import SimulationSettings
+from ..simulation_settings import SimulationSettings
 
 __all__ = ["ControlState", "Sequence", "ScanObservation", "RAMP_S", "MIN_SCAN_POINTS"]
 

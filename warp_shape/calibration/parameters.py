@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from .regions import face_scale
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..molds import seat_place
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 
 __all__ = ["CalibrationResult", "ScanResidual"]
 

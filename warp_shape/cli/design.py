@@ -18,7 +18,7 @@ from dataclasses import replace
 from ..calibration.files import ipam_values, material_values, read_calibration
 from ..controller.shard import worker_pool
 from ..designer import PLACEMENTS, design
-from ..designer.settings import CODESIGN_MODES
+from ..designer.design_settings import CODESIGN_MODES
 from ..designer.run_settings import RunSettings
 from ..errors import DesignError
 from ..feel import feel_map, pressable_directions

@@ -21,9 +21,9 @@ from .history import HISTORY_COLUMNS
 from .laws import LAWS, Controls, LawStep, PaperLaw
 from .methods import CONTROL_METHODS, control, control_many, register_control_method, register_law, screen_many
 from .observe import Observation, Observer
-from .replay import replay
+from .open_loop import replay
 from .result import ControlResult, ScreenResult
-from .settings import ControlSettings
+from .control_settings import ControlSettings
 
 __all__ = ["ControlSettings", "ControlResult", "ScreenResult", "control", "control_many", "screen_many", "cell_anchor_faces", "Controls",
            "LawStep", "PaperLaw", "LAWS", "CONTROL_METHODS", "register_control_method", "register_law", "Observation",

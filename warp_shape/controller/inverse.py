@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..model import HostModel, host_model
 from ..sampling import RadialSampler
 from .explore import Explorer
@@ -34,7 +34,7 @@ from .plans import parse_plans, plan_starts, plan_trajectory
 from .problem import as_problem
 from .refine import STOP_LIMIT, Refined, refine, uses_adjoint
 from .result import ControlResult, ScreenResult
-from .settings import ControlSettings
+from .control_settings import ControlSettings
 from .worlds import mask_passive, passive_masks
 
 __all__ = ["control_inverse", "predict_inverse", "PLANS_REFINED"]

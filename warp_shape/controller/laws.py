@@ -19,7 +19,7 @@ import numpy as np
 
 from ..model import HostModel
 from .observe import Observation, ipam_neutral_pressures
-from .settings import LAWS, ControlSettings
+from .control_settings import LAWS, ControlSettings
 
 __all__ = ["Controls", "LawStep", "PaperLaw", "LAWS", "hold_neutral"]
 

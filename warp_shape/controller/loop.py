@@ -8,17 +8,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..model import HostModel
-from ..settings import SimulationSettings
+from ..simulation_settings import SimulationSettings
 from .history import History
 from .laws import Controls, PaperLaw, hold_neutral
 from .observe import Observation, Observer
 from .problem import as_problem
 from .result import ControlResult
-from .settings import ControlSettings
+from .control_settings import ControlSettings
 from .worlds import mask_passive
 
 __all__ = ["run_law", "SETTLE_PHASE"]
@@ -227,7 +227,7 @@ def run_law(design: Design, targets: list[TriMesh], law, *, device: str, setting
     """Drive ``design`` to every (centred) target at once with the control law ``law`` (a class of
     ``LAWS``), one simulated world per target; the arguments are those of ``control_many``.
     Returns the results, and with ``keep_simulator`` also the simulator at the end of the run (every
-    world where ``controller.replay.replay_simulator`` of the results puts it, bit for bit)."""
+    world where ``controller.open_loop.replay_simulator`` of the results puts it, bit for bit)."""
     W = len(targets)
     names = list(target_names) if target_names is not None else [f"target{j}" for j in range(W)]
     problem = as_problem(targets, names, device=device, centre=False)

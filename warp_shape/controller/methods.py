@@ -11,16 +11,16 @@ law and the method that runs it; ``register_control_method`` any other method.
 
 from __future__ import annotations
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
-from ..settings import settings_or_default
+from ..simulation_settings import settings_or_default
 from .inverse import control_inverse, predict_inverse
 from .laws import PaperLaw
 from .loop import run_law
 from .problem import as_problem
 from .result import ControlResult, ScreenResult
-from .settings import CONTROL_METHODS, LAWS, ControlSettings
+from .control_settings import CONTROL_METHODS, LAWS, ControlSettings
 from .shard import control_sharded, run_method, shard_modules, worker_pool
 
 __all__ = ["LawMethod", "InverseMethod", "register_law", "register_control_method", "control_many", "control",

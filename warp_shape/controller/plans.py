@@ -27,7 +27,7 @@ from ..errors import DesignError
 from .history import History
 from .laws import Controls
 from .observe import Observer
-from .replay import replay_simulator
+from .open_loop import replay_simulator
 from .trajectory import Trajectory
 
 __all__ = ["parse_plans", "start_plan", "PlanStart", "plan_starts", "plan_trajectory", "PLAN_HELP"]

@@ -32,7 +32,7 @@ from ..gradients.equilibrium import EquilibriumGradient
 from ..objectives.radial import SCALED_RADIAL, fit_objective_and_gradient
 from .explore import Explorer
 from .gauss_newton import bounded_step
-from .settings import GRADIENTS
+from .control_settings import GRADIENTS
 
 __all__ = ["Refined", "refine", "AIR_STEP", "PRESSURE_STEP", "PRESSURE_SCALE", "STEP_LENGTHS", "GRADIENTS",
            "ADJOINT_FROM"]

@@ -6,9 +6,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..mesh import TriMesh
-from .settings import ControlSettings
+from .control_settings import ControlSettings
 
 __all__ = ["ControlResult", "ScreenResult", "screened"]
 

@@ -42,7 +42,7 @@ from ..mesh import TriMesh
 from ..registry import load_plugins
 from .problem import Problem
 from .result import screened
-from .settings import CONTROL_METHODS, LAWS
+from .control_settings import CONTROL_METHODS, LAWS
 
 __all__ = ["WorkerPool", "WorkerError", "worker_pool", "current_pool", "run_jobs", "resolve_workers", "available_cores",
            "control_sharded", "run_method", "shard_modules", "WORKERS_VARIABLE", "MAX_WORKERS", "in_worker", "check_workers"]

@@ -5,7 +5,7 @@ controls to new values within the rate limits (``air_rate`` of the rest air and 
 per control step), holds them until the membrane is at rest (largest vertex speed below the
 settings' ``settle_speed``, at most ``max_settle_steps`` control steps) and jams cells. Every control step is
 recorded as a history row (``controller.history``) with phase ``PHASE_PLANNED``, so the record stays a
-sequence a valve controller can replay (``controller.replay``). Passive IPAMs are held neutral and
+sequence a valve controller can replay (``controller.open_loop``). Passive IPAMs are held neutral and
 passive cells never jam, as in the control loop.
 """
 
@@ -17,7 +17,7 @@ from ..model import HostModel
 from .history import History
 from .laws import Controls
 from .observe import Observation, Observer, ipam_neutral_pressures
-from .settings import ControlSettings
+from .control_settings import ControlSettings
 
 __all__ = ["Trajectory", "PHASE_PLANNED"]
 

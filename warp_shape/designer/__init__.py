@@ -36,7 +36,7 @@ from .greedy import GreedyPlacement, greedy_placement
 from .result import DesignResult
 from .rounds import DesignRun
 from .passive import PassiveSets, passive_from_settings, passive_to_settings
-from .settings import DesignSettings
+from .design_settings import DesignSettings
 
 __all__ = ["DesignSettings", "DesignResult", "design", "initial_rest_shape", "copy_design", "passive_to_settings",
            "passive_from_settings", "PlacementContext", "paper_placement", "PLACEMENTS", "PassiveSets",

@@ -23,14 +23,14 @@ import numpy as np
 
 from ..controller import ControlSettings, control_many
 from ..controller.problem import as_problem, take
-from ..controller.replay import replay_result
+from ..controller.open_loop import replay_result
 from ..controller.shard import available_cores, run_jobs
-from ..design import Design
+from ..display import Design
 from ..gradients.api import replay_gradient
-from ..gradients.replay import plan_replay
+from ..gradients.differentiable_replay import plan_replay
 from ..mesh import TriMesh
 from ..objectives.radial import fit_objective_and_gradient
-from .settings import CODESIGN_MODES
+from .design_settings import CODESIGN_MODES
 
 __all__ = ["CODESIGN_MODES", "CodesignSettings", "CodesignProblem", "codesign", "radial_modes", "min_norm_direction",
            "first_length", "volume_gradient", "replayed", "replayed_objectives", "round_end"]

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..controller import CONTROL_METHODS, control_many
 from ..controller.problem import take
-from ..design import Design
+from ..display import Design
 from .initialize import copy_design
 from .placement import (Decision, Placement, PlacementContext, add_actuator_set, candidate_ends, end_angle_deg,
                         free_faces, planned_cells, register_placement, scaled_errors)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..controller.checks import target_labels

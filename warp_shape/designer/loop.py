@@ -8,19 +8,19 @@ import numpy as np
 from ..controller import ControlSettings, control_many
 from ..controller.shard import worker_pool
 from ..controller.checks import check_target_units
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..material import Material
 from ..mesh import TriMesh
 from ..sampling import RadialSampler, pcc
-from ..settings import settings_or_default
+from ..simulation_settings import settings_or_default
 from .codesign import CodesignRecord, CodesignSettings, codesign
 from .initialize import check_cell_room, check_request, check_targets, copy_design, initial_rest_shape
 from .placement import Decision, PlacementContext, add_actuator_set, check_record
 from .result import DesignResult
 from .rounds import DesignRun
 from .passive import PassiveSets
-from .settings import DEFAULT_ACTUATORS, PLACEMENTS, DesignSettings, round_control_settings
+from .design_settings import DEFAULT_ACTUATORS, PLACEMENTS, DesignSettings, round_control_settings
 
 __all__ = ["design", "apply_decision"]
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from ..controller import control_many, screen_many
 from ..controller.problem import take
-from ..design import Design
+from ..display import Design
 from .placement import Decision, PaperPlacement, register_placement
 from .passive import PassiveSets
 

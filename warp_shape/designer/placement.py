@@ -33,11 +33,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..objectives.radial import SCALED_RADIAL
 from ..sampling import RadialSampler
-from .settings import PLACEMENTS, DesignSettings
+from .design_settings import PLACEMENTS, DesignSettings
 
 __all__ = ["Decision", "planned_cells", "PlacementContext", "scaled_errors", "free_faces", "rest_directions", "other_end", "paper_ends",
            "cell_faces", "add_actuator_set", "paper_placement", "end_angle_deg", "candidate_ends", "PLACEMENTS",

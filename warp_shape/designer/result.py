@@ -7,9 +7,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..controller import ControlResult, ControlSettings
-from ..design import Design
+from ..display import Design
 from .passive import passive_to_settings
-from .settings import DesignSettings
+from .design_settings import DesignSettings
 
 __all__ = ["DesignResult"]
 

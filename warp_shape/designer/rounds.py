@@ -7,10 +7,10 @@ from dataclasses import dataclass, field
 
 from ..controller import ControlSettings
 from ..controller.problem import Problem
-from ..design import Design
+from ..display import Design
 from .placement import PlacementContext
 from .passive import PassiveSets
-from .settings import DesignSettings
+from .design_settings import DesignSettings
 
 __all__ = ["DesignRun"]
 

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from ..controller import ControlSettings
 from ..errors import DesignError
 from ..material import Material
-from ..settings import SimulationSettings
+from ..simulation_settings import SimulationSettings
 from .passive import PASSIVE_PREFIXES
-from .settings import DEFAULT_ACTUATORS, DesignSettings
+from .design_settings import DEFAULT_ACTUATORS, DesignSettings
 
 __all__ = ["RunSettings", "designer_fields"]
 _PAIR_FIELDS = ("ipam_pressure_limits",)  # tuples, stored as "lo hi" strings (scene settings are scalars)

@@ -2,6 +2,6 @@
 (docs/gradients.md)."""
 
 from .api import GRADIENT_PARAMETERS, Gradient, gradient
-from .replay import DifferentiableReplay, ReplayGradient, ReplayPlan
+from .differentiable_replay import DifferentiableReplay, ReplayGradient, ReplayPlan
 
 __all__ = ["gradient", "Gradient", "GRADIENT_PARAMETERS", "DifferentiableReplay", "ReplayGradient", "ReplayPlan"]

@@ -7,14 +7,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..controller.result import ControlResult
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..mesh import TriMesh
 from ..model import PRECISIONS, model_families
 from ..objectives.radial import fit_objective_and_gradient
 from ..sampling import RadialSampler
 from .families import check_adjoints, family_parameters
-from .replay import DifferentiableReplay
+from .differentiable_replay import DifferentiableReplay
 
 __all__ = ["gradient", "replay_gradient", "Gradient", "GRADIENT_PARAMETERS", "gradient_parameters"]
 

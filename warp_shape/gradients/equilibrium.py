@@ -26,7 +26,7 @@ from warp_shape.kernels import adjoint as ka
 
 from ..errors import DesignError
 from .families import ReplayFamilies
-from .replay import adjoint_argument, hinge_adjoint_launch
+from .differentiable_replay import adjoint_argument, hinge_adjoint_launch
 
 __all__ = ["EquilibriumGradient", "ControlGradient", "CG_TOLERANCE", "CG_MAX_ITERATIONS"]
 

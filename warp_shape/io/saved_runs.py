@@ -2,7 +2,7 @@
 the scene's design: ``export`` writes the design's own sequences again (valve files, USD, figures)
 instead of controlling anew, which can land elsewhere (another objective, other final pressures).
 
-The replay is open loop (``controller.replay.replay_result``): the same controls and jam events on
+The replay is open loop (``controller.open_loop.replay_result``): the same controls and jam events on
 the same design and simulation settings give the same membrane (bit for bit on the CPU for a
 single-target run; a batch's worlds can take other internal steps, within float rounding). The fit
 of the replay is compared with the saved one; a replay off by more than ``SAME_OBJECTIVE`` (relative)
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..controller.replay import replay_result
+from ..controller.open_loop import replay_result
 from ..controller.result import ControlResult
 
 __all__ = ["SAME_OBJECTIVE", "saved_result", "replayed_saved_results"]

@@ -16,11 +16,11 @@ import numpy as np
 from ..force_family import families
 from ..designer import DesignSettings
 from ..designer.run_settings import designer_fields
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError, MeshError, SceneError, read_input_file
 from ..material import Material
 from ..mesh import TriMesh
-from ..settings import SimulationSettings
+from ..simulation_settings import SimulationSettings
 from .scene_registry import resolve_scene
 from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, MATERIAL_ATTRIBUTES,
                            MEMBRANE, NS, REST_POINTS, ROOT_NAME, SCENE_FORMAT_VERSION, SETTINGS, TARGET_POINTS,

@@ -14,12 +14,12 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from ..force_family import SCENE_NAMESPACE, SceneAttribute
-from ..design import Design
+from ..display import Design
 from ..errors import SceneError
 from ..material import Material
 from ..mesh import TriMesh, icosphere, icosphere_like
 from ..physics.ipam import IPAM, IPAM_ATTRIBUTES
-from ..settings import SimulationSettings
+from ..simulation_settings import SimulationSettings
 from ..targets import is_identifier
 
 __all__ = ["Scene", "SceneAttribute", "MATERIAL_ATTRIBUTES", "IPAM_ATTRIBUTES", "SCENE_FORMAT_VERSION",

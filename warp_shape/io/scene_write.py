@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..force_family import families
-from ..design import Design
+from ..display import Design
 from ..errors import SceneError
 from .atomic import atomic_target
 from .scene_schema import (CELL_FAMILY, FORMAT_VERSION_ATTRIBUTE, MATERIAL_ATTRIBUTES, MEMBRANE, NS, REST_POINTS,

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..force_family import families
-from ..design import Design
+from ..display import Design
 from ..errors import SceneError
 from .scene_schema import IPAMS, MEMBRANE, NS, ROOT_NAME, Scene
 from .scene_write import build_stage, write_stage_atomic

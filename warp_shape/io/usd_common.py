@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import SceneError
 from ..interrupts import held_interrupts
 from .scene_schema import SCENE_EXTENSIONS

@@ -138,7 +138,7 @@ SETTLE_WORLDS = 64
 def _jammed_at_their_frames(sim, history: dict, frames: np.ndarray, rows: range, n_cell: int) -> None:
     """Jam the cells of the worlds of control steps ``rows`` (one world each) as the run did: cell j
     where the step's row shows it jammed, its jam taken at the frame of the control step before the
-    first row showing it (when the run jammed it, ``controller.replay``)."""
+    first row showing it (when the run jammed it, ``controller.open_loop``)."""
     for j in range(n_cell):
         col = np.asarray(history[f"cell{j}_jammed"]).astype(bool)
         if not col[rows.start:rows.stop].any():

@@ -22,7 +22,7 @@ from ..errors import WarpShapeError
 from ..limits import (MAX_ACTUATORS, MAX_CANDIDATES, MAX_CONTROL_PERIOD, MAX_CONTROL_STEPS, MAX_INVERSE_ITERATIONS,
                       MAX_REFINE_ROUNDS, MAX_SUBDIVISIONS, MAX_SUBSTEPS)
 from ..material import Material
-from ..settings import SimulationSettings
+from ..simulation_settings import SimulationSettings
 
 __all__ = ["SweepError", "Param", "GROUPS", "SPECIAL", "SIZE_BOUNDS", "known_params", "resolve_param", "parse_param",
            "parse_value", "check_values", "split_params"]

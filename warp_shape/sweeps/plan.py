@@ -12,7 +12,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 
-from ..designer.settings import DEFAULT_ACTUATORS
+from ..designer.design_settings import DEFAULT_ACTUATORS
 from ..io.scene_read import load_scene
 from ..mesh import TriMesh, icosphere_like
 from ..targets import load_target

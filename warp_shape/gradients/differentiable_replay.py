@@ -1,6 +1,6 @@
 """The differentiable replay: a control result's sequence replayed open loop, and its adjoint.
 
-The forward replay is ``controller.replay``'s, on the simulator's own fused step; it fixes the
+The forward replay is ``controller.open_loop``'s, on the simulator's own fused step; it fixes the
 schedule (the internal step of every output step, the jam events) and keeps checkpoints every
 ``segment`` internal steps at most. The adjoint runs backwards over segments: each is recomputed from
 its checkpoint with the backward-enabled kernels (``kernels/adjoint.py``), every internal step's
@@ -23,10 +23,10 @@ import warp as wp
 
 from warp_shape.kernels import adjoint as ka
 
-from ..controller.replay import control_schedule, family_schedule
+from ..controller.open_loop import control_schedule, family_schedule
 from ..controller.shard import available_cores, in_worker
 from ..controller.worlds import mask_passive, passive_masks
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..model import PRECISIONS, host_model
 from ..simulator import Simulator

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..controller.replay import drive_schedules
+from ..controller.open_loop import drive_schedules
 from ..controller.worlds import mask_passive, max_speeds
-from ..design import Design
+from ..display import Design
 from ..simulator import Simulator
 from .observations import Sequence
 

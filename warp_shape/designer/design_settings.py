@@ -6,10 +6,10 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from ..design import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS
+from ..display import DEFAULT_IPAM_AREA, DEFAULT_IPAM_DAMPING, DEFAULT_IPAM_PRESSURE_LIMITS, DEFAULT_IPAM_STIFFNESS
 from ..errors import DesignError
 from ..registry import Registry
-from ..settings import check_field_types, replace_settings
+from ..simulation_settings import check_field_types, replace_settings
 
 __all__ = ["DesignSettings", "ROUND_CONTROLS", "round_control_settings", "PLACEMENTS", "DEFAULT_ACTUATORS",
            "CODESIGN_MODES"]

@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from ..design import Design
+from ..display import Design
 from ..errors import DesignError
 from ..sampling import RadialSampler
 from ..simulator import Simulator

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, fields
 
 from ..errors import DesignError
 from ..registry import Registry
-from ..settings import SimulationSettings, check_field_types, replace_settings
+from ..simulation_settings import SimulationSettings, check_field_types, replace_settings
 
 __all__ = ["ControlSettings", "CONTROL_METHODS", "LAWS", "GRADIENTS"]
 
@@ -74,7 +74,7 @@ class ControlSettings:
             raise DesignError(f"ControlSettings.max_settle_steps must be >= 0 (0: never hold to settle), "
                               f"got {self.max_settle_steps}")
         if not isinstance(self.simulation, SimulationSettings):
-            raise DesignError(f"ControlSettings.simulation must be a SimulationSettings (warp_shape.settings), "
+            raise DesignError(f"ControlSettings.simulation must be a SimulationSettings (warp_shape.simulation_settings), "
                               f"got {type(self.simulation).__name__}")
         for name in ("volume_deadband", "length_deadband", "air_rate", "pressure_rate", "air_gain", "pressure_gain",
                      "gain_backoff", "min_gain", "settle_speed", "max_stretch"):
