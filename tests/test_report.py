@@ -117,3 +117,24 @@ def test_a_finished_design_prints_a_short_verdict_table_and_where_its_outputs_ar
     names = [f"{k}_{t}.{e}" for k in ("control", "fit", "valve") for t in ("egg", "pear") for e in ("png", "csv")]
     listed = grouped_outputs(names + ["design.usda", "report.md", "mold_core_mm.stl", "mold_shell_top_mm.stl"])
     assert len(listed) <= 3 and "valve_*.csv (2)" in listed[-1] and "report.md" in "".join(listed)
+
+
+def test_the_report_names_the_membrane_law_and_its_constants():
+    """The report's first lines say which membrane law the design was made with and its constants,
+    report.json's ``membrane`` the same with units in its keys."""
+    import dataclasses
+
+    rest = cube_fig6_design(subdivisions=2).rest
+    fits = [[_result(rest, mpre=1.2, pcc=0.999), _result(rest, mpre=1.2, pcc=0.999)]] * 6
+    springs = _design_result(fits, [[0.99, 0.99]] * 6)
+    head = design_markdown(springs).split("## ")[0]
+    assert "edge-spring lattice (E 69.0 kPa, t 2.00 mm" in head
+    rubber = _design_result(fits, [[0.99, 0.99]] * 6)
+    rubber.design = rubber.design.replace(material=dataclasses.replace(
+        rubber.design.material, membrane="yeoh", shear_modulus=23e3, yeoh_c2=2e3))
+    head = design_markdown(rubber).split("## ")[0]
+    assert "incompressible Yeoh sheet (mu 23.00 kPa, C2 2 kPa, C3 0 kPa, t 2.00 mm" in head
+    summary = rubber.design.material.membrane_summary()
+    assert summary["law"] == "yeoh" and summary["shear_modulus_pa"] == 23e3 and summary["yeoh_c2_pa"] == 2e3
+    assert all(k in ("law", "compression") or k.rsplit("_", 1)[-1] in ("m", "pa", "rad")
+               for k in summary), summary

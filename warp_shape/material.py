@@ -130,6 +130,30 @@ class Material:
         """The shear modulus mu in Pa in effect: ``shear_modulus``, or E / 3 when None."""
         return self.youngs_modulus / 3.0 if self.shear_modulus is None else self.shear_modulus
 
+    def membrane_summary(self) -> dict:
+        """The membrane law and the constants it reads, keys with their units (a report's ``membrane``)."""
+        out = {"law": self.membrane, "thickness_m": self.thickness}
+        if self.hyperelastic:
+            out.update(shear_modulus_pa=self.mu, compression=self.compression,
+                       plate_stiffness_n_m=self.plate_stiffness)
+            if self.membrane == "yeoh":
+                out.update(yeoh_c2_pa=self.yeoh_c2, yeoh_c3_pa=self.yeoh_c3)
+        else:
+            out.update(youngs_modulus_pa=self.youngs_modulus, bending_stiffness_n_m_per_rad=self.bending_stiffness)
+        return out
+
+    def membrane_line(self) -> str:
+        """One line naming the membrane law and its constants (mm, kPa), for reports."""
+        t = f"t {self.thickness * 1e3:.2f} mm"
+        if not self.hyperelastic:
+            return (f"Membrane: the paper's edge-spring lattice (E {self.youngs_modulus / 1e3:.1f} kPa, {t}, "
+                    f"bending {self.bending_stiffness:.3g} N m/rad on every hinge).")
+        law = "neo-Hookean" if self.membrane == "neo_hookean" else "Yeoh"
+        yeoh = (f", C2 {self.yeoh_c2 / 1e3:.3g} kPa, C3 {self.yeoh_c3 / 1e3:.3g} kPa"
+                if self.membrane == "yeoh" else "")
+        return (f"Membrane: a thin incompressible {law} sheet (mu {self.mu / 1e3:.2f} kPa{yeoh}, {t}, plate "
+                f"bending {self.plate_stiffness:.3g} N m; in compression: {self.compression.replace('_', ' ')}).")
+
     @property
     def yeoh_constants(self) -> tuple:
         """(C1, C2, C3) in Pa of the hyperelastic law (C1 = mu / 2)."""

@@ -53,7 +53,7 @@ class DesignResult:
         return dict(
             targets=self.target_names,
             actuators=self.design.n_ipams, cells=self.design.n_cells,
-            vertices=self.design.rest.n_vertices,
+            vertices=self.design.rest.n_vertices, membrane=self.design.material.membrane_summary(),
             pcc_by_round=self.pcc_by_round.tolist(),
             objective_by_round=self.objective_by_round.tolist(),
             mare_by_round=[[r.mare for r in rs] for rs in self.rounds],

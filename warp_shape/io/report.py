@@ -391,7 +391,8 @@ def design_markdown(result, figures=()) -> str:
     d = result.design
     lines = [f"# Design report: {', '.join(result.target_names)}", "",
              f"{d.n_ipams} IPAMs, {d.n_cells} jamming cells, "
-             f"{d.rest.n_vertices}-vertex membrane (rest volume {d.rest.volume() * 1e6:.1f} cm^3).", ""]
+             f"{d.rest.n_vertices}-vertex membrane (rest volume {d.rest.volume() * 1e6:.1f} cm^3). "
+             + d.material.membrane_line(), ""]
     shown = figures_section(result, figures)
     lines += _achieved(result) + [""] + (shown + [""] if shown else []) + _pcc_table(result) + [""] + _added_table(result) + [""] \
         + _placement_section(result) + _codesign_section(result) + [""] + _fit_table(result) + [""] \
