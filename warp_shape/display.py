@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import DesignError, check_number
+from .limits import MAX_IPAMS
 from .material import Material
 from .mesh import TriMesh
 from .physics.ipam_law import natural_length_np, pressure_for_length_np
@@ -21,8 +22,6 @@ DEFAULT_IPAM_STIFFNESS = 50.0  # N/m
 DEFAULT_IPAM_AREA = 1.5e-5  # m^2
 DEFAULT_IPAM_DAMPING = 5.0e-3  # N s/m per sub-spring
 DEFAULT_IPAM_PRESSURE_LIMITS = (-50.0e3, 300.0e3)  # Pa gauge
-#: the most IPAMs a design holds (the paper's displays have 4-20; each adds controller worlds and steps)
-MAX_IPAMS = 1000
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,11 @@ are held to them before any work.
 from __future__ import annotations
 
 __all__ = ["MAX_ACTUATORS", "MAX_CANDIDATES", "MAX_REFINE_ROUNDS", "MAX_CONTROL_STEPS", "MAX_SIM_STEPS",
-           "MAX_WORLDS", "MAX_SUBDIVISIONS", "MAX_CONTROL_PERIOD", "MAX_INVERSE_ITERATIONS", "MAX_SUBSTEPS"]
+           "MAX_WORLDS", "MAX_SUBDIVISIONS", "MAX_CONTROL_PERIOD", "MAX_INVERSE_ITERATIONS", "MAX_SUBSTEPS",
+           "MAX_IPAMS"]
 
+#: the most IPAMs a design holds (the paper's displays have 4-20; each adds controller worlds and steps)
+MAX_IPAMS = 1000
 MAX_ACTUATORS = 500  # IPAMs placed (the shipped problems place 4..20)
 MAX_CANDIDATES = 256  # holds or candidate sets per round, each a world of one batch
 MAX_REFINE_ROUNDS = 50

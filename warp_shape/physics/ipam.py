@@ -15,7 +15,7 @@ from warp_shape.kernels import adjoint as ka
 from warp_shape.kernels import ipam as kip
 
 from ..force_family import ACTUATOR_FAMILIES, SCENE_NAMESPACE as NS, ActuatorFamily, SceneAttribute
-from ..display import MAX_IPAMS
+from ..limits import MAX_IPAMS
 from .ipam_law import axial_force_np, centroid_distances_np, natural_length_np, pressure_for_length_np
 from .springs import spring_rows_np
 
