@@ -684,6 +684,7 @@ def bounded_flags() -> list:
         for dest, (flag, lo, hi, _zero) in (parser.get_default("flag_bounds") or {}).items():
             kind = next(a.type for a in parser._actions if a.dest == dest)
             needs = {"export": ["out/design.usda"], "compare": ["scan.ply", "--to", "oval"],
+                     "calibrate": ["manifest.json", "--design", "out/design.usda"],
                      "grid": ["--param", "actuators=5"]}
             rows.append(([*prefix, *needs.get(prefix[-1], [])], flag, lo, hi, kind is int))
 

@@ -15,6 +15,7 @@ import pytest
 
 import warp_shape as ws
 from warp_shape.cli import main
+from warp_shape.cli.progress import without_progress
 
 ROOT = Path(__file__).resolve().parents[1]
 R = 0.04
@@ -23,7 +24,7 @@ R = 0.04
 def error_of(capsys, argv) -> str:
     """The one line of error a command ends with (exit status 2)."""
     assert main(argv) == 2, argv
-    err = capsys.readouterr().err
+    err = without_progress(capsys.readouterr().err)  # a log's progress lines, then the error
     assert re.match(r"warp-shape( compare)?: error: ", err) and "Traceback" not in err and err.count("\n") == 1, err
     return err
 
