@@ -31,9 +31,9 @@ install: $(STAMP)
 # the suite's files shared out over a pytest process per core (pytest-xdist; at most 4, tests/conftest.py),
 # each file's tests in one process, as its module fixtures are; `pytest -q` alone runs them one by one.
 # -rs lists every skipped test with its reason (no GPU, no display, ...); --durations=5 the slowest.
-# About 10 minutes on a quiet 2-core machine, much longer on a busy one (README, *How long things take*).
+# About 13 minutes on a quiet 2-core machine, much longer on a busy one (README, *How long things take*).
 test: $(STAMP)
-	@echo "make test: the whole suite, about 10 minutes on 2 free cores (longer on a busy machine)"
+	@echo "make test: the whole suite, about 13 minutes on 2 free cores (longer on a busy machine)"
 	$(BIN)/python -m pytest -q -rs --durations=5 -n auto --dist loadfile
 
 demo: $(DEMO_STAMP)
