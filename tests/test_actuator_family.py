@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import warp_shape as ws
+from energy_check import assert_force_is_minus_energy_gradient
 from toy_family import TENDON, add_tendon
 from warp_shape.force_family import ACTUATOR_FAMILIES
 from warp_shape.errors import DesignError
@@ -44,16 +45,7 @@ def test_tendon_force_is_minus_the_gradient_of_its_energy():
     sim.positions = x0
     force = sim.forces("tendon")
     assert np.abs(force[a]).max() > 1e-2  # a stretched tendon pulls
-    h = 1e-7
-    for v in (a, b):
-        for c in range(3):
-            e = []
-            for s in (1, -1):
-                x = x0.copy()
-                x[v, c] += s * h
-                sim.positions = x
-                e.append(sim.energy()["tendon"])
-            assert force[v, c] == pytest.approx(-(e[0] - e[1]) / (2 * h), rel=1e-5, abs=1e-9)
+    assert_force_is_minus_energy_gradient(sim, "tendon", x0, (a, b))
     others = np.delete(np.arange(design.rest.n_vertices), [a, b])
     assert np.all(force[others] == 0)
     assert np.allclose(force[a], -force[b])

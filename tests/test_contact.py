@@ -10,6 +10,7 @@ import pytest
 import warp as wp
 
 import warp_shape as ws
+from energy_check import assert_force_is_minus_energy_gradient
 from warp_shape.physics.contact import add_hold, add_indenter
 
 
@@ -52,16 +53,7 @@ def test_contact_forces_are_minus_the_gradients_of_their_energies(family):
     if family == "indenter":  # the spheres over a face and an edge push on its three and its two vertices
         assert len(touched) == 2 + 3 + 2
     assert sim.energy()[family] > 0
-    h = 1e-7
-    for v in touched:
-        for c in range(3):
-            e = []
-            for s in (1, -1):
-                x = x0.copy()
-                x[v, c] += s * h
-                sim.positions = x
-                e.append(sim.energy()[family])
-            assert force[v, c] == pytest.approx(-(e[0] - e[1]) / (2 * h), rel=1e-5, abs=1e-7)
+    assert_force_is_minus_energy_gradient(sim, family, x0, touched, abs_tol=1e-7)
     if family == "indenter":  # the sphere pushes its vertex down, the plate its vertex up
         assert force[top, 2] < -10.0 and force[bottom, 2] > 5.0
         sim.positions = x0

@@ -18,6 +18,7 @@ import pytest
 
 import warp_shape as ws
 from anchor_family import ANCHOR, AnchorFamily, add_anchor
+from energy_check import assert_force_is_minus_energy_gradient
 from generated_shapes import shape
 from toy_family import TENDON, add_tendon
 from warp_shape.errors import DesignError
@@ -82,16 +83,7 @@ def test_a_passive_family_from_outside_steps_settles_and_reads_out():
     sim.positions = x0
     force = sim.forces("anchor")
     assert np.count_nonzero(np.abs(force).sum(1)) == 2 and np.abs(force[top]).max() > 0.1
-    for v in (top, side):
-        for c in range(3):
-            e = []
-            for s in (1.0, -1.0):
-                x = x0.copy()
-                x[v, c] += s * 1e-7
-                sim.positions = x
-                e.append(sim.energy()["anchor"])
-            assert force[v, c] == pytest.approx(-(e[0] - e[1]) / 2e-7, rel=1e-5, abs=1e-9)
-    sim.positions = x0
+    assert_force_is_minus_energy_gradient(sim, "anchor", x0, (top, side))
     assert sim.energy()["total"] == pytest.approx(sum(v for k, v in sim.energy().items() if k != "total"))
     with pytest.raises(DesignError, match="passive"):
         sim.set_actuator_controls("anchor", [0.0])
