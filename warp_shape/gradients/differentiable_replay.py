@@ -557,7 +557,7 @@ class DifferentiableReplay:
         """The edge fields and the families' jam fields of jam phase ``phase`` into ``lane``."""
         if lane.loaded[0] != phase:
             self._set(lane.edge, self.plan.edges[phase].reshape(4, 1, -1))
-            _set_fields(lane.jam, self.plan.family_jams[phase])
+            ReplayFamilies.set_jam(lane.jam, self.plan.family_jams[phase])
             lane.loaded[0] = phase
 
     def _jam_launches(self) -> list:
@@ -584,7 +584,7 @@ class DifferentiableReplay:
         self._jam_mask(event)
         self._set(self.edge_before, p.edges[event].reshape(4, 1, -1))
         self._set(self.xv_jam, p.jam_states[event].reshape(2, 1, -1, 3))
-        _set_fields(self.fam_before, p.family_jams[event])
+        ReplayFamilies.set_jam(self.fam_before, p.family_jams[event])
         launch = self._jam_launches()
         self._run(launch)
         wp.copy(self.edge_after.grad, lane.edge.grad)
@@ -724,7 +724,7 @@ class DifferentiableReplay:
         b = self.single
         wp.copy(b.xv_out, self.xv0)
         wp.copy(lane.edge, self.edge0)
-        _set_fields(lane.jam, p.family_jams[0])
+        ReplayFamilies.set_jam(lane.jam, p.family_jams[0])
         events = {s: j for j, s in enumerate(p.jam_steps)}
         for k in range(p.n_steps):
             if k in events:
@@ -782,13 +782,6 @@ class _Worker(threading.Thread):
         super().join(timeout)
         if self.error is not None:
             raise self.error
-
-
-def _set_fields(fields: dict, values: dict) -> None:
-    """{family: {field: array}} set from host copies of the same layout."""
-    for name, arrays in fields.items():
-        for k, a in arrays.items():
-            a.assign(np.asarray(values[name][k]).astype(a.numpy().dtype).reshape(a.shape))
 
 
 def _copy_fields(dst: dict, src: dict, grad: bool = False) -> None:

@@ -105,19 +105,10 @@ class EquilibriumGradient:
             if fam.name != "ipam":
                 given = (controls or {}).get(fam.name, fam.rest_controls(self.host.actuators[fam.name]))
                 self.controls.values[fam.name].assign(np.asarray(given, dtype=np.float64).reshape(1, -1))
-        self._load_jam(family_jam or {})
+        self.fam.set_jam(self.jam, family_jam or {})
         self._forward()
         self._rigid = _rigid_basis(x)
         self._diag = self._stiffness_diagonal(edge)
-
-    def _load_jam(self, family_jam: dict) -> None:
-        """The jamming families' fields at the point: family_jam {family: {field: array}} one world's (the
-        world axis of size 1 kept, as ``State.family_jam`` holds them), nothing jammed where not given."""
-        for name, fields in self.jam.items():
-            for k, a in fields.items():
-                given = family_jam.get(name, {}).get(k)
-                a.assign(np.zeros(a.shape, dtype=a.numpy().dtype) if given is None
-                         else np.asarray(given).astype(a.numpy().dtype).reshape(a.shape))
 
     def add_to_preconditioner(self, stiffness: np.ndarray) -> None:
         """Add a per-vertex stiffness (V,) N/m to the loaded point's preconditioner: the part of a force family

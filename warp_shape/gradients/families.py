@@ -131,6 +131,16 @@ class ReplayFamilies:
         return out
 
     @staticmethod
+    def set_jam(fields: dict, values: dict) -> None:
+        """{family: {field: array}} one world's jam fields set from host copies of the same layout (the world
+        axis of size 1 kept, as ``State.family_jam`` holds them); nothing jammed where ``values`` has none."""
+        for name, arrays in fields.items():
+            for k, a in arrays.items():
+                given = values.get(name, {}).get(k)
+                a.assign(np.zeros(a.shape, dtype=a.numpy().dtype) if given is None
+                         else np.asarray(given).astype(a.numpy().dtype).reshape(a.shape))
+
+    @staticmethod
     def jam_state(fields: dict) -> SimpleNamespace:
         """What a family's ``eval_forces`` reads of a state in the replay: one world's jam fields."""
         return SimpleNamespace(worlds=1, family_jam=fields)
