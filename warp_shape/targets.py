@@ -170,9 +170,10 @@ def target(name: str, volume: float | None = None, resolution: int = DEFAULT_RES
     return _build(key, vol, res)
 
 
-def centred_targets(targets, job: str) -> list[TriMesh]:
-    """One target or a list of them as a list of meshes centred on their volume centroids; a clear
-    error (naming ``job``, e.g. "control") for an empty list or anything that is not a TriMesh."""
+def centred_targets(targets, job: str, centre: bool = True) -> list[TriMesh]:
+    """One target or a list of them as a list of meshes centred on their volume centroids (as given, where
+    ``centre`` is False: they are centred already); a clear error (naming ``job``, e.g. "control") for an
+    empty list or anything that is not a TriMesh."""
     if isinstance(targets, TriMesh):
         targets = [targets]
     if targets is None or isinstance(targets, (str, bytes)) or not hasattr(targets, "__iter__"):
@@ -184,7 +185,7 @@ def centred_targets(targets, job: str) -> list[TriMesh]:
     for t in targets:
         if not isinstance(t, TriMesh):
             raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('heart')), got {type(t).__name__}")
-    return [t.centered() for t in targets]
+    return [t.centered() for t in targets] if centre else targets
 
 
 def write_targets(directory, *, fmt: str = "ply", resolution: int = DEFAULT_RESOLUTION) -> list[Path]:

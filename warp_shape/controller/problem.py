@@ -45,7 +45,7 @@ class Problem(Sequence):
 
     def __init__(self, targets, names=None, *, device: str = "cpu", job: str = "control", centre: bool = True,
                  labels=None):
-        meshes = centred_targets(targets, job) if centre else centred_targets_as_given(targets, job)
+        meshes = centred_targets(targets, job, centre)
         names = list(names) if names is not None else [f"target{j}" for j in range(len(meshes))]
         if len(names) != len(meshes):
             raise DesignError(f"{len(names)} target names for {len(meshes)} targets")
@@ -124,18 +124,6 @@ class Problem(Sequence):
         checks.check_targets_against_rest(rest, [self.all_targets[i] for i in todo], sampler.subset(todo),
                                           [self.labels[i] for i in todo], max_stretch=max_stretch)
         checked.update((key, i) for i in todo)
-
-
-def centred_targets_as_given(targets, job: str) -> list[TriMesh]:
-    """``targets`` (one mesh or a list of them, already centred) as a list, checked as ``centred_targets``
-    checks them."""
-    meshes = list(targets) if not isinstance(targets, TriMesh) else [targets]
-    if not meshes:
-        raise DesignError(f"{job} needs at least one target shape")
-    for t in meshes:
-        if not isinstance(t, TriMesh):
-            raise DesignError(f"targets must be ws.TriMesh (e.g. ws.target('heart')), got {type(t).__name__}")
-    return meshes
 
 
 def as_problem(targets, names=None, *, device: str = "cpu", centre: bool = True, job: str = "control") -> Problem:
